@@ -1,0 +1,24 @@
+# geomodel_ros — the two commands of the README are `make demo` and `make test`.
+# Every process started from here keeps DDS discovery on loopback.
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+export PYTHONDONTWRITEBYTECODE := 1
+
+VENV := .venv
+PY := $(VENV)/bin/python
+
+.PHONY: setup demo test bench clean
+
+setup:
+	@bash .ci/setup_env.sh
+
+demo: setup
+	$(PY) -m geomodel_ros.cli demo
+
+test: setup
+	$(PY) -m pytest -q test
+
+bench: setup
+	$(PY) -m geomodel_ros.cli bench
+
+clean:
+	rm -rf $(VENV) build install log demo_out bench_out
