@@ -1,0 +1,206 @@
+"""Working cloud and smooth faces of one object.
+
+An object's points are reduced to a voxel grid (the *working cloud*) on which normals,
+surface variation and neighbourhoods are computed once. Faces are the connected
+components of the neighbourhood graph restricted to smooth, non-edge links (region
+growing done as a graph problem with :mod:`scipy.sparse.csgraph`); edge points and
+slivers join the face of their nearest face point. Face adjacency comes from the same
+neighbourhood graph.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+__all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_working_cloud",
+           "split_faces", "faces_from_labels"]
+
+
+def voxelize(points: NDArray[np.float64], voxel_size: float,
+             groups: NDArray[np.int64] | None = None
+             ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """Average points per voxel.
+
+    Parameters
+    ----------
+    points : (N, 3) float64 array [m]
+    voxel_size : float [m]
+    groups : (N,) int array, optional
+        Points of different groups never share a voxel (e.g. face labels).
+
+    Returns
+    -------
+    centroids : (M, 3) float64 array [m]
+    inverse : (N,) int64 array
+        Voxel index of every input point.
+    counts : (M,) int64 array
+        Points per voxel.
+    """
+    keys = np.floor(points / voxel_size).astype(np.int64)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    if groups is not None:
+        g = np.asarray(groups, dtype=np.int64)
+        g = g - g.min()
+        flat = flat + (int(span.prod())) * g
+    _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    m = counts.size
+    centroids = np.empty((m, 3))
+    for axis in range(3):
+        centroids[:, axis] = np.bincount(inverse, weights=points[:, axis], minlength=m)
+    centroids /= counts[:, None]
+    return centroids, inverse, counts
+
+
+def estimate_normals(points: NDArray[np.float64], k: int,
+                     viewpoint: NDArray[np.float64] | None = None,
+                     tree: cKDTree | None = None
+                     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """PCA normals over the ``k`` nearest neighbours, oriented towards ``viewpoint``.
+
+    Returns
+    -------
+    normals : (M, 3) float64 array, unit length
+    variation : (M,) float64 array
+        Surface variation lambda_min / (lambda_1 + lambda_2 + lambda_3) in [0, 1/3].
+    neighbors : (M, k) int64 array
+        Neighbour indices (the point itself first).
+    """
+    m = len(points)
+    k = int(min(k, m))
+    tree = tree if tree is not None else cKDTree(points)
+    _, neighbors = tree.query(points, k=k, workers=-1)
+    neighbors = np.asarray(neighbors, dtype=np.int64).reshape(m, k)
+    nb = points[neighbors]
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    cov = np.einsum("mki,mkj->mij", nb, nb) / k
+    evals, evecs = np.linalg.eigh(cov)
+    normals = evecs[:, :, 0]
+    total = evals.sum(axis=1)
+    variation = np.divide(evals[:, 0], total, out=np.zeros(m), where=total > 0)
+    vp = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64)
+    flip = np.einsum("mi,mi->m", normals, points - vp) > 0
+    normals[flip] *= -1
+    return normals, variation, neighbors
+
+
+@dataclass
+class WorkingCloud:
+    """Voxel-reduced cloud of one object with normals and neighbourhoods.
+
+    Attributes
+    ----------
+    points : (M, 3) float64 [m]
+    normals : (M, 3) float64, oriented towards the sensor
+    variation : (M,) float64, surface variation
+    neighbors : (M, k) int64
+    counts : (M,) int64, input points per working point
+    point_to_working : (N,) int64, working point of each input point
+    """
+
+    points: NDArray[np.float64]
+    normals: NDArray[np.float64]
+    variation: NDArray[np.float64]
+    neighbors: NDArray[np.int64]
+    counts: NDArray[np.int64]
+    point_to_working: NDArray[np.int64]
+
+
+def build_working_cloud(points: NDArray[np.float64], voxel_size: float, k: int,
+                        groups: NDArray[np.int64] | None = None) -> WorkingCloud:
+    """Voxelize ``points`` (N, 3) [m] and estimate normals on the result."""
+    centroids, inverse, counts = voxelize(points, voxel_size, groups)
+    normals, variation, neighbors = estimate_normals(centroids, k)
+    return WorkingCloud(centroids, normals, variation, neighbors, counts, inverse)
+
+
+@dataclass
+class FaceSet:
+    """Faces of one object on its working cloud.
+
+    Attributes
+    ----------
+    labels : (M,) int64
+        Face index of every working point (0..F-1).
+    adjacency : (F, F) bool
+        True where two faces touch.
+    """
+
+    labels: NDArray[np.int64]
+    adjacency: NDArray[np.bool_]
+
+    @property
+    def count(self) -> int:
+        return int(self.adjacency.shape[0])
+
+
+def _adjacency(labels: NDArray[np.int64], neighbors: NDArray[np.int64], n_faces: int,
+               min_links: int = 2) -> NDArray[np.bool_]:
+    a = np.repeat(labels, neighbors.shape[1])
+    b = labels[neighbors.ravel()]
+    cross = a != b
+    links = np.zeros((n_faces, n_faces), dtype=np.int64)
+    np.add.at(links, (a[cross], b[cross]), 1)
+    links = links + links.T
+    return links >= min_links
+
+
+def _relabel_small(labels: NDArray[np.int64], points: NDArray[np.float64], min_size: int
+                   ) -> NDArray[np.int64]:
+    """Give points of faces smaller than ``min_size`` (and label -1) their nearest big face."""
+    ids, sizes = np.unique(labels[labels >= 0], return_counts=True)
+    big = ids[sizes >= min_size]
+    if big.size == 0:
+        return np.zeros(len(labels), dtype=np.int64)
+    keep = np.isin(labels, big)
+    out = labels.copy()
+    if not keep.all():
+        tree = cKDTree(points[keep])
+        _, j = tree.query(points[~keep], k=1, workers=-1)
+        out[~keep] = labels[keep][j]
+    _, compact = np.unique(out, return_inverse=True)
+    return compact.ravel().astype(np.int64)
+
+
+def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: float,
+                min_face_points: int) -> FaceSet:
+    """Split the working cloud into smooth faces.
+
+    Neighbouring non-edge points whose normals differ by less than ``angle_threshold``
+    [rad] are linked; faces are the connected components with at least
+    ``min_face_points`` points. Edge points (surface variation above ``edge_variation``)
+    and smaller components are assigned to the face of their nearest face point.
+    """
+    m, k = cloud.neighbors.shape
+    if m == 0:
+        return FaceSet(np.zeros(0, dtype=np.int64), np.zeros((0, 0), dtype=bool))
+    smooth = cloud.variation <= edge_variation
+    i = np.repeat(np.arange(m), k)
+    j = cloud.neighbors.ravel()
+    cos = np.abs(np.einsum("mi,mi->m", cloud.normals[i], cloud.normals[j]))
+    keep = smooth[i] & smooth[j] & (cos >= np.cos(angle_threshold)) & (i != j)
+    graph = coo_matrix((np.ones(int(keep.sum()), dtype=np.int8), (i[keep], j[keep])),
+                       shape=(m, m))
+    _, comp = connected_components(graph, directed=False)
+    comp = np.where(smooth, comp, -1).astype(np.int64)
+    labels = _relabel_small(comp, cloud.points, min_face_points)
+    n_faces = int(labels.max()) + 1 if labels.size else 0
+    return FaceSet(labels, _adjacency(labels, cloud.neighbors, n_faces))
+
+
+def faces_from_labels(cloud: WorkingCloud, point_face_labels: NDArray[np.int64]) -> FaceSet:
+    """Faces given per input point (the working cloud must be built with them as groups)."""
+    wl = np.zeros(len(cloud.points), dtype=np.int64)
+    wl[cloud.point_to_working] = point_face_labels
+    _, compact = np.unique(wl, return_inverse=True)
+    compact = compact.ravel().astype(np.int64)
+    n_faces = int(compact.max()) + 1 if compact.size else 0
+    return FaceSet(compact, _adjacency(compact, cloud.neighbors, n_faces))

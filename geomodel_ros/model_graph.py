@@ -1,0 +1,171 @@
+"""The basic geometric model graph (paper section 3.2.1, Figure 3).
+
+From the surface types of an object's faces and the relations of their normals it
+proposes the object's type, as an ordered list of candidates that RANSAC then verifies:
+
+* only planar faces: the largest face is the main matching surface. A perpendicular
+  adjacent face -> cuboid (every face must then align with one of three orthogonal
+  axes); all faces parallel and coplanar -> one plane (desk, wall, floor).
+* planar + curved faces: the largest plane is the auxiliary matching surface. Curved
+  normals perpendicular to its normal -> cylinder; at a constant other angle -> cone.
+* only curved faces: principal curvatures k1 (largest magnitude) and k2: k2 ~ 0 with k1
+  constant -> cylinder, k2 ~ 0 with k1 varying -> cone, k1 ~ k2 -> sphere.
+
+An object no rule accepts gets no candidate and becomes ``unknown``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["FaceInfo", "GraphDecision", "decide_type"]
+
+
+@dataclass(frozen=True)
+class FaceInfo:
+    """What the model graph needs to know about a face.
+
+    Attributes
+    ----------
+    planar : bool
+    normal : (3,) float64, unit (plane normal for planar faces, mean normal otherwise)
+    offset : float [m], plane offset d of n . x + d = 0 (planar faces)
+    size : int, working points on the face (a proxy for its visible area)
+    point_normals : (m, 3) float64, normals of the face's working points
+    """
+
+    planar: bool
+    normal: NDArray[np.float64]
+    offset: float
+    size: int
+    point_normals: NDArray[np.float64] = field(repr=False)
+
+
+@dataclass(frozen=True)
+class GraphDecision:
+    """Outcome of the model graph for one object.
+
+    Attributes
+    ----------
+    category : str
+        ``planar``, ``mixed`` or ``curved`` (or ``empty``).
+    candidates : tuple[str, ...]
+        Types to verify, most likely first; empty -> ``unknown``.
+    main_face : int
+        Index of the main (or auxiliary) matching surface, -1 if none.
+    axis_of_face : tuple[int, ...]
+        For cuboids: which of the three axes each face's normal belongs to.
+    reason : str
+    """
+
+    category: str
+    candidates: tuple[str, ...]
+    main_face: int
+    axis_of_face: tuple[int, ...] = ()
+    reason: str = ""
+
+
+def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
+                     coplanar_tol: float) -> GraphDecision:
+    sizes = np.array([f.size for f in faces])
+    main = int(np.argmax(sizes))
+    normals = np.array([f.normal for f in faces])
+    cos_main = np.abs(normals @ normals[main])
+    parallel = cos_main >= math.cos(tol)
+    perpendicular = cos_main <= math.sin(tol)
+    adjacent_perp = np.flatnonzero(adjacency[main] & perpendicular)
+    if adjacent_perp.size:
+        second = int(adjacent_perp[np.argmax(sizes[adjacent_perp])])
+        third = np.cross(normals[main], normals[second])
+        third /= np.linalg.norm(third)
+        axes = np.array([normals[main], normals[second], third])
+        cos_axes = np.abs(normals @ axes.T)
+        assignment = np.argmax(cos_axes, axis=1)
+        if np.all(cos_axes.max(axis=1) >= math.cos(tol)):
+            return GraphDecision("planar", ("cuboid",), main, tuple(int(a) for a in assignment),
+                                 "planar faces with perpendicular adjacent normals")
+        return GraphDecision("planar", (), main, (),
+                             "planar faces not aligned with three orthogonal axes")
+    if parallel.all():
+        offsets = np.array([f.offset * np.sign(f.normal @ normals[main]) for f in faces])
+        if np.ptp(offsets) <= coplanar_tol:
+            return GraphDecision("planar", ("plane",), main, (),
+                                 "parallel coplanar planar faces merged into one plane"
+                                 if len(faces) > 1 else "single planar face")
+        return GraphDecision("planar", (), main, (), "parallel planar faces at different offsets")
+    return GraphDecision("planar", (), main, (),
+                         "planar faces neither perpendicular nor parallel to the main face")
+
+
+def _mixed_decision(faces: list[FaceInfo], tol: float) -> GraphDecision:
+    planar = [i for i, f in enumerate(faces) if f.planar]
+    main = max(planar, key=lambda i: faces[i].size)
+    n0 = faces[main].normal
+    others = [i for i in planar if i != main]
+    if any(abs(faces[i].normal @ n0) < math.cos(tol) for i in others):
+        return GraphDecision("mixed", (), main, (),
+                             "several non-parallel planar faces with curved faces")
+    curved_normals = np.vstack([f.point_normals for f in faces if not f.planar])
+    angles = np.arcsin(np.clip(np.abs(curved_normals @ n0), 0.0, 1.0))
+    median = float(np.median(angles))
+    q1, q3 = np.percentile(angles, [25, 75])
+    if median <= tol:
+        return GraphDecision("mixed", ("cylinder", "cone"), main, (),
+                             "curved normals perpendicular to the plane normal")
+    if q3 - q1 <= 2 * tol:
+        return GraphDecision("mixed", ("cone", "cylinder"), main, (),
+                             f"curved normals at a constant {math.degrees(median):.1f} deg to the plane")
+    return GraphDecision("mixed", (), main, (), "curved normals at varying angles to the plane")
+
+
+def curvature_candidates(k_max: NDArray[np.float64], k_min: NDArray[np.float64],
+                         sphere_ratio: float, developable_ratio: float,
+                         cone_variation: float) -> tuple[tuple[str, ...], str]:
+    """Candidates of an all-curved object from its principal curvatures [1/m]."""
+    a_max = np.abs(k_max[np.isfinite(k_max)])
+    a_min = np.abs(k_min[np.isfinite(k_min)])
+    if a_max.size == 0 or np.median(a_max) <= 0:
+        return (), "no curvature"
+    ratio = float(np.median(a_min) / np.median(a_max))
+    if ratio >= sphere_ratio:
+        return ("sphere",), f"k1 ~ k2 (median ratio {ratio:.2f})"
+    if ratio <= developable_ratio:
+        q1, med, q3 = np.percentile(a_max, [25, 50, 75])
+        variation = float((q3 - q1) / med)
+        if variation > cone_variation:
+            return ("cone", "cylinder"), f"k2 ~ 0, k1 varies ({variation:.2f})"
+        return ("cylinder", "cone"), f"k2 ~ 0, k1 constant ({variation:.2f})"
+    return (), f"principal curvature ratio {ratio:.2f} fits no primitive"
+
+
+def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
+                coplanar_tol: float, curvature: tuple[NDArray, NDArray] | None = None,
+                sphere_ratio: float = 0.55, developable_ratio: float = 0.3,
+                cone_variation: float = 0.25) -> GraphDecision:
+    """Apply the model graph.
+
+    Parameters
+    ----------
+    faces : list of FaceInfo
+    adjacency : (F, F) bool
+    tol : float [rad]
+        Angle tolerance for parallel / perpendicular.
+    coplanar_tol : float [m]
+        Largest offset difference of parallel faces merged into one plane.
+    curvature : (k_max, k_min) arrays [1/m], required for all-curved objects.
+    """
+    if not faces:
+        return GraphDecision("empty", (), -1, (), "no faces")
+    planar = [f.planar for f in faces]
+    if all(planar):
+        return _planar_decision(faces, adjacency, tol, coplanar_tol)
+    if any(planar):
+        return _mixed_decision(faces, tol)
+    if curvature is None:
+        return GraphDecision("curved", ("cylinder", "cone", "sphere"), -1, (), "all faces curved")
+    cands, why = curvature_candidates(*curvature, sphere_ratio, developable_ratio, cone_variation)
+    return GraphDecision("curved", cands, -1, (), why)

@@ -1,0 +1,221 @@
+"""The one definition of every modeling parameter.
+
+Each :class:`ParamSpec` gives a parameter's name, default, unit, allowed range and
+description. The ROS node declares its parameters from :data:`PARAMETERS`, the YAML in
+``config/`` lists the same defaults, and the CLI reads the same names. The core itself
+only ever sees a frozen :class:`ModelingParams`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+__all__ = [
+    "PARAMETERS",
+    "ModelingParams",
+    "ParamSpec",
+    "ParameterError",
+    "load_params_file",
+]
+
+
+class ParameterError(ValueError):
+    """A parameter value is out of range, of the wrong type, or inconsistent."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """Definition of one parameter.
+
+    Attributes
+    ----------
+    name : str
+        Name used in YAML, ROS and :class:`ModelingParams`.
+    default : int | float | bool
+        Default value; its Python type is the parameter's type.
+    unit : str
+        Unit (``m``, ``rad``, ``1`` for dimensionless, ``count``).
+    low, high : float | None
+        Inclusive allowed range for numbers (``None``: unbounded).
+    description : str
+        One-sentence meaning, shown by ``ros2 param describe``.
+    """
+
+    name: str
+    default: int | float | bool
+    unit: str
+    low: float | None
+    high: float | None
+    description: str
+
+    @property
+    def type(self) -> type:
+        return type(self.default)
+
+    def check(self, value: Any) -> int | float | bool:
+        """Return ``value`` converted to this parameter's type, or raise ParameterError."""
+        if self.type is bool:
+            if not isinstance(value, bool):
+                raise ParameterError(f"parameter '{self.name}' must be a bool, got {value!r}")
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ParameterError(
+                f"parameter '{self.name}' must be a {self.type.__name__}, got {value!r}"
+            )
+        if self.type is int:
+            if isinstance(value, float) and not value.is_integer():
+                raise ParameterError(f"parameter '{self.name}' must be an integer, got {value!r}")
+            value = int(value)
+        else:
+            value = float(value)
+            if not math.isfinite(value):
+                raise ParameterError(f"parameter '{self.name}' must be finite, got {value!r}")
+        if (self.low is not None and value < self.low) or (
+            self.high is not None and value > self.high
+        ):
+            raise ParameterError(
+                f"parameter '{self.name}' = {value!r} is outside the allowed range "
+                f"[{self.low}, {self.high}] {self.unit}"
+            )
+        return value
+
+
+PARAMETERS: tuple[ParamSpec, ...] = (
+    # --- working resolution and faces ---------------------------------------------------
+    ParamSpec("voxel_size", 0.003, "m", 0.0002, 0.2,
+              "Voxel edge of the working cloud used for normals, faces and curvature."),
+    ParamSpec("normal_neighbors", 16, "count", 5, 100,
+              "Neighbours (on the working cloud) used to estimate normals and surface variation."),
+    ParamSpec("face_angle_threshold", 0.2, "rad", 0.01, 1.0,
+              "Largest normal angle between neighbours that grow into one smooth face."),
+    ParamSpec("edge_variation_threshold", 0.04, "1", 0.001, 0.33,
+              "Surface variation above which a working point is an edge, not a face seed."),
+    ParamSpec("min_face_points", 12, "count", 3, 100000,
+              "Fewest working points (voxels) a face must have; smaller pieces join a neighbour."),
+    ParamSpec("min_object_points", 60, "count", 4, 10000000,
+              "Fewest input points an object needs to be modeled; fewer -> 'unknown'."),
+    # --- surface type (paper eqs. 1-6) ----------------------------------------------------
+    ParamSpec("cf_threshold", 0.82, "1", 0.0, 1.0,
+              "CF_th: a face is planar iff its normalised CF (eq. 5 / sum of weights) exceeds it."),
+    ParamSpec("noise_amplitude", 0.0005, "m", 0.0, 0.1,
+              "Average noise amplitude of the cloud; eq. 6 uses t = this value in mm."),
+    ParamSpec("cf_radius_fraction", 0.5, "1", 0.05, 1.0,
+              "Largest of the three CF search radii as a fraction of the face's minimum width."),
+    # --- model graph ----------------------------------------------------------------------
+    ParamSpec("angle_tolerance", 0.14, "rad", 0.005, 0.6,
+              "Tolerance for 'perpendicular' and 'parallel' normal relations."),
+    ParamSpec("sphere_curvature_ratio", 0.55, "1", 0.0, 1.0,
+              "Median |k2|/|k1| at or above which an all-curved object is a sphere candidate."),
+    ParamSpec("developable_curvature_ratio", 0.3, "1", 0.0, 1.0,
+              "Median |k2|/|k1| at or below which an all-curved object is a cylinder/cone candidate."),
+    ParamSpec("cone_curvature_variation", 0.25, "1", 0.0, 10.0,
+              "Relative spread of k1 (IQR/median) above which cone is tried before cylinder."),
+    # --- RANSAC and verification ----------------------------------------------------------
+    ParamSpec("ransac_threshold", 0.002, "m", 1e-6, 0.5,
+              "Point-to-surface distance under which a point is a RANSAC inlier."),
+    ParamSpec("ransac_normal_threshold", 0.5, "rad", 0.01, 3.1416,
+              "Largest angle between a point's normal and the model's normal for an inlier."),
+    ParamSpec("ransac_max_iterations", 500, "count", 1, 100000,
+              "Upper bound on RANSAC hypotheses per model."),
+    ParamSpec("ransac_confidence", 0.995, "1", 0.5, 0.999999,
+              "Probability of drawing an all-inlier sample used for early termination."),
+    ParamSpec("min_inlier_ratio", 0.8, "1", 0.05, 1.0,
+              "Share of the surface's points that must be inliers for a fit to verify."),
+    ParamSpec("refine_max_points", 20000, "count", 100, 10000000,
+              "Most full-resolution points used in the least-squares refinement."),
+    ParamSpec("min_radius", 0.002, "m", 0.0, 100.0,
+              "Smallest accepted cylinder, cone or sphere radius."),
+    ParamSpec("max_radius", 2.0, "m", 0.0, 1000.0,
+              "Largest accepted cylinder, cone or sphere radius."),
+    ParamSpec("min_cone_half_angle", 0.05, "rad", 0.0, 1.5,
+              "Cone fits with a smaller half-angle are cylinders."),
+    # --- sizing and reconstruction --------------------------------------------------------
+    ParamSpec("edge_correction", True, "", None, None,
+              "Extend open extents by half the point spacing (the sampling gap at an edge)."),
+    ParamSpec("reproject_along_rays", True, "", None, None,
+              "Input is in the sensor frame (sensor at the origin): before sizing, move points "
+              "along their viewing rays onto the fitted surface, removing depth noise."),
+    ParamSpec("reconstruction_spacing", 0.002, "m", 0.0001, 1.0,
+              "Point spacing of the reconstructed surfaces."),
+    ParamSpec("seed", 0, "count", 0, 2**31 - 1,
+              "Seed of the random generator used by RANSAC (results are reproducible)."),
+)
+
+_SPECS: dict[str, ParamSpec] = {p.name: p for p in PARAMETERS}
+
+
+def _make_dataclass() -> type:
+    fields = [(p.name, p.type, dataclasses.field(default=p.default)) for p in PARAMETERS]
+    return dataclasses.make_dataclass("_ModelingParamsBase", fields, frozen=True)
+
+
+class ModelingParams(_make_dataclass()):  # type: ignore[misc]
+    """Frozen set of modeling parameters (see :data:`PARAMETERS` for names and units).
+
+    Construct with keyword arguments (unknown names, wrong types, out-of-range or
+    inconsistent values raise :class:`ParameterError`) or :meth:`from_mapping`.
+    """
+
+    def __post_init__(self) -> None:
+        for spec in PARAMETERS:
+            object.__setattr__(self, spec.name, spec.check(getattr(self, spec.name)))
+        self.check_consistency()
+
+    def check_consistency(self) -> None:
+        """Raise :class:`ParameterError` when parameters contradict each other."""
+        if self.min_radius >= self.max_radius:
+            raise ParameterError(
+                f"min_radius ({self.min_radius}) must be smaller than max_radius ({self.max_radius})"
+            )
+        if self.developable_curvature_ratio >= self.sphere_curvature_ratio:
+            raise ParameterError(
+                "developable_curvature_ratio must be smaller than sphere_curvature_ratio "
+                f"({self.developable_curvature_ratio} >= {self.sphere_curvature_ratio})"
+            )
+
+    @property
+    def cf_weights(self) -> tuple[float, float, float]:
+        """Weights w1, w2, w3 of eq. 6 with t = noise amplitude in millimetres."""
+        e = math.exp(-self.noise_amplitude * 1000.0)
+        return (e, 1.0 - e, 2.0 * (1.0 - e))
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any], base: "ModelingParams | None" = None
+                     ) -> "ModelingParams":
+        """Build parameters from ``values`` (missing names keep ``base``'s or default values)."""
+        unknown = sorted(set(values) - set(_SPECS))
+        if unknown:
+            raise ParameterError(
+                f"unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(_SPECS))}"
+            )
+        base = base if base is not None else cls()
+        return dataclasses.replace(base, **dict(values))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {p.name: getattr(self, p.name) for p in PARAMETERS}
+
+
+def load_params_file(path: str | Path) -> ModelingParams:
+    """Read parameters from YAML: a flat mapping or ROS ``node: {ros__parameters: {...}}``."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except OSError as exc:
+        raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ParameterError(f"parameter file {path} is not valid YAML: {exc}") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ParameterError(f"parameter file {path} must hold a mapping, got {type(data).__name__}")
+    # ROS 2 params-file layout: {node_name: {ros__parameters: {...}}}, node may be '/**'.
+    for value in data.values():
+        if isinstance(value, dict) and "ros__parameters" in value:
+            data = value["ros__parameters"] or {}
+            break
+    return ModelingParams.from_mapping(data)

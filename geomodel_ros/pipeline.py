@@ -1,0 +1,476 @@
+"""Modeling of segmented objects: faces -> surface types -> model graph -> RANSAC -> size.
+
+:func:`model_objects` takes a scene's points with per-point object labels (from the
+segmentation or ground truth) and returns one :class:`~geomodel_ros.primitives.Primitive`
+per object. Degenerate objects (too few points, fits that fail verification, shapes no
+rule of the model graph accepts) come out as ``unknown``; this never raises for bad
+geometry, only for malformed arguments.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from . import obb
+from .faces import WorkingCloud, build_working_cloud, faces_from_labels, split_faces
+from .model_graph import FaceInfo, decide_type
+from .params import ModelingParams
+from .primitives import FaceSummary, ModelingResult, Primitive
+from .ransac import (ConeModel, CylinderModel, PlaneModel, SphereModel, fit_plane_svd, ransac,
+                     refine)
+from .surface_type import face_feature, principal_curvatures
+
+__all__ = ["model_objects", "model_object", "InputError"]
+
+
+class InputError(ValueError):
+    """Malformed input arrays (wrong shape, dtype or length)."""
+
+
+def _check_points(points: NDArray) -> NDArray[np.float64]:
+    arr = np.asarray(points)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(f"points must be an (N, 3) array, got shape {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.number):
+        raise InputError(f"points must be numeric, got dtype {arr.dtype}")
+    return np.ascontiguousarray(arr, dtype=np.float64)
+
+
+def _check_labels(labels: NDArray, n: int, what: str) -> NDArray[np.int64]:
+    arr = np.asarray(labels)
+    if arr.shape != (n,):
+        raise InputError(f"{what} must be an ({n},) integer array aligned with the points, "
+                         f"got shape {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.integer):
+        raise InputError(f"{what} must be integers, got dtype {arr.dtype}")
+    return arr.astype(np.int64, copy=False)
+
+
+@dataclass
+class _Face:
+    info: FaceInfo
+    summary: FaceSummary
+    working: NDArray[np.int64]  # indices into the working cloud
+    points: NDArray[np.int64]   # indices into the object's points
+
+
+@dataclass
+class _Object:
+    oid: int
+    points: NDArray[np.float64]
+    wc: WorkingCloud
+    faces: list[_Face]
+    adjacency: NDArray[np.bool_]
+    spacing: float
+    params: ModelingParams
+    rng: np.random.Generator
+
+    def sample(self, idx: NDArray[np.int64]) -> NDArray[np.float64]:
+        """Full-resolution points of ``idx``, at most ``refine_max_points`` of them."""
+        cap = self.params.refine_max_points
+        if len(idx) > cap:
+            idx = self.rng.choice(idx, size=cap, replace=False)
+        return self.points[idx]
+
+    def face_points(self, which: list[int]) -> NDArray[np.int64]:
+        return np.concatenate([self.faces[i].points for i in which]) if which else \
+            np.zeros(0, dtype=np.int64)
+
+    def face_working(self, which: list[int]) -> NDArray[np.int64]:
+        return np.concatenate([self.faces[i].working for i in which]) if which else \
+            np.zeros(0, dtype=np.int64)
+
+
+def _unknown(oid: int, points: NDArray[np.float64], reason: str,
+             faces: tuple[FaceSummary, ...] = ()) -> Primitive:
+    center = points.mean(axis=0) if len(points) else np.zeros(3)
+    return Primitive(oid, "unknown", center, np.eye(3), {}, len(points), 0.0, faces, reason)
+
+
+def _perp_frame(z: NDArray[np.float64]) -> NDArray[np.float64]:
+    helper = np.array([1.0, 0, 0]) if abs(z[0]) < 0.9 else np.array([0, 1.0, 0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def _rms(d: NDArray[np.float64]) -> float:
+    return float(np.sqrt(np.mean(d * d))) if d.size else 0.0
+
+
+def _toward_sensor(n: NDArray[np.float64], at: NDArray[np.float64]) -> NDArray[np.float64]:
+    return -n if n @ at > 0 else n
+
+
+# ---------------------------------------------------------------------------------------
+# Faces and their surface types
+# ---------------------------------------------------------------------------------------
+
+def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
+                 face_labels: NDArray[np.int64] | None
+                 ) -> tuple[WorkingCloud, list[_Face], NDArray[np.bool_]]:
+    wc = build_working_cloud(obj_pts, params.voxel_size, params.normal_neighbors, face_labels)
+    if face_labels is not None:
+        fs = faces_from_labels(wc, face_labels)
+    else:
+        fs = split_faces(wc, params.face_angle_threshold, params.edge_variation_threshold,
+                         params.min_face_points)
+    point_face = fs.labels[wc.point_to_working]
+    order = np.argsort(point_face, kind="stable")
+    bounds = np.searchsorted(point_face[order], np.arange(fs.count + 1))
+    worder = np.argsort(fs.labels, kind="stable")
+    wbounds = np.searchsorted(fs.labels[worder], np.arange(fs.count + 1))
+    weights = params.cf_weights
+    faces: list[_Face] = []
+    for f in range(fs.count):
+        pidx = order[bounds[f]:bounds[f + 1]]
+        widx = worder[wbounds[f]:wbounds[f + 1]]
+        fpts = obj_pts[pidx]
+        feat = face_feature(fpts, weights, params.cf_threshold, params.cf_radius_fraction)
+        plane = fit_plane_svd(wc.points[widx]) if len(widx) >= 3 else PlaneModel(np.array([0, 0, 1.0]), 0.0)
+        plane_rmse = _rms(plane.distance(wc.points[widx]))
+        # RANSAC-style verification of the CF decision (paper 3.2: a fit that fails rejects
+        # the type): a "planar" face no plane fits is curved, a "curved" face that a plane
+        # fits to well within the inlier threshold is planar.
+        planar = feat.planar
+        if planar and plane_rmse > params.ransac_threshold:
+            planar = False
+        elif not planar and plane_rmse < params.ransac_threshold / 3.0:
+            planar = True
+        center = fpts.mean(axis=0)
+        if planar:
+            normal = _toward_sensor(plane.normal, center)
+            offset = float(-normal @ center)
+        else:
+            mn = wc.normals[widx].mean(axis=0)
+            normal = mn / max(np.linalg.norm(mn), 1e-12)
+            offset = 0.0
+        info = FaceInfo(planar, normal, offset, len(widx), wc.normals[widx])
+        summary = FaceSummary("planar" if planar else "curved", feat.cf_total, len(pidx), normal)
+        faces.append(_Face(info, summary, widx, pidx))
+    return wc, faces, fs.adjacency
+
+
+# ---------------------------------------------------------------------------------------
+# Fitting + sizing per type. Each returns (Primitive | None, reason).
+# ---------------------------------------------------------------------------------------
+
+def _verify(ratio: float, params: ModelingParams, what: str) -> str | None:
+    if ratio < params.min_inlier_ratio:
+        return f"{what} fit rejected: {ratio:.0%} inliers < {params.min_inlier_ratio:.0%}"
+    return None
+
+
+def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
+    p = o.params
+    all_faces = list(range(len(o.faces)))
+    widx = o.face_working(all_faces)
+    model = fit_plane_svd(o.wc.points[o.faces[main].working])
+    model = refine(model, o.wc.points[widx], p.ransac_threshold)
+    model = refine(model, o.sample(o.face_points(all_faces)), p.ransac_threshold)
+    ratio = float(np.mean(np.abs(model.distance(o.wc.points[widx])) <= p.ransac_threshold))
+    bad = _verify(ratio, p, "plane")
+    if bad:
+        return None, bad
+    n = _toward_sensor(model.normal, o.points.mean(axis=0))
+    d = -model.d if n @ model.normal < 0 else model.d
+    pts = obb.ray_to_plane(o.points, n, d) if p.reproject_along_rays else o.points
+    frame = _perp_frame(n)
+    work_xy = (o.wc.points - o.wc.points.mean(axis=0)) @ frame[:, :2]
+    direction, _ = obb.min_area_rectangle(work_xy)
+    u = frame[:, :2] @ direction
+    v = np.cross(n, u)
+    lo_u, hi_u = obb.interval(pts @ u, o.spacing, correct=p.edge_correction)
+    lo_v, hi_v = obb.interval(pts @ v, o.spacing, correct=p.edge_correction)
+    if hi_v - lo_v > hi_u - lo_u:  # x along the longer side
+        u, v = v, -u
+        (lo_u, hi_u), (lo_v, hi_v) = (lo_v, hi_v), (-hi_u, -lo_u)
+    plane_off = float(-d)  # n . x = -d
+    center = u * (lo_u + hi_u) / 2 + v * (lo_v + hi_v) / 2 + n * plane_off
+    rot = np.column_stack([u, v, n])
+    rmse = _rms(model.distance(o.sample(np.arange(len(o.points)))))
+    prim = Primitive(o.oid, "plane", center, rot,
+                     {"length": hi_u - lo_u, "width": hi_v - lo_v}, len(o.points), rmse)
+    return prim, "plane verified"
+
+
+def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Primitive | None, str]:
+    p = o.params
+    normals, weights, planes, inlier_ok, inlier_all = [], [], [], 0, 0
+    for f in o.faces:
+        w = o.wc.points[f.working]
+        model = refine(fit_plane_svd(w), w, p.ransac_threshold)
+        model = refine(model, o.sample(f.points), p.ransac_threshold)
+        inl = np.abs(model.distance(w)) <= p.ransac_threshold
+        inlier_ok += int(inl.sum())
+        inlier_all += len(w)
+        planes.append(model)
+        normals.append(model.normal)
+        weights.append(float(len(f.working)))
+    bad = _verify(inlier_ok / max(inlier_all, 1), p, "cuboid")
+    if bad:
+        return None, bad
+    assign = np.asarray(assignment, dtype=np.int64)
+    rot = obb.orthonormalize_axes(np.array(normals), np.array(weights), assign)
+    # Points of each face moved onto its plane along their rays, then projected on the axes.
+    proj_faces = []
+    for f, model in zip(o.faces, planes):
+        q = o.points[f.points]
+        if p.reproject_along_rays:
+            q = obb.ray_to_plane(q, model.normal, model.d)
+        proj_faces.append(q @ rot)
+    proj = np.vstack(proj_faces)
+    lo, hi = np.empty(3), np.empty(3)
+    for a in range(3):
+        vals = proj[:, a]
+        vmin, vmax = float(vals.min()), float(vals.max())
+        closed_lo, closed_hi = [], []
+        for fi, pf in enumerate(proj_faces):
+            if assign[fi] != a or len(pf) == 0:
+                continue
+            pos = float(np.median(pf[:, a]))
+            (closed_hi if vmax - pos < pos - vmin else closed_lo).append(pos)
+        lo[a], hi[a] = obb.interval(vals, o.spacing,
+                                    float(np.min(closed_lo)) if closed_lo else None,
+                                    float(np.max(closed_hi)) if closed_hi else None,
+                                    correct=p.edge_correction)
+    center = rot @ ((lo + hi) / 2)
+    ext = hi - lo
+    dist = np.concatenate([np.abs(m.distance(o.sample(f.points))) for f, m in zip(o.faces, planes)])
+    prim = Primitive(o.oid, "cuboid", center, rot,
+                     {"length": float(ext[0]), "width": float(ext[1]), "height": float(ext[2])},
+                     len(o.points), _rms(dist))
+    return prim, "cuboid verified"
+
+
+def _axis_ok(axis: NDArray[np.float64], prior: NDArray[np.float64] | None, tol: float) -> bool:
+    return prior is None or abs(float(axis @ prior)) >= math.cos(tol)
+
+
+def _curved_and_planar(o: _Object) -> tuple[list[int], list[int]]:
+    curved = [i for i, f in enumerate(o.faces) if not f.info.planar]
+    planar = [i for i, f in enumerate(o.faces) if f.info.planar]
+    return curved, planar
+
+
+def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]:
+    """Cylinder, cone or sphere on the curved faces (planar faces: caps / base)."""
+    p = o.params
+    curved, planar = _curved_and_planar(o)
+    if not curved:
+        return None, f"{kind}: no curved face"
+    cw = o.face_working(curved)
+    wp, wn = o.wc.points[cw], o.wc.normals[cw]
+    prior = o.faces[main].info.normal if main >= 0 and o.faces[main].info.planar else None
+    tol = p.angle_tolerance
+
+    if kind == "sphere":
+        cls = SphereModel
+        accept = lambda m: p.min_radius <= m.radius <= p.max_radius  # noqa: E731
+    elif kind == "cylinder":
+        cls = CylinderModel
+        accept = lambda m: (p.min_radius <= m.radius <= p.max_radius  # noqa: E731
+                            and _axis_ok(m.axis, prior, tol))
+    else:
+        cls = ConeModel
+        accept = lambda m: (p.min_cone_half_angle <= m.half_angle <= 1.4  # noqa: E731
+                            and _axis_ok(m.axis, prior, tol))
+    fit = ransac(cls, wp, wn, p.ransac_threshold, p.ransac_normal_threshold,
+                 p.ransac_max_iterations, p.ransac_confidence, o.rng, accept=accept)
+    if fit is None:
+        return None, f"{kind}: no valid RANSAC hypothesis"
+    model = refine(fit.model, wp, p.ransac_threshold)
+    full = o.sample(o.face_points(curved))
+    model = refine(model, full, p.ransac_threshold)
+    ratio = float(np.mean(np.abs(model.distance(wp)) <= p.ransac_threshold))
+    bad = _verify(ratio, p, kind)
+    if bad:
+        return None, bad
+    rmse = _rms(model.distance(full))
+    n_all = len(o.points)
+    if kind == "sphere":
+        if not p.min_radius <= model.radius <= p.max_radius:
+            return None, f"sphere radius {model.radius:.4f} m out of range"
+        return Primitive(o.oid, "sphere", model.center.copy(), np.eye(3),
+                         {"radius": float(model.radius)}, n_all, rmse), "sphere verified"
+
+    axis = model.axis
+    if not _axis_ok(axis, prior, tol):
+        return None, f"{kind} axis not aligned with its planar face"
+    curved_pts = o.points[o.face_points(curved)]
+    cap_pts = o.points[o.face_points(planar)]
+    if kind == "cylinder":
+        if not p.min_radius <= model.radius <= p.max_radius:
+            return None, f"cylinder radius {model.radius:.4f} m out of range"
+        if p.reproject_along_rays:
+            curved_pts = obb.ray_to_cylinder(curved_pts, model.point, axis, model.radius)
+        origin = model.point
+    else:
+        if model.half_angle < p.min_cone_half_angle:
+            return None, f"cone half-angle {math.degrees(model.half_angle):.1f} deg too small"
+        origin = model.apex
+    t_curved = (curved_pts - origin) @ axis
+    closed = []
+    for i in planar:
+        f = o.faces[i]
+        if abs(f.info.normal @ axis) >= math.cos(tol):
+            q = o.points[f.points]
+            if p.reproject_along_rays:
+                n = f.info.normal
+                q = obb.ray_to_plane(q, n, f.info.offset)
+            closed.append(float(np.median((q - origin) @ axis)))
+    t_all = np.concatenate([t_curved, (cap_pts - origin) @ axis]) if len(cap_pts) else t_curved
+    tmin, tmax = float(t_all.min()), float(t_all.max())
+    closed_lo = [c for c in closed if c - tmin < tmax - c]
+    closed_hi = [c for c in closed if c - tmin >= tmax - c]
+    lo, hi = obb.interval(t_all, o.spacing, min(closed_lo) if closed_lo else None,
+                          max(closed_hi) if closed_hi else None, correct=p.edge_correction)
+    if kind == "cylinder":
+        if hi - lo <= 0:
+            return None, "cylinder has no height"
+        if axis @ (origin + axis * (lo + hi) / 2) > 0:  # point the axis towards the sensor
+            axis, lo, hi = -axis, -hi, -lo
+        center = origin + axis * (lo + hi) / 2
+        return Primitive(o.oid, "cylinder", center, _perp_frame(axis),
+                         {"radius": float(model.radius), "height": float(hi - lo)}, n_all, rmse), \
+            "cylinder verified"
+    # Cone: apex at t = 0, base at the far end.
+    height = hi if hi > 0 else 0.0
+    if height <= 0 or (lo < -0.2 * height):
+        return None, "cone points lie on both sides of the apex"
+    radius = height * math.tan(model.half_angle)
+    if not p.min_radius <= radius <= p.max_radius:
+        return None, f"cone radius {radius:.4f} m out of range"
+    center = origin + axis * height / 2
+    return Primitive(o.oid, "cone", center, _perp_frame(-axis),
+                     {"radius": float(radius), "height": float(height)}, n_all, rmse), "cone verified"
+
+
+# ---------------------------------------------------------------------------------------
+# Public API
+# ---------------------------------------------------------------------------------------
+
+def model_object(points: NDArray[np.float64], object_id: int, params: ModelingParams,
+                 rng: np.random.Generator, spacing: float,
+                 face_labels: NDArray[np.int64] | None = None) -> Primitive:
+    """Model one segmented object.
+
+    Parameters
+    ----------
+    points : (n, 3) float64 array [m], finite
+    object_id : int
+    params : ModelingParams
+    rng : numpy Generator
+    spacing : float [m]
+        Median point spacing of the object (for edge corrections).
+    face_labels : (n,) int64, optional
+        Known faces; when absent faces are found by region growing.
+    """
+    n = len(points)
+    if n < max(params.min_object_points, 4):
+        return _unknown(object_id, points, f"{n} points < min_object_points")
+    extent = np.ptp(points, axis=0)
+    if not np.all(np.isfinite(extent)) or np.count_nonzero(extent > 1e-9) < 2:
+        return _unknown(object_id, points, "degenerate point set (collinear or duplicate)")
+    wc, faces, adjacency = _build_faces(points, params, face_labels)
+    if len(wc.points) < 6 or not faces:
+        return _unknown(object_id, points, "too few distinct points after voxelization")
+    summaries = tuple(f.summary for f in faces)
+    infos = [f.info for f in faces]
+    curvature = None
+    if not any(i.planar for i in infos):
+        curvature = principal_curvatures(wc.points, wc.normals, wc.neighbors)
+        smooth = wc.variation <= params.edge_variation_threshold
+        if smooth.sum() >= 10:
+            curvature = (curvature[0][smooth], curvature[1][smooth])
+    decision = decide_type(infos, adjacency, params.angle_tolerance, 3 * params.ransac_threshold,
+                           curvature, params.sphere_curvature_ratio,
+                           params.developable_curvature_ratio, params.cone_curvature_variation)
+    obj = _Object(object_id, points, wc, faces, adjacency, spacing, params, rng)
+    reasons = [decision.reason]
+    for kind in decision.candidates:
+        try:
+            if kind == "plane":
+                prim, why = _fit_plane(obj, decision.main_face)
+            elif kind == "cuboid":
+                prim, why = _fit_cuboid(obj, decision.main_face, decision.axis_of_face)
+            else:
+                prim, why = _fit_round(obj, kind, decision.main_face)
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+            prim, why = None, f"{kind}: numerical failure ({exc})"
+        reasons.append(why)
+        if prim is not None and _finite(prim):
+            return Primitive(prim.id, prim.type, prim.center, prim.rotation, prim.dimensions,
+                             prim.point_count, prim.rmse, summaries, "; ".join(reasons))
+    return _unknown(object_id, points, "; ".join(reasons), summaries)
+
+
+def _finite(p: Primitive) -> bool:
+    vals = [*p.center.ravel(), *p.rotation.ravel(), *p.dimensions.values(), p.rmse]
+    return bool(np.all(np.isfinite(vals))) and all(v > 0 for v in p.dimensions.values())
+
+
+def estimate_spacing(tree: cKDTree, points: NDArray[np.float64], rng: np.random.Generator,
+                     samples: int = 2000) -> float:
+    """Median nearest-neighbour distance [m] of (a sample of) ``points`` within ``tree``."""
+    if len(points) < 2:
+        return 0.0
+    q = points if len(points) <= samples else points[rng.choice(len(points), samples, replace=False)]
+    d, _ = tree.query(q, k=2, workers=-1)
+    return float(np.median(d[:, 1]))
+
+
+def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | None = None, *,
+                  face_labels: NDArray | None = None,
+                  rng: np.random.Generator | int | None = None) -> ModelingResult:
+    """Model every labelled object of a scene.
+
+    Parameters
+    ----------
+    points : (N, 3) float array [m]
+        Scene points; non-finite rows are ignored.
+    labels : (N,) int array
+        Object id per point; negative = no object.
+    params : ModelingParams, optional
+    face_labels : (N,) int array, optional
+        Known face id per point (faces are then not searched).
+    rng : Generator, seed or None
+        Randomness for RANSAC; defaults to ``params.seed``.
+
+    Returns
+    -------
+    ModelingResult with objects ordered by id and timings [s].
+
+    Raises
+    ------
+    InputError
+        For malformed arrays (never for bad geometry).
+    """
+    t0 = time.perf_counter()
+    params = params if params is not None else ModelingParams()
+    pts = _check_points(points)
+    lab = _check_labels(labels, len(pts), "labels")
+    flab = None if face_labels is None else _check_labels(face_labels, len(pts), "face_labels")
+    rng = np.random.default_rng(params.seed if rng is None else rng)
+    finite = np.all(np.isfinite(pts), axis=1) & (lab >= 0)
+    idx_all = np.flatnonzero(finite)
+    objects: list[Primitive] = []
+    if idx_all.size:
+        sub_lab = lab[idx_all]
+        order = idx_all[np.argsort(sub_lab, kind="stable")]
+        ids, starts = np.unique(lab[order], return_index=True)
+        ends = np.r_[starts[1:], len(order)]
+        tree = cKDTree(pts[idx_all], balanced_tree=False, compact_nodes=False)
+        for oid, s, e in zip(ids, starts, ends):
+            sel = order[s:e]
+            opts = pts[sel]
+            spacing = estimate_spacing(tree, opts, rng)
+            objects.append(model_object(opts, int(oid), params, rng, spacing,
+                                        None if flab is None else flab[sel]))
+    return ModelingResult(objects, {"modeling_s": time.perf_counter() - t0})

@@ -1,0 +1,370 @@
+"""RANSAC fitters with the object type as prior (paper section 3.2).
+
+Every model has a minimal-sample solver that uses point normals where they help
+(plane: 3 points; sphere: 2 points + normals; cylinder: 2 points + normals; cone:
+3 points + normals), a batched residual (hypotheses are scored many at a time), adaptive
+early termination, and a least-squares refinement on the inliers
+(:func:`scipy.optimize.least_squares`, geometric distances so the radius is not biased
+by noise).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+__all__ = [
+    "PlaneModel", "SphereModel", "CylinderModel", "ConeModel", "FitResult",
+    "fit_plane_svd", "ransac", "refine", "MODELS",
+]
+
+_EPS = 1e-12
+
+
+def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > _EPS, n, 1.0)
+
+
+def _perp_basis(a: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = _unit(np.cross(a, helper))
+    return e1, np.cross(a, e1)
+
+
+# ----------------------------------------------------------------------------------------
+# Models. Each has: sample_size, hypotheses(P, N) -> batch, residuals(batch, p, n) ->
+# (distance (B, M), |cos| between point normal and surface normal (B, M)), and single-model
+# helpers used by refinement.
+# ----------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PlaneModel:
+    """Plane n . x + d = 0 with unit normal ``n`` (3,) and offset ``d`` [m]."""
+
+    normal: NDArray[np.float64]
+    d: float
+
+    sample_size = 3
+
+    @staticmethod
+    def hypotheses(p: NDArray, n: NDArray) -> dict:
+        nrm = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        ok = np.linalg.norm(nrm, axis=1) > _EPS
+        nrm = _unit(nrm)
+        return {"n": nrm[ok], "d": -np.einsum("bi,bi->b", nrm, p[:, 0])[ok]}
+
+    @staticmethod
+    def residuals(h: dict, p: NDArray, n: NDArray) -> tuple[NDArray, NDArray]:
+        dist = h["n"] @ p.T + h["d"][:, None]
+        cos = np.abs(h["n"] @ n.T)
+        return dist, cos
+
+    def distance(self, p: NDArray) -> NDArray:
+        return p @ self.normal + self.d
+
+    @staticmethod
+    def from_batch(h: dict, i: int) -> "PlaneModel":
+        return PlaneModel(h["n"][i].copy(), float(h["d"][i]))
+
+
+@dataclass(frozen=True)
+class SphereModel:
+    """Sphere with centre (3,) [m] and radius [m]."""
+
+    center: NDArray[np.float64]
+    radius: float
+
+    sample_size = 2
+
+    @staticmethod
+    def hypotheses(p: NDArray, n: NDArray) -> dict:
+        # Closest points of the two normal lines p_i + t n_i; the centre is their midpoint.
+        d1, d2 = n[:, 0], n[:, 1]
+        w = p[:, 0] - p[:, 1]
+        a = np.einsum("bi,bi->b", d1, d1)
+        b = np.einsum("bi,bi->b", d1, d2)
+        c = np.einsum("bi,bi->b", d2, d2)
+        d = np.einsum("bi,bi->b", d1, w)
+        e = np.einsum("bi,bi->b", d2, w)
+        den = a * c - b * b
+        ok = den > 1e-6
+        den = np.where(ok, den, 1.0)
+        t = (b * e - c * d) / den
+        s = (a * e - b * d) / den
+        c1 = p[:, 0] + t[:, None] * d1
+        c2 = p[:, 1] + s[:, None] * d2
+        center = 0.5 * (c1 + c2)
+        r = 0.5 * (np.linalg.norm(p[:, 0] - center, axis=1) + np.linalg.norm(p[:, 1] - center, axis=1))
+        return {"c": center[ok], "r": r[ok]}
+
+    @staticmethod
+    def residuals(h: dict, p: NDArray, n: NDArray) -> tuple[NDArray, NDArray]:
+        diff = p[None, :, :] - h["c"][:, None, :]
+        norm = np.linalg.norm(diff, axis=2)
+        dist = norm - h["r"][:, None]
+        cos = np.abs(np.einsum("bmi,mi->bm", diff, n)) / np.maximum(norm, _EPS)
+        return dist, cos
+
+    def distance(self, p: NDArray) -> NDArray:
+        return np.linalg.norm(p - self.center, axis=1) - self.radius
+
+    @staticmethod
+    def from_batch(h: dict, i: int) -> "SphereModel":
+        return SphereModel(h["c"][i].copy(), float(h["r"][i]))
+
+    def to_vector(self) -> NDArray:
+        return np.r_[self.center, self.radius]
+
+    @staticmethod
+    def from_vector(x: NDArray, ref: "SphereModel") -> "SphereModel":
+        return SphereModel(x[:3].copy(), float(x[3]))
+
+
+@dataclass(frozen=True)
+class CylinderModel:
+    """Infinite cylinder: point on the axis (3,) [m], unit axis (3,), radius [m]."""
+
+    point: NDArray[np.float64]
+    axis: NDArray[np.float64]
+    radius: float
+
+    sample_size = 2
+
+    @staticmethod
+    def hypotheses(p: NDArray, n: NDArray) -> dict:
+        axis = np.cross(n[:, 0], n[:, 1])
+        ok = np.linalg.norm(axis, axis=1) > 1e-3
+        axis = _unit(axis)
+        # Work in the plane perpendicular to the axis: remove axial components.
+        def flat(v: NDArray) -> NDArray:
+            return v - np.einsum("bi,bi->b", v, axis)[:, None] * axis
+        q1, q2 = p[:, 0], flat(p[:, 1] - p[:, 0]) + p[:, 0]
+        m1, m2 = _unit(flat(n[:, 0])), _unit(flat(n[:, 1]))
+        # Intersect q1 + t m1 and q2 + s m2 (least squares in 3-D, lines are coplanar).
+        w = q1 - q2
+        b = np.einsum("bi,bi->b", m1, m2)
+        d = np.einsum("bi,bi->b", m1, w)
+        e = np.einsum("bi,bi->b", m2, w)
+        den = 1.0 - b * b
+        ok &= den > 1e-6
+        den = np.where(ok, den, 1.0)
+        t = (b * e - d) / den
+        s = (e - b * d) / den
+        center = 0.5 * (q1 + t[:, None] * m1 + q2 + s[:, None] * m2)
+        r = 0.5 * (np.linalg.norm(q1 - center, axis=1) + np.linalg.norm(q2 - center, axis=1))
+        return {"p": center[ok], "a": axis[ok], "r": r[ok]}
+
+    @staticmethod
+    def residuals(h: dict, p: NDArray, n: NDArray) -> tuple[NDArray, NDArray]:
+        v = p[None, :, :] - h["p"][:, None, :]
+        along = np.einsum("bmi,bi->bm", v, h["a"])
+        radial = v - along[:, :, None] * h["a"][:, None, :]
+        rn = np.linalg.norm(radial, axis=2)
+        dist = rn - h["r"][:, None]
+        cos = np.abs(np.einsum("bmi,mi->bm", radial, n)) / np.maximum(rn, _EPS)
+        return dist, cos
+
+    def distance(self, p: NDArray) -> NDArray:
+        v = p - self.point
+        radial = v - np.outer(v @ self.axis, self.axis)
+        return np.linalg.norm(radial, axis=1) - self.radius
+
+    @staticmethod
+    def from_batch(h: dict, i: int) -> "CylinderModel":
+        return CylinderModel(h["p"][i].copy(), h["a"][i].copy(), float(h["r"][i]))
+
+    def to_vector(self) -> NDArray:
+        return np.zeros(5)
+
+    def _frame(self):
+        return _perp_basis(self.axis)
+
+    @staticmethod
+    def from_vector(x: NDArray, ref: "CylinderModel") -> "CylinderModel":
+        e1, e2 = ref._frame()
+        axis = _unit(ref.axis + x[0] * e1 + x[1] * e2)
+        point = ref.point + x[2] * e1 + x[3] * e2
+        return CylinderModel(point, axis, float(ref.radius + x[4]))
+
+
+@dataclass(frozen=True)
+class ConeModel:
+    """Infinite cone: apex (3,) [m], unit axis (3,) from the apex into the cone (apex ->
+    base), half-angle [rad]."""
+
+    apex: NDArray[np.float64]
+    axis: NDArray[np.float64]
+    half_angle: float
+
+    sample_size = 3
+
+    @staticmethod
+    def hypotheses(p: NDArray, n: NDArray) -> dict:
+        # Apex = common point of the three tangent planes n_i . (x - p_i) = 0.
+        rhs = np.einsum("bki,bki->bk", n, p)
+        det = np.linalg.det(n)
+        ok = np.abs(det) > 1e-4
+        nn = np.where(ok[:, None, None], n, np.eye(3)[None])
+        apex = np.linalg.solve(nn, rhs[..., None])[..., 0]
+        e = _unit(p - apex[:, None, :])
+        axis = _unit(np.cross(e[:, 1] - e[:, 0], e[:, 2] - e[:, 0]))
+        flip = np.einsum("bi,bi->b", axis, e[:, 0]) < 0
+        axis[flip] *= -1
+        ang = np.arccos(np.clip(np.einsum("bki,bi->bk", e, axis), -1, 1)).mean(axis=1)
+        ok &= (ang > 1e-3) & (ang < 1.5)
+        return {"apex": apex[ok], "a": axis[ok], "t": ang[ok]}
+
+    @staticmethod
+    def residuals(h: dict, p: NDArray, n: NDArray) -> tuple[NDArray, NDArray]:
+        v = p[None, :, :] - h["apex"][:, None, :]
+        along = np.einsum("bmi,bi->bm", v, h["a"])
+        radial = v - along[:, :, None] * h["a"][:, None, :]
+        rn = np.linalg.norm(radial, axis=2)
+        ct, st = np.cos(h["t"])[:, None], np.sin(h["t"])[:, None]
+        dist = rn * ct - along * st
+        ru = radial / np.maximum(rn, _EPS)[:, :, None]
+        surf_n = ru * ct[:, :, None] - h["a"][:, None, :] * st[:, :, None]
+        cos = np.abs(np.einsum("bmi,mi->bm", surf_n, n))
+        return dist, cos
+
+    def distance(self, p: NDArray) -> NDArray:
+        v = p - self.apex
+        along = v @ self.axis
+        rn = np.linalg.norm(v - np.outer(along, self.axis), axis=1)
+        return rn * math.cos(self.half_angle) - along * math.sin(self.half_angle)
+
+    @staticmethod
+    def from_batch(h: dict, i: int) -> "ConeModel":
+        return ConeModel(h["apex"][i].copy(), h["a"][i].copy(), float(h["t"][i]))
+
+    def to_vector(self) -> NDArray:
+        return np.zeros(6)
+
+    @staticmethod
+    def from_vector(x: NDArray, ref: "ConeModel") -> "ConeModel":
+        e1, e2 = _perp_basis(ref.axis)
+        axis = _unit(ref.axis + x[0] * e1 + x[1] * e2)
+        return ConeModel(ref.apex + x[2:5], axis, float(ref.half_angle + x[5]))
+
+
+MODELS = {"plane": PlaneModel, "sphere": SphereModel, "cylinder": CylinderModel, "cone": ConeModel}
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Best RANSAC model and its support on the points it was fitted to."""
+
+    model: object
+    inliers: NDArray[np.bool_]
+    inlier_ratio: float
+    rmse: float
+
+
+def fit_plane_svd(points: NDArray[np.float64]) -> PlaneModel:
+    """Total-least-squares plane through ``points`` (n >= 3, (n, 3) [m])."""
+    c = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - c, full_matrices=False)
+    n = vt[2]
+    return PlaneModel(n, float(-n @ c))
+
+
+def ransac(model_cls, points: NDArray[np.float64], normals: NDArray[np.float64],
+           threshold: float, normal_threshold: float, max_iterations: int,
+           confidence: float, rng: np.random.Generator, batch: int = 64,
+           accept: Callable[[object], bool] | None = None) -> FitResult | None:
+    """Find the model with the most inliers.
+
+    Parameters
+    ----------
+    model_cls : one of :data:`MODELS`' values
+    points, normals : (M, 3) float64 arrays [m], unit normals
+    threshold : float [m]
+        Inlier distance.
+    normal_threshold : float [rad]
+        Inlier normal deviation.
+    max_iterations : int
+        Upper bound on hypotheses; fewer are drawn once ``confidence`` is reached.
+    rng : numpy Generator
+    accept : callable, optional
+        Hypotheses for which it returns False are skipped (e.g. radius bounds).
+
+    Returns
+    -------
+    FitResult or None when no hypothesis could be formed.
+    """
+    m = len(points)
+    k = model_cls.sample_size
+    if m < k + 1:
+        return None
+    cos_thr = math.cos(normal_threshold)
+    best_count, best = -1, None
+    needed, drawn = max_iterations, 0
+    while drawn < min(needed, max_iterations):
+        nb = min(batch, max_iterations - drawn)
+        idx = np.stack([rng.choice(m, size=k, replace=False) for _ in range(nb)]) if m < 4 * k \
+            else rng.integers(0, m, size=(nb, k))
+        drawn += nb
+        h = model_cls.hypotheses(points[idx], normals[idx])
+        count_h = len(next(iter(h.values())))
+        if count_h == 0:
+            continue
+        if accept is not None:
+            keep = np.array([accept(model_cls.from_batch(h, i)) for i in range(count_h)])
+            if not keep.any():
+                continue
+            h = {key: val[keep] for key, val in h.items()}
+        dist, cos = model_cls.residuals(h, points, normals)
+        inl = (np.abs(dist) <= threshold) & (cos >= cos_thr)
+        counts = inl.sum(axis=1)
+        i = int(np.argmax(counts))
+        if counts[i] > best_count:
+            best_count = int(counts[i])
+            best = model_cls.from_batch(h, i)
+            w = best_count / m
+            if w >= 1.0:
+                needed = drawn
+            elif w > 0:
+                needed = int(math.ceil(math.log(1 - confidence) / math.log(1 - w ** k)))
+    if best is None:
+        return None
+    dist = best.distance(points)
+    inliers = np.abs(dist) <= threshold
+    rmse = float(np.sqrt(np.mean(dist[inliers] ** 2))) if inliers.any() else float("inf")
+    return FitResult(best, inliers, float(inliers.mean()), rmse)
+
+
+def refine(model, points: NDArray[np.float64], threshold: float, rounds: int = 2):
+    """Least-squares refinement of a sphere, cylinder or cone on its inliers.
+
+    Geometric point-to-surface distances are minimised (no algebraic bias in the radius).
+    Inliers (|distance| <= ``threshold`` [m]) are re-selected after each round.
+    """
+    if isinstance(model, PlaneModel):
+        for _ in range(rounds):
+            inl = np.abs(model.distance(points)) <= threshold
+            if inl.sum() < 3:
+                break
+            model = fit_plane_svd(points[inl])
+        return model
+    cls = type(model)
+    for _ in range(rounds):
+        inl = np.abs(model.distance(points)) <= threshold
+        if inl.sum() < cls.sample_size + 3:
+            break
+        sub = points[inl]
+        ref = model
+        x0 = ref.to_vector() if cls is not SphereModel else model.to_vector()
+
+        def fun(x, ref=ref, sub=sub):
+            return cls.from_vector(x, ref).distance(sub)
+
+        sol = least_squares(fun, x0, method="lm", x_scale="jac", max_nfev=200)
+        model = cls.from_vector(sol.x, ref)
+    return model

@@ -1,0 +1,157 @@
+"""Surface type of a face (paper section 3.1) and principal curvatures.
+
+A face is planar or curved by its multi-scale covariance feature CF:
+
+* spherical neighbourhoods centred at the face centre (the face point nearest the face
+  centroid), three radii uniformly spaced up to a fraction of the face's minimum width;
+* per neighbourhood the covariance eigenvalues l1 >= l2 >= l3 give
+  P = (sqrt l2 - sqrt l3) / sqrt l1 (eq. 1), C = sqrt l3 / (sqrt l1 + sqrt l2 + sqrt l3)
+  (eq. 2), b = (1 - C)^2 (eq. 3) and cf = P * b (eq. 4);
+* CF = sum w_i cf_i (eq. 5) with w = (e^-t, 1 - e^-t, 2 (1 - e^-t)) (eq. 6), t the noise
+  amplitude. The face is planar iff CF / sum(w) > CF_th (dividing by the weight sum keeps
+  one threshold valid at every noise level).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["FaceFeature", "covariance_features", "face_feature", "principal_curvatures"]
+
+
+def covariance_features(points: NDArray[np.float64]) -> tuple[float, float, float]:
+    """Planarity P (eq. 1), curvature C (eq. 2) and cf = P * (1 - C)^2 (eqs. 3-4).
+
+    Parameters
+    ----------
+    points : (n, 3) float64 array [m], n >= 3
+
+    Returns
+    -------
+    (P, C, cf) : floats in [0, 1]
+    """
+    centered = points - points.mean(axis=0)
+    evals = np.linalg.eigvalsh(centered.T @ centered / len(points))[::-1]
+    s = np.sqrt(np.clip(evals, 0.0, None))
+    if s[0] <= 0:
+        return 0.0, 0.0, 0.0
+    planarity = (s[1] - s[2]) / s[0]
+    curvature = s[2] / s.sum()
+    return float(planarity), float(curvature), float(planarity * (1.0 - curvature) ** 2)
+
+
+@dataclass(frozen=True)
+class FaceFeature:
+    """Multi-scale feature of one face.
+
+    Attributes
+    ----------
+    center : (3,) float64 [m]
+        Face point nearest the centroid (the neighbourhood centre).
+    min_width : float [m]
+        Extent of the face along its second principal axis.
+    radii : (3,) float64 [m]
+    cf : (3,) float64
+        cf_i per radius (NaN where the neighbourhood had fewer than 5 points).
+    cf_total : float
+        Normalised CF = sum w_i cf_i / sum w_i over the valid radii.
+    planar : bool
+        cf_total > CF_th.
+    """
+
+    center: NDArray[np.float64]
+    min_width: float
+    radii: NDArray[np.float64]
+    cf: NDArray[np.float64]
+    cf_total: float
+    planar: bool
+
+
+def face_feature(points: NDArray[np.float64], weights: tuple[float, float, float],
+                 cf_threshold: float, radius_fraction: float) -> FaceFeature:
+    """Classify one face as planar or curved (paper eqs. 1-6).
+
+    Parameters
+    ----------
+    points : (n, 3) float64 array [m]
+        All points of the face.
+    weights : (w1, w2, w3)
+        Eq. 6 weights for the smallest to the largest radius.
+    cf_threshold : float
+        CF_th in [0, 1] (applied to the normalised CF).
+    radius_fraction : float
+        Largest radius as a fraction of the face's minimum width.
+    """
+    centroid = points.mean(axis=0)
+    d2c = np.einsum("ij,ij->i", points - centroid, points - centroid)
+    center = points[int(np.argmin(d2c))]
+    centered = points - centroid
+    _, _, vt = np.linalg.svd(centered[:: max(1, len(points) // 20000)], full_matrices=False)
+    proj = centered @ vt[1]
+    min_width = float(proj.max() - proj.min()) if len(points) else 0.0
+    radii = min_width * radius_fraction * np.array([1.0, 2.0, 3.0]) / 3.0
+    dist2 = np.einsum("ij,ij->i", points - center, points - center)
+    cf = np.full(3, np.nan)
+    for i, r in enumerate(radii):
+        nb = points[dist2 <= r * r]
+        if len(nb) >= 5:
+            cf[i] = covariance_features(nb)[2]
+    w = np.asarray(weights, dtype=np.float64)
+    valid = np.isfinite(cf) & (w > 0)
+    if not valid.any():
+        total = 0.0
+    else:
+        total = float(np.sum(w[valid] * cf[valid]) / np.sum(w[valid]))
+    return FaceFeature(center, min_width, radii, cf, total, total > cf_threshold)
+
+
+def principal_curvatures(points: NDArray[np.float64], normals: NDArray[np.float64],
+                         neighbors: NDArray[np.int64]
+                         ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Principal curvatures per point from a local quadric fit (vectorised).
+
+    In each point's tangent frame the neighbours are fitted with
+    z = a x^2 + b x y + c y^2 + d x + e y + f; the eigenvalues of [[2a, b], [b, 2c]] are
+    the principal curvatures.
+
+    Parameters
+    ----------
+    points : (M, 3) float64 array [m]
+    normals : (M, 3) float64 array, unit
+    neighbors : (M, k) int64 array, k >= 6
+
+    Returns
+    -------
+    k_max, k_min : (M,) float64 arrays [1/m]
+        Curvature of largest and smallest magnitude (signs kept).
+    """
+    m = len(points)
+    helper = np.where(np.abs(normals[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    u = np.cross(normals, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(normals, u)
+    d = points[neighbors] - points[:, None, :]
+    x = np.einsum("mki,mi->mk", d, u)
+    y = np.einsum("mki,mi->mk", d, v)
+    z = np.einsum("mki,mi->mk", d, normals)
+    scale = np.sqrt(np.mean(x * x + y * y, axis=1, keepdims=True))
+    scale = np.where(scale > 0, scale, 1.0)
+    xs, ys, zs = x / scale, y / scale, z / scale
+    design = np.stack([xs * xs, xs * ys, ys * ys, xs, ys, np.ones_like(xs)], axis=2)
+    ata = np.einsum("mki,mkj->mij", design, design) + 1e-9 * np.eye(6)
+    atb = np.einsum("mki,mk->mi", design, zs)
+    coef = np.linalg.solve(ata, atb[..., None])[..., 0]
+    a, b, c = coef[:, 0], coef[:, 1], coef[:, 2]
+    s = scale[:, 0]
+    # Curvatures in scaled units -> divide by the scale to get 1/m.
+    h11, h12, h22 = 2 * a / s, b / s, 2 * c / s
+    mean = 0.5 * (h11 + h22)
+    disc = np.sqrt(np.maximum(0.25 * (h11 - h22) ** 2 + h12 ** 2, 0.0))
+    k1, k2 = mean + disc, mean - disc
+    swap = np.abs(k2) > np.abs(k1)
+    k_max = np.where(swap, k2, k1)
+    k_min = np.where(swap, k1, k2)
+    return k_max[:m], k_min[:m]
