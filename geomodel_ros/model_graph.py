@@ -105,8 +105,11 @@ def _mixed_decision(faces: list[FaceInfo], tol: float) -> GraphDecision:
     planar = [i for i, f in enumerate(faces) if f.planar]
     main = max(planar, key=lambda i: faces[i].size)
     n0 = faces[main].normal
+    total = sum(f.size for f in faces)
     others = [i for i in planar if i != main]
-    if any(abs(faces[i].normal @ n0) < math.cos(tol) for i in others):
+    # Small planar pieces at an angle to the main plane are slivers of the curved surface.
+    if any(abs(faces[i].normal @ n0) < math.cos(tol) and faces[i].size > 0.1 * total
+           for i in others):
         return GraphDecision("mixed", (), main, (),
                              "several non-parallel planar faces with curved faces")
     curved_normals = np.vstack([f.point_normals for f in faces if not f.planar])
@@ -144,7 +147,7 @@ def curvature_candidates(k_max: NDArray[np.float64], k_min: NDArray[np.float64],
 
 def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
                 coplanar_tol: float, curvature: tuple[NDArray, NDArray] | None = None,
-                sphere_ratio: float = 0.55, developable_ratio: float = 0.3,
+                sphere_ratio: float = 0.45, developable_ratio: float = 0.3,
                 cone_variation: float = 0.25) -> GraphDecision:
     """Apply the model graph.
 

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
 __all__ = ["ray_to_plane", "ray_to_cylinder", "min_area_rectangle", "orthonormalize_axes",
-           "interval"]
+           "interval", "edge_gap"]
 
 
 def ray_to_plane(points: NDArray[np.float64], normal: NDArray[np.float64], d: float,
@@ -53,6 +53,24 @@ def ray_to_cylinder(points: NDArray[np.float64], point: NDArray[np.float64],
     return np.where(ok[:, None], points * np.where(ok, s, 1.0)[:, None], points)
 
 
+def edge_gap(values: NDArray[np.float64], spacing: float) -> float:
+    """Expected distance [m] between the largest of ``values`` and the true edge beyond it.
+
+    Near a sampled edge the projections of the last samples are either spread almost
+    continuously (edge oblique to the sampling grid: the extreme sample sits nearly on
+    the edge) or fall into discrete rows (edge parallel to the grid: the gap is uniform
+    over one row step). Half the largest step between consecutive projections within
+    ``2 * spacing`` of the extreme covers both cases.
+    """
+    if values.size < 2 or spacing <= 0:
+        return 0.0
+    top = values.max()
+    band = np.sort(values[values >= top - 4.0 * spacing])
+    if band.size < 2:
+        return 0.5 * spacing
+    return 0.5 * float(np.max(np.diff(band)))
+
+
 def interval(values: NDArray[np.float64], spacing: float, closed_low: float | None = None,
              closed_high: float | None = None, correct: bool = True) -> tuple[float, float]:
     """Extent of projected values along one axis.
@@ -62,18 +80,18 @@ def interval(values: NDArray[np.float64], spacing: float, closed_low: float | No
     values : (n,) float64 array [m]
         Projections of the object's points on the axis.
     spacing : float [m]
-        Point spacing; open ends move outwards by ``spacing / 2`` when ``correct``.
+        Median point spacing; with ``correct`` open ends move outwards by the expected
+        sampling gap (:func:`edge_gap`).
     closed_low, closed_high : float or None [m]
         Position of a fitted face perpendicular to the axis at that end; used as the end
         itself (no sampling gap there).
     """
     lo = float(values.min()) if closed_low is None else float(closed_low)
     hi = float(values.max()) if closed_high is None else float(closed_high)
-    half = 0.5 * spacing if correct else 0.0
-    if closed_low is None:
-        lo -= half
-    if closed_high is None:
-        hi += half
+    if correct and closed_low is None:
+        lo -= edge_gap(-values, spacing)
+    if correct and closed_high is None:
+        hi += edge_gap(values, spacing)
     return lo, hi
 
 
@@ -123,6 +141,9 @@ def orthonormalize_axes(normals: NDArray[np.float64], weights: NDArray[np.float6
         ref = normals[sel[np.argmax(weights[sel])]]
         signed = normals[sel] * np.sign(normals[sel] @ ref)[:, None]
         m[:, a] = (weights[sel, None] * signed).sum(axis=0)
+    # Axis signs are free: make the target triple right-handed before solving.
+    if np.linalg.det(m) < 0:
+        m[:, 2] *= -1
     u, _, vt = np.linalg.svd(m)
     r = u @ vt
     if np.linalg.det(r) < 0:

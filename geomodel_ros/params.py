@@ -108,7 +108,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     # --- model graph ----------------------------------------------------------------------
     ParamSpec("angle_tolerance", 0.14, "rad", 0.005, 0.6,
               "Tolerance for 'perpendicular' and 'parallel' normal relations."),
-    ParamSpec("sphere_curvature_ratio", 0.55, "1", 0.0, 1.0,
+    ParamSpec("sphere_curvature_ratio", 0.45, "1", 0.0, 1.0,
               "Median |k2|/|k1| at or above which an all-curved object is a sphere candidate."),
     ParamSpec("developable_curvature_ratio", 0.3, "1", 0.0, 1.0,
               "Median |k2|/|k1| at or below which an all-curved object is a cylinder/cone candidate."),

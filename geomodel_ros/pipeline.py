@@ -141,7 +141,7 @@ def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
         planar = feat.planar
         if planar and plane_rmse > params.ransac_threshold:
             planar = False
-        elif not planar and plane_rmse < params.ransac_threshold / 3.0:
+        elif not planar and plane_rmse <= params.ransac_threshold / 2.0:
             planar = True
         center = fpts.mean(axis=0)
         if planar:
@@ -218,14 +218,18 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
         return None, bad
     assign = np.asarray(assignment, dtype=np.int64)
     rot = obb.orthonormalize_axes(np.array(normals), np.array(weights), assign)
-    # Points of each face moved onto its plane along their rays, then projected on the axes.
+    # Every point is re-assigned to its nearest face plane (edge points may sit in the
+    # wrong face) and, optionally, moved onto that plane along its viewing ray.
+    dist = np.stack([np.abs(m.distance(o.points)) for m in planes], axis=1)
+    nearest = np.argmin(dist, axis=1)
+    q = o.points.copy()
     proj_faces = []
-    for f, model in zip(o.faces, planes):
-        q = o.points[f.points]
+    for fi, model in enumerate(planes):
+        sel = nearest == fi
         if p.reproject_along_rays:
-            q = obb.ray_to_plane(q, model.normal, model.d)
-        proj_faces.append(q @ rot)
-    proj = np.vstack(proj_faces)
+            q[sel] = obb.ray_to_plane(o.points[sel], model.normal, model.d)
+        proj_faces.append(q[sel] @ rot)
+    proj = q @ rot
     lo, hi = np.empty(3), np.empty(3)
     for a in range(3):
         vals = proj[:, a]
@@ -242,10 +246,9 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
                                     correct=p.edge_correction)
     center = rot @ ((lo + hi) / 2)
     ext = hi - lo
-    dist = np.concatenate([np.abs(m.distance(o.sample(f.points))) for f, m in zip(o.faces, planes)])
     prim = Primitive(o.oid, "cuboid", center, rot,
                      {"length": float(ext[0]), "width": float(ext[1]), "height": float(ext[2])},
-                     len(o.points), _rms(dist))
+                     len(o.points), _rms(dist[np.arange(len(q)), nearest]))
     return prim, "cuboid verified"
 
 
@@ -303,8 +306,12 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
     axis = model.axis
     if not _axis_ok(axis, prior, tol):
         return None, f"{kind} axis not aligned with its planar face"
-    curved_pts = o.points[o.face_points(curved)]
-    cap_pts = o.points[o.face_points(planar)]
+    caps = [o.faces[i] for i in planar if abs(o.faces[i].info.normal @ axis) >= math.cos(tol)]
+    # Each point goes to its nearest surface: the curved model or one of its caps.
+    dists = [np.abs(model.distance(o.points))] + \
+        [np.abs(o.points @ f.info.normal + f.info.offset) for f in caps]
+    nearest = np.argmin(np.stack(dists, axis=1), axis=1)
+    curved_pts = o.points[nearest == 0]
     if kind == "cylinder":
         if not p.min_radius <= model.radius <= p.max_radius:
             return None, f"cylinder radius {model.radius:.4f} m out of range"
@@ -315,17 +322,17 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
         if model.half_angle < p.min_cone_half_angle:
             return None, f"cone half-angle {math.degrees(model.half_angle):.1f} deg too small"
         origin = model.apex
-    t_curved = (curved_pts - origin) @ axis
-    closed = []
-    for i in planar:
-        f = o.faces[i]
-        if abs(f.info.normal @ axis) >= math.cos(tol):
-            q = o.points[f.points]
-            if p.reproject_along_rays:
-                n = f.info.normal
-                q = obb.ray_to_plane(q, n, f.info.offset)
-            closed.append(float(np.median((q - origin) @ axis)))
-    t_all = np.concatenate([t_curved, (cap_pts - origin) @ axis]) if len(cap_pts) else t_curved
+    t_parts, closed = [(curved_pts - origin) @ axis], []
+    for ci, f in enumerate(caps, start=1):
+        q = o.points[nearest == ci]
+        if len(q) == 0:
+            continue
+        if p.reproject_along_rays:
+            q = obb.ray_to_plane(q, f.info.normal, f.info.offset)
+        t_cap = (q - origin) @ axis
+        t_parts.append(t_cap)
+        closed.append(float(np.median(t_cap)))
+    t_all = np.concatenate(t_parts)
     tmin, tmax = float(t_all.min()), float(t_all.max())
     closed_lo = [c for c in closed if c - tmin < tmax - c]
     closed_hi = [c for c in closed if c - tmin >= tmax - c]
