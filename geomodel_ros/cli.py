@@ -171,15 +171,16 @@ def figure9_table(scene, result) -> str:
     """Figure-9-style table: object, type, true size, estimate, error [mm]."""
     from .evaluation import score_objects
 
-    lines = [f"{'id':>3} {'true type':<9} {'modeled':<9} {'true size (mm)':<30} "
+    lines = [f"{'id':>3} {'true type':<9} {'modeled':<9} {'true size (mm)':<28} "
              f"{'estimate (mm)':<30} {'error (mm)':<24}"]
     for s in score_objects(result.objects, scene.objects):
         gt = next(o for o in scene.objects if o.id == s.gt_id)
-        true = ", ".join(f"{k}={v * 1000:.3f}" for k, v in gt.dimensions.items())
+        true = _fmt_dims(s.errors, "true") if s.errors else \
+            ", ".join(f"{k[0].upper()}={v * 1000:.3f}" for k, v in gt.dimensions.items())
         est = _fmt_dims(s.errors, "estimate") if s.errors else "-"
         err = ", ".join(f"{e.error * 1000:+.3f}" for e in s.errors) if s.errors else "-"
         mark = "" if s.type_correct else "  <- type wrong"
-        lines.append(f"{s.gt_id:>3} {s.true_type:<9} {s.estimated:<9} {true:<30} {est:<30} "
+        lines.append(f"{s.gt_id:>3} {s.true_type:<9} {s.estimated:<9} {true:<28} {est:<30} "
                      f"{err:<24}{mark}")
     return "\n".join(lines)
 

@@ -32,18 +32,19 @@ class DimensionError:
 def dimension_errors(est: Primitive, gt) -> list[DimensionError]:
     """Sizes of ``est`` against ground truth ``gt`` (a ``GroundTruthObject``).
 
-    Planes and cuboids are compared axis by axis: the true extent along each estimated
-    axis is the projection of the true box onto it, so the result does not depend on how
-    the axes are named. Empty when the types differ.
+    Planes and cuboids are compared axis by axis: each estimated axis is paired with the
+    ground-truth axis closest to it, so the result does not depend on how the axes are
+    named. Empty when the types differ.
     """
     if est.type != gt.type:
         return []
     if est.type in ("plane", "cuboid"):
         names = ("length", "width", "height")[: len(est.dimensions)]
-        gdims = np.array([gt.dimensions.get(n, 0.0) for n in ("length", "width", "height")])
+        gnames = ("length", "width", "height")[: len(gt.dimensions)]
+        cos = np.abs(est.rotation[:, : len(names)].T @ np.asarray(gt.rotation)[:, : len(gnames)])
         out = []
         for a, name in enumerate(names):
-            true = float(np.sum(np.abs(np.asarray(gt.rotation).T @ est.rotation[:, a]) * gdims))
+            true = float(gt.dimensions[gnames[int(np.argmax(cos[a]))]])
             out.append(DimensionError(name, true, float(est.dimensions[name])))
         return out
     return [DimensionError(k, float(gt.dimensions[k]), float(v))

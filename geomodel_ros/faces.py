@@ -77,7 +77,7 @@ def estimate_normals(points: NDArray[np.float64], k: int,
     m = len(points)
     k = int(min(k, m))
     tree = tree if tree is not None else cKDTree(points)
-    _, neighbors = tree.query(points, k=k, workers=-1)
+    _, neighbors = tree.query(points, k=k, workers=-1 if m > 50000 else 1)
     neighbors = np.asarray(neighbors, dtype=np.int64).reshape(m, k)
     nb = points[neighbors]
     nb = nb - nb.mean(axis=1, keepdims=True)

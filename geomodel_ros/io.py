@@ -24,10 +24,12 @@ from __future__ import annotations
 
 import os
 import struct
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from io import BytesIO, StringIO
 from pathlib import Path
+
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
@@ -274,7 +276,8 @@ def _to_xyz(path: PathLike, columns: tuple[np.ndarray, np.ndarray, np.ndarray]) 
                 f"{os.fspath(path)}: field {'xyz'[axis]!r} has COUNT {values.shape[1]}; "
                 "x, y and z must have COUNT 1"
             )
-        points[:, axis] = values
+        with np.errstate(invalid="ignore"):  # signalling-NaN payloads stay NaN, silently
+            points[:, axis] = values
     return points
 
 
@@ -398,6 +401,8 @@ _PCD_KIND = {"F": "f", "I": "i", "U": "u"}
 _COLOR_FIELDS = ("rgb", "rgba")
 #: Header lines before DATA are short; a file without DATA in this many bytes is not a PCD.
 _PCD_MAX_HEADER = 1 << 20
+#: Largest COUNT accepted (PCL's largest standard field, a 308-bin histogram, is far below).
+_PCD_MAX_COUNT = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -512,6 +517,11 @@ def _parse_pcd_header(buf: bytearray, path: PathLike) -> tuple[_PcdHeader, int]:
     sizes = tuple(_parse_int(path, "SIZE", t, 1) for t in entries["SIZE"])
     types = tuple(t.upper() for t in entries["TYPE"])
     counts = tuple(_parse_int(path, "COUNT", t, 1) for t in counts_tokens)
+    for field_name, count in zip(names, counts, strict=True):
+        if count > _PCD_MAX_COUNT:
+            raise CloudFileError(
+                f"{name}: field {field_name!r} has COUNT {count}; allowed: 1 to {_PCD_MAX_COUNT}"
+            )
     for field_name, type_, size in zip(names, types, sizes, strict=True):
         if type_ not in _PCD_SIZES:
             raise CloudFileError(
@@ -660,6 +670,11 @@ def _read_pcd_ascii(buf: bytearray, start: int, header: _PcdHeader, path: PathLi
         key = field_name if field_name != "_" else f" pad {index}"
         parse_types.append((key, dtype, (count,)) if count > 1 else (key, dtype))
     dtype = np.dtype(parse_types)
+    lines = buf.count(b"\n", start) + (0 if buf.endswith(b"\n") else 1)
+    if lines < header.points:  # checked first: loadtxt allocates max_rows rows up front
+        raise CloudFileError(
+            f"{name}: truncated PCD: DATA ascii has {lines} lines, POINTS says {header.points}"
+        )
     if header.points == 0:
         records = np.zeros(0, dtype=dtype)
     else:
@@ -668,9 +683,11 @@ def _read_pcd_ascii(buf: bytearray, start: int, header: _PcdHeader, path: PathLi
         except UnicodeDecodeError:
             raise CloudFileError(f"{name}: PCD DATA ascii section is not ASCII text") from None
         try:
-            records = np.loadtxt(
-                StringIO(text), dtype=dtype, ndmin=1, max_rows=header.points, comments=None
-            )
+            with warnings.catch_warnings():  # an empty DATA section is reported below
+                warnings.simplefilter("ignore", UserWarning)
+                records = np.loadtxt(
+                    StringIO(text), dtype=dtype, ndmin=1, max_rows=header.points, comments=None
+                )
         except ValueError as exc:
             raise CloudFileError(f"{name}: corrupt PCD DATA ascii: {exc}") from None
         if records.shape[0] != header.points:
@@ -1092,9 +1109,16 @@ def read_ply(path: PathLike) -> Cloud:
                     f"least {skip + n}"
                 )
             try:
-                records = np.loadtxt(lines[skip : skip + n], dtype=dtype, ndmin=1)
+                with warnings.catch_warnings():  # blank lines are reported below
+                    warnings.simplefilter("ignore", UserWarning)
+                    records = np.loadtxt(lines[skip : skip + n], dtype=dtype, ndmin=1)
             except ValueError as exc:
                 raise CloudFileError(f"{name}: corrupt PLY ascii vertex data: {exc}") from None
+            if records.shape[0] != n:
+                raise CloudFileError(
+                    f"{name}: corrupt PLY: {n - records.shape[0]} of the {n} vertex lines "
+                    "are blank"
+                )
     else:
         offset = start
         for element in elements[:vertex_index]:
@@ -1201,8 +1225,8 @@ def read_npy(path: PathLike) -> Cloud:
     Parameters
     ----------
     path : str or os.PathLike
-        A file written by :func:`numpy.save` holding a float (N, 3) or (H, W, 3) array [m]
-        (pickled objects are refused).
+        A file written by :func:`numpy.save` (format version 1.0 or 2.0) holding a float
+        (N, 3) or (H, W, 3) array [m]. Pickled objects are refused.
 
     Returns
     -------
@@ -1212,31 +1236,48 @@ def read_npy(path: PathLike) -> Cloud:
     Raises
     ------
     CloudFileError
-        If the file is missing, not an NPY array, truncated, pickled, or of another dtype
-        or shape.
+        If the file is missing, not an NPY array, truncated, or of another dtype or shape.
+
+    Notes
+    -----
+    The header is checked against the file size before any data is touched (a corrupt
+    shape cannot trigger a huge allocation); the data are then a view of the file buffer.
     """
     name = os.fspath(path)
-    buf = _read_bytes(path)  # uniform messages for missing / unreadable / empty files
+    buf = _read_bytes(path)
+    stream = BytesIO(buf)
     try:
-        array = np.load(BytesIO(buf), allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
+        version = np.lib.format.read_magic(stream)
+        if version == (1, 0):
+            shape, fortran_order, dtype = np.lib.format.read_array_header_1_0(stream)
+        elif version == (2, 0):
+            shape, fortran_order, dtype = np.lib.format.read_array_header_2_0(stream)
+        else:
+            raise ValueError(f"format version {version[0]}.{version[1]} (allowed: 1.0, 2.0)")
+    except Exception as exc:  # noqa: BLE001 - numpy's header parser raises many kinds
         raise CloudFileError(f"{name}: not a readable .npy array: {exc}") from None
-    if not isinstance(array, np.ndarray):
-        if hasattr(array, "close"):
-            array.close()
-        raise CloudFileError(f"{name}: holds an .npz archive, not a single .npy array")
-    if array.dtype.kind != "f":
+    if dtype.kind != "f":
         raise CloudFileError(
-            f"{name}: array dtype {array.dtype} is not allowed; it must be a float dtype"
+            f"{name}: array dtype {dtype} is not allowed; it must be a float dtype"
         )
-    if array.ndim == 2 and array.shape[1] == 3:
-        return Cloud(array.astype(np.float64, copy=False))
-    if array.ndim == 3 and array.shape[2] == 3:
-        rows, cols = array.shape[:2]
-        return Cloud(array.reshape(-1, 3).astype(np.float64, copy=False), {}, cols, rows)
-    raise CloudFileError(
-        f"{name}: array shape {array.shape} is not allowed; it must be (N, 3) or (H, W, 3)"
-    )
+    shape = tuple(int(d) for d in shape)
+    if not (len(shape) in (2, 3) and shape[-1] == 3):
+        raise CloudFileError(
+            f"{name}: array shape {shape} is not allowed; it must be (N, 3) or (H, W, 3)"
+        )
+    count = int(np.prod(shape))
+    offset = stream.tell()
+    if len(buf) - offset < count * dtype.itemsize:
+        raise CloudFileError(
+            f"{name}: truncated .npy array: shape {shape} of {dtype} needs "
+            f"{count * dtype.itemsize} bytes, the file has {len(buf) - offset}"
+        )
+    flat = np.frombuffer(buf, dtype=dtype, count=count, offset=offset)
+    array = flat.reshape(shape[::-1]).transpose() if fortran_order else flat.reshape(shape)
+    points = np.ascontiguousarray(array.reshape(-1, 3), dtype=np.float64)
+    if len(shape) == 3:
+        return Cloud(points, {}, shape[1], shape[0])
+    return Cloud(points)
 
 
 def write_npy(path: PathLike, points: ArrayLike) -> None:

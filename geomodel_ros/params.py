@@ -125,7 +125,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Probability of drawing an all-inlier sample used for early termination."),
     ParamSpec("min_inlier_ratio", 0.8, "1", 0.05, 1.0,
               "Share of the surface's points that must be inliers for a fit to verify."),
-    ParamSpec("refine_max_points", 20000, "count", 100, 10000000,
+    ParamSpec("refine_max_points", 5000, "count", 100, 10000000,
               "Most full-resolution points used in the least-squares refinement."),
     ParamSpec("min_radius", 0.002, "m", 0.0, 100.0,
               "Smallest accepted cylinder, cone or sphere radius."),

@@ -173,7 +173,7 @@ def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
     widx = o.face_working(all_faces)
     model = fit_plane_svd(o.wc.points[o.faces[main].working])
     model = refine(model, o.wc.points[widx], p.ransac_threshold)
-    model = refine(model, o.sample(o.face_points(all_faces)), p.ransac_threshold)
+    model = refine(model, o.sample(o.face_points(all_faces)), p.ransac_threshold, rounds=1)
     ratio = float(np.mean(np.abs(model.distance(o.wc.points[widx])) <= p.ransac_threshold))
     bad = _verify(ratio, p, "plane")
     if bad:
@@ -288,9 +288,9 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
                  p.ransac_max_iterations, p.ransac_confidence, o.rng, accept=accept)
     if fit is None:
         return None, f"{kind}: no valid RANSAC hypothesis"
-    model = refine(fit.model, wp, p.ransac_threshold)
+    model = refine(fit.model, wp, p.ransac_threshold, rounds=1)
     full = o.sample(o.face_points(curved))
-    model = refine(model, full, p.ransac_threshold)
+    model = refine(model, full, p.ransac_threshold, rounds=2)
     ratio = float(np.mean(np.abs(model.distance(wp)) <= p.ransac_threshold))
     bad = _verify(ratio, p, kind)
     if bad:
@@ -423,14 +423,20 @@ def _finite(p: Primitive) -> bool:
     return bool(np.all(np.isfinite(vals))) and all(v > 0 for v in p.dimensions.values())
 
 
-def estimate_spacing(tree: cKDTree, points: NDArray[np.float64], rng: np.random.Generator,
-                     samples: int = 2000) -> float:
-    """Median nearest-neighbour distance [m] of (a sample of) ``points`` within ``tree``."""
-    if len(points) < 2:
+def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
+                     max_points: int = 20000) -> float:
+    """Approximate median point spacing [m] of a surface sampled by ``points`` (n, 3).
+
+    Large sets are estimated from a random subset: on a surface the nearest-neighbour
+    distance scales with 1 / sqrt(density), so the subset's median is scaled by
+    sqrt(subset / n).
+    """
+    n = len(points)
+    if n < 2:
         return 0.0
-    q = points if len(points) <= samples else points[rng.choice(len(points), samples, replace=False)]
-    d, _ = tree.query(q, k=2, workers=-1)
-    return float(np.median(d[:, 1]))
+    sub = points if n <= max_points else points[rng.choice(n, max_points, replace=False)]
+    d, _ = cKDTree(sub).query(sub[: min(len(sub), 2000)], k=2)
+    return float(np.median(d[:, 1]) * math.sqrt(len(sub) / n))
 
 
 def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | None = None, *,
@@ -473,11 +479,10 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
         order = idx_all[np.argsort(sub_lab, kind="stable")]
         ids, starts = np.unique(lab[order], return_index=True)
         ends = np.r_[starts[1:], len(order)]
-        tree = cKDTree(pts[idx_all], balanced_tree=False, compact_nodes=False)
         for oid, s, e in zip(ids, starts, ends):
             sel = order[s:e]
             opts = pts[sel]
-            spacing = estimate_spacing(tree, opts, rng)
+            spacing = estimate_spacing(opts, rng)
             objects.append(model_object(opts, int(oid), params, rng, spacing,
                                         None if flab is None else flab[sel]))
     return ModelingResult(objects, {"modeling_s": time.perf_counter() - t0})

@@ -1,0 +1,58 @@
+"""Synthetic depth-camera data: analytic shapes, a ray-casting pinhole camera
+and the paper's desk scenes with exact ground truth.
+
+ROS-free (numpy only).  Typical use::
+
+    from geomodel_ros.synth import render_scene, SENSOR_NOISE
+    scene = render_scene("scene3", noise=SENSOR_NOISE, rng=0)
+    scene.points, scene.labels, scene.objects
+"""
+
+from .camera import DEFAULT_CHUNK_SIZE, PinholeCamera
+from .scenes import (
+    DESK_CENTER,
+    DESK_NORMAL,
+    DESK_SIZE,
+    GROUND_TRUTH_TYPES,
+    PAPER_CAMERA,
+    PAPER_SCENE_NAMES,
+    SCENE_NAMES,
+    SENSOR_NOISE,
+    TINY_CAMERA,
+    GroundTruthObject,
+    NoiseModel,
+    Scene,
+    apply_noise,
+    desk_frame,
+    render_scene,
+    scene_geometry,
+)
+from .shapes import Box, Cone, Cylinder, Rectangle, Shape, Sphere, Torus
+
+__all__ = [
+    "PinholeCamera",
+    "DEFAULT_CHUNK_SIZE",
+    "Shape",
+    "Rectangle",
+    "Box",
+    "Cylinder",
+    "Cone",
+    "Sphere",
+    "Torus",
+    "GroundTruthObject",
+    "GROUND_TRUTH_TYPES",
+    "NoiseModel",
+    "SENSOR_NOISE",
+    "Scene",
+    "SCENE_NAMES",
+    "PAPER_SCENE_NAMES",
+    "PAPER_CAMERA",
+    "TINY_CAMERA",
+    "DESK_CENTER",
+    "DESK_NORMAL",
+    "DESK_SIZE",
+    "desk_frame",
+    "scene_geometry",
+    "render_scene",
+    "apply_noise",
+]
