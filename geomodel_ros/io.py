@@ -773,8 +773,8 @@ def _format_number(value: float) -> str:
 
 def _resolve_shape(
     points: ArrayLike, width: int | None, height: int | None
-) -> tuple[np.ndarray, int, int, tuple[int, ...]]:
-    """Flatten points to (N, 3); return them, width, height and the leading field shape."""
+) -> tuple[np.ndarray, int, int]:
+    """Flatten points to (N, 3); return them, width and height."""
     array = np.asarray(points)
     if array.dtype.kind not in "fiu":
         raise ValueError(f"points must be real numbers, got dtype {array.dtype}")
@@ -785,7 +785,7 @@ def _resolve_shape(
                 f"width/height {width}/{height} disagree with organized points of shape "
                 f"{array.shape} (H, W, 3)"
             )
-        return array.reshape(-1, 3), cols, rows, array.shape[:2]
+        return array.reshape(-1, 3), cols, rows
     if array.ndim != 2 or array.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3) or (H, W, 3), got {array.shape}")
     n = int(array.shape[0])
@@ -800,7 +800,7 @@ def _resolve_shape(
         raise ValueError(
             f"width {width} x height {height} must equal the number of points {n}"
         )
-    return array, width, height, (n,)
+    return array, width, height
 
 
 def write_pcd(
@@ -824,8 +824,8 @@ def write_pcd(
         Point coordinates; NaN/inf are written as they are. An (H, W, 3) array makes an
         organized cloud of width W and height H.
     fields : mapping of str to array_like, optional
-        Extra fields written after x y z in this order: shape (N,) or (N, K) (for organized
-        points also (H, W) or (H, W, K)); K > 1 becomes COUNT K. Allowed dtypes: float32,
+        Extra fields written after x y z in this order: shape (N,) or (N, K), or (H, W) or
+        (H, W, K) for an organized cloud; K > 1 becomes COUNT K. Allowed dtypes: float32,
         float64, int8..int64, uint8..uint64, bool (written as U 1). Names must be single
         words other than x, y, z and ``_``. E.g. ``{"label": labels.astype(np.uint32),
         "rgb": packed_uint32}``.
@@ -850,7 +850,7 @@ def write_pcd(
     xyz_type = np.dtype(xyz_dtype)
     if xyz_type not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise ValueError(f"xyz_dtype must be float32 or float64, got {xyz_type}")
-    xyz, width, height, lead = _resolve_shape(points, width, height)
+    xyz, width, height = _resolve_shape(points, width, height)
     n = xyz.shape[0]
     if viewpoint is None:
         view = np.array([0, 0, 0, 1, 0, 0, 0], dtype=np.float64)
@@ -878,10 +878,13 @@ def write_pcd(
                 "than x, y, z and _"
             )
         values = np.asarray(raw)
-        if values.shape[: len(lead)] != lead or values.ndim > len(lead) + 1:
+        for lead in ((n,), (height, width)):  # per point, or per pixel
+            if values.shape[: len(lead)] == lead and values.ndim <= len(lead) + 1:
+                break
+        else:
             raise ValueError(
-                f"field {field_name!r} has shape {values.shape}; allowed: {lead} or "
-                f"{lead + ('K',)} to match the points"
+                f"field {field_name!r} has shape {values.shape}; allowed: ({n},) or ({n}, K), "
+                f"or ({height}, {width}) or ({height}, {width}, K), to match the points"
             )
         count = 1 if values.ndim == len(lead) else int(values.shape[-1])
         values = values.reshape(n, count)
@@ -1177,7 +1180,7 @@ def write_ply(
     xyz_type = np.dtype(xyz_dtype)
     if xyz_type not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise ValueError(f"xyz_dtype must be float32 or float64, got {xyz_type}")
-    xyz = _resolve_shape(points, None, None)[0]
+    xyz, _, _ = _resolve_shape(points, None, None)
     n = xyz.shape[0]
     ply_name = "float" if xyz_type.itemsize == 4 else "double"
     layout: list[tuple[str, str]] = [(axis, "<" + xyz_type.str[1:]) for axis in "xyz"]

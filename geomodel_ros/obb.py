@@ -20,24 +20,32 @@ __all__ = ["ray_to_plane", "ray_to_cylinder", "min_area_rectangle", "orthonormal
            "interval", "edge_gap"]
 
 
+def _shift_ok(points: NDArray[np.float64], s: NDArray[np.float64], max_shift: float
+              ) -> NDArray[np.bool_]:
+    return np.isfinite(s) & (np.abs(s - 1.0) * np.linalg.norm(points, axis=1) <= max_shift)
+
+
 def ray_to_plane(points: NDArray[np.float64], normal: NDArray[np.float64], d: float,
-                 max_shift: float = 0.1) -> NDArray[np.float64]:
+                 max_shift: float, min_cos: float = 0.5) -> NDArray[np.float64]:
     """Move points along their rays from the origin onto the plane n . x + d = 0.
 
-    Points whose ray meets the plane at a grazing angle, or would move by more than
-    ``max_shift`` (relative), are left where they are.
+    Points that would move by more than ``max_shift`` [m] (points of another surface) or
+    whose ray meets the plane more obliquely than ``arccos(min_cos)`` (ill-conditioned)
+    are left where they are.
     """
     denom = points @ normal
     with np.errstate(divide="ignore", invalid="ignore"):
         s = -d / denom
-    ok = np.isfinite(s) & (np.abs(s - 1.0) <= max_shift)
+        grazing = np.abs(denom) < min_cos * np.linalg.norm(points, axis=1)
+    ok = _shift_ok(points, s, max_shift) & ~grazing
     return np.where(ok[:, None], points * np.where(ok, s, 1.0)[:, None], points)
 
 
 def ray_to_cylinder(points: NDArray[np.float64], point: NDArray[np.float64],
-                    axis: NDArray[np.float64], radius: float, max_shift: float = 0.1
+                    axis: NDArray[np.float64], radius: float, max_shift: float
                     ) -> NDArray[np.float64]:
-    """Move points along their rays from the origin onto a cylinder (nearest root)."""
+    """Move points along their rays from the origin onto a cylinder (nearest root), at
+    most ``max_shift`` [m]."""
     pp = points - np.outer(points @ axis, axis)
     p0 = point - (point @ axis) * axis
     a = np.einsum("ij,ij->i", pp, pp)
@@ -49,7 +57,7 @@ def ray_to_cylinder(points: NDArray[np.float64], point: NDArray[np.float64],
     a_safe = np.where(a > 0, a, 1.0)
     s1, s2 = (-b - sq) / (2 * a_safe), (-b + sq) / (2 * a_safe)
     s = np.where(np.abs(s1 - 1) < np.abs(s2 - 1), s1, s2)
-    ok &= np.abs(s - 1.0) <= max_shift
+    ok &= _shift_ok(points, s, max_shift)
     return np.where(ok[:, None], points * np.where(ok, s, 1.0)[:, None], points)
 
 

@@ -180,7 +180,8 @@ def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
         return None, bad
     n = _toward_sensor(model.normal, o.points.mean(axis=0))
     d = -model.d if n @ model.normal < 0 else model.d
-    pts = obb.ray_to_plane(o.points, n, d) if p.reproject_along_rays else o.points
+    pts = obb.ray_to_plane(o.points, n, d, p.ransac_threshold) if p.reproject_along_rays \
+        else o.points
     frame = _perp_frame(n)
     work_xy = (o.wc.points - o.wc.points.mean(axis=0)) @ frame[:, :2]
     direction, _ = obb.min_area_rectangle(work_xy)
@@ -227,7 +228,7 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     for fi, model in enumerate(planes):
         sel = nearest == fi
         if p.reproject_along_rays:
-            q[sel] = obb.ray_to_plane(o.points[sel], model.normal, model.d)
+            q[sel] = obb.ray_to_plane(o.points[sel], model.normal, model.d, p.ransac_threshold)
         proj_faces.append(q[sel] @ rot)
     proj = q @ rot
     lo, hi = np.empty(3), np.empty(3)
@@ -316,7 +317,8 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
         if not p.min_radius <= model.radius <= p.max_radius:
             return None, f"cylinder radius {model.radius:.4f} m out of range"
         if p.reproject_along_rays:
-            curved_pts = obb.ray_to_cylinder(curved_pts, model.point, axis, model.radius)
+            curved_pts = obb.ray_to_cylinder(curved_pts, model.point, axis, model.radius,
+                                             p.ransac_threshold)
         origin = model.point
     else:
         if model.half_angle < p.min_cone_half_angle:
@@ -328,7 +330,7 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
         if len(q) == 0:
             continue
         if p.reproject_along_rays:
-            q = obb.ray_to_plane(q, f.info.normal, f.info.offset)
+            q = obb.ray_to_plane(q, f.info.normal, f.info.offset, p.ransac_threshold)
         t_cap = (q - origin) @ axis
         t_parts.append(t_cap)
         closed.append(float(np.median(t_cap)))
