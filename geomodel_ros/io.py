@@ -85,7 +85,8 @@ class Cloud:
     ----------
     points : (N, 3) float64 array [m]
         x, y, z of every point, finite and non-finite (NaN marks invalid points of organized
-        clouds) exactly as stored, in row-major order for organized clouds.
+        clouds) exactly as stored, in row-major order for organized clouds. The constructor
+        also accepts an (H, W, 3) array (with width and height left at 0) and flattens it.
     fields : dict[str, ndarray]
         Every other field by name, first axis N: e.g. ``label`` (N,) uint32, ``rgb`` /
         ``rgba`` (N,) uint32 holding the raw packed colour bits (whatever type the file
@@ -213,14 +214,23 @@ def read_cloud(path: PathLike) -> Cloud:
 def write_cloud(path: PathLike, cloud: Cloud, *, binary: bool = True) -> None:
     """Write a :class:`Cloud`, choosing the format by the suffix of ``path``.
 
-    ``.pcd`` keeps all fields, the organization and the viewpoint (``binary`` selects
-    ``DATA binary`` or ``ascii``); ``.ply`` keeps xyz only; ``.npy`` keeps xyz and the
-    organization ((H, W, 3) when organized).
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file (overwritten): ``.pcd`` keeps all fields, the organization and the
+        viewpoint (x y z as float32); ``.ply`` keeps xyz only (float32); ``.npy`` keeps xyz
+        (float64) and the organization ((H, W, 3) when organized).
+    cloud : Cloud
+        The cloud.
+    binary : bool
+        For ``.pcd``: ``DATA binary`` when True, else ``DATA ascii``.
 
     Raises
     ------
     ValueError
-        If the suffix is not one of :data:`CLOUD_SUFFIXES`.
+        If the suffix is not one of :data:`CLOUD_SUFFIXES`, or a field cannot be stored.
+    OSError
+        If the file cannot be written.
     """
     suffix = Path(path).suffix.lower()
     if suffix == ".pcd":
@@ -940,24 +950,25 @@ def write_pcd(
 def _ascii_body(
     names: list[str], columns: list[np.ndarray], dtypes: list[np.dtype], n: int
 ) -> str:
-    """One text line per point, columns separated by single spaces."""
+    """One text line per point, values separated by single spaces."""
     if n == 0:
         return ""
-    texts: list[np.ndarray] = []
+    formats: list[str] = []
+    values_by_column: list[list] = []
     for name, values, dtype in zip(names, columns, dtypes, strict=True):
         values = values.reshape(n, -1).astype(dtype, copy=False)
         if name in _COLOR_FIELDS and dtype.itemsize == 4:
             values, fmt = values.view(np.uint32), "%d"
         elif dtype.kind == "f":
-            fmt = "%.9g" if dtype.itemsize == 4 else "%.17g"
+            fmt = "%.9g" if dtype.itemsize == 4 else "%.17g"  # round-trip precision
         else:
             fmt = "%d"
         for k in range(values.shape[1]):  # per value column, not per point
-            texts.append(np.char.mod(fmt, values[:, k]))
-    line = texts[0]
-    for text in texts[1:]:
-        line = np.char.add(np.char.add(line, " "), text)
-    return "\n".join(line.tolist()) + "\n"
+            formats.append(fmt)
+            values_by_column.append(values[:, k].tolist())
+    row = " ".join(formats)
+    # map() applies the row format to one tuple per point inside C, without a Python loop.
+    return "\n".join(map(row.__mod__, zip(*values_by_column))) + "\n"
 
 
 # --------------------------------------------------------------------------------------------
@@ -1286,10 +1297,19 @@ def read_npy(path: PathLike) -> Cloud:
 def write_npy(path: PathLike, points: ArrayLike) -> None:
     """Save points as an ``.npy`` float64 array, keeping an (H, W, 3) organization.
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file (overwritten; no ``.npy`` suffix is appended).
+    points : (N, 3) or (H, W, 3) array_like [m]
+        Real coordinates.
+
     Raises
     ------
     ValueError
         If ``points`` is not a real (N, 3) or (H, W, 3) array.
+    OSError
+        If the file cannot be written.
     """
     array = np.asarray(points)
     if array.dtype.kind not in "fiu" or array.ndim not in (2, 3) or array.shape[-1] != 3:

@@ -26,7 +26,7 @@ def _shift_ok(points: NDArray[np.float64], s: NDArray[np.float64], max_shift: fl
 
 
 def ray_to_plane(points: NDArray[np.float64], normal: NDArray[np.float64], d: float,
-                 max_shift: float, min_cos: float = 0.5) -> NDArray[np.float64]:
+                 max_shift: float, min_cos: float = 0.2) -> NDArray[np.float64]:
     """Move points along their rays from the origin onto the plane n . x + d = 0.
 
     Points that would move by more than ``max_shift`` [m] (points of another surface) or

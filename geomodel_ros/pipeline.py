@@ -180,11 +180,11 @@ def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
         return None, bad
     n = _toward_sensor(model.normal, o.points.mean(axis=0))
     d = -model.d if n @ model.normal < 0 else model.d
-    pts = obb.ray_to_plane(o.points, n, d, p.ransac_threshold) if p.reproject_along_rays \
+    pts = obb.ray_to_plane(o.points, n, d, 4 * p.ransac_threshold) if p.reproject_along_rays \
         else o.points
     frame = _perp_frame(n)
-    work_xy = (o.wc.points - o.wc.points.mean(axis=0)) @ frame[:, :2]
-    direction, _ = obb.min_area_rectangle(work_xy)
+    # Rectangle direction from the (re-projected) full-resolution outline.
+    direction, _ = obb.min_area_rectangle((pts - pts.mean(axis=0)) @ frame[:, :2])
     u = frame[:, :2] @ direction
     v = np.cross(n, u)
     lo_u, hi_u = obb.interval(pts @ u, o.spacing, correct=p.edge_correction)
@@ -228,7 +228,8 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     for fi, model in enumerate(planes):
         sel = nearest == fi
         if p.reproject_along_rays:
-            q[sel] = obb.ray_to_plane(o.points[sel], model.normal, model.d, p.ransac_threshold)
+            q[sel] = obb.ray_to_plane(o.points[sel], model.normal, model.d,
+                                           4 * p.ransac_threshold)
         proj_faces.append(q[sel] @ rot)
     proj = q @ rot
     lo, hi = np.empty(3), np.empty(3)
@@ -330,7 +331,7 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
         if len(q) == 0:
             continue
         if p.reproject_along_rays:
-            q = obb.ray_to_plane(q, f.info.normal, f.info.offset, p.ransac_threshold)
+            q = obb.ray_to_plane(q, f.info.normal, f.info.offset, 4 * p.ransac_threshold)
         t_cap = (q - origin) @ axis
         t_parts.append(t_cap)
         closed.append(float(np.median(t_cap)))
