@@ -1261,13 +1261,17 @@ def read_npy(path: PathLike) -> Cloud:
     buf = _read_bytes(path)
     stream = BytesIO(buf)
     try:
-        version = np.lib.format.read_magic(stream)
-        if version == (1, 0):
-            shape, fortran_order, dtype = np.lib.format.read_array_header_1_0(stream)
-        elif version == (2, 0):
-            shape, fortran_order, dtype = np.lib.format.read_array_header_2_0(stream)
-        else:
-            raise ValueError(f"format version {version[0]}.{version[1]} (allowed: 1.0, 2.0)")
+        with warnings.catch_warnings():  # a mangled header can make literal_eval warn
+            warnings.simplefilter("ignore")
+            version = np.lib.format.read_magic(stream)
+            if version == (1, 0):
+                shape, fortran_order, dtype = np.lib.format.read_array_header_1_0(stream)
+            elif version == (2, 0):
+                shape, fortran_order, dtype = np.lib.format.read_array_header_2_0(stream)
+            else:
+                raise ValueError(
+                    f"format version {version[0]}.{version[1]} (allowed: 1.0, 2.0)"
+                )
     except Exception as exc:  # noqa: BLE001 - numpy's header parser raises many kinds
         raise CloudFileError(f"{name}: not a readable .npy array: {exc}") from None
     if dtype.kind != "f":
