@@ -239,14 +239,16 @@ class Shape:
 # --------------------------------------------------------------------------- shapes
 @dataclass(frozen=True, eq=False)
 class Rectangle(Shape):
-    """Thin rectangle (a desk): ``length`` along local x, ``width`` along local y,
-    in the local z = 0 plane; local z is the normal.  Both sides are hit.
+    """Thin rectangle (a desk) in the local z = 0 plane; both sides are hit.
 
     Parameters
     ----------
     length, width : float [m]
-        Side lengths, in (0, inf).
-    center, rotation : see :class:`Shape`.
+        Side lengths along local x and y, each in (0, inf).
+    center : (3,) float64 array [m]
+        Rectangle centre.
+    rotation : (3, 3) float64 array
+        Columns = local x, y, z axes; z is the normal.
     """
 
     length: float
@@ -298,8 +300,16 @@ class Rectangle(Shape):
 
 @dataclass(frozen=True, eq=False)
 class Box(Shape):
-    """Solid box with extents ``length``, ``width``, ``height`` along local x, y, z
-    [m]; ``center`` is the box centre."""
+    """Solid box (6 faces); ``center`` is the box centre.
+
+    Parameters
+    ----------
+    length, width, height : float [m]
+        Extents along local x, y, z, each in (0, inf).
+    center : (3,) float64 array [m]
+    rotation : (3, 3) float64 array
+        Columns = local x, y, z axes in the camera frame.
+    """
 
     length: float
     width: float
@@ -348,8 +358,17 @@ class Box(Shape):
 
 @dataclass(frozen=True, eq=False)
 class Cylinder(Shape):
-    """Solid capped cylinder: ``radius`` [m], ``height`` [m] along local z;
-    ``center`` is the midpoint of the axis segment."""
+    """Solid capped cylinder about local z.
+
+    Parameters
+    ----------
+    radius, height : float [m]
+        Radius and length along local z (the axis), each in (0, inf).
+    center : (3,) float64 array [m]
+        Midpoint of the axis segment.
+    rotation : (3, 3) float64 array
+        Columns = local x, y, z axes; z is the axis.
+    """
 
     radius: float
     height: float
@@ -399,9 +418,18 @@ class Cylinder(Shape):
 
 @dataclass(frozen=True, eq=False)
 class Cone(Shape):
-    """Solid cone with a capped base: base ``radius`` [m], ``height`` [m]; local z
-    points base -> apex; ``center`` is the midpoint of the axis segment (base
-    centre at local z = -height/2, apex at +height/2)."""
+    """Solid cone with a capped base.
+
+    Parameters
+    ----------
+    radius, height : float [m]
+        Base radius and base-to-apex height, each in (0, inf).
+    center : (3,) float64 array [m]
+        Midpoint of the axis segment: base centre at local z = -height/2,
+        apex at local z = +height/2.
+    rotation : (3, 3) float64 array
+        Columns = local x, y, z axes; z points base -> apex.
+    """
 
     radius: float
     height: float
@@ -468,7 +496,16 @@ class Cone(Shape):
 
 @dataclass(frozen=True, eq=False)
 class Sphere(Shape):
-    """Solid sphere of ``radius`` [m] about ``center``."""
+    """Solid sphere.
+
+    Parameters
+    ----------
+    radius : float [m]
+        In (0, inf).
+    center : (3,) float64 array [m]
+    rotation : (3, 3) float64 array
+        Only carried into the ground truth.
+    """
 
     radius: float
 
@@ -500,10 +537,21 @@ class Sphere(Shape):
 
 @dataclass(frozen=True, eq=False)
 class Torus(Shape):
-    """Solid ring torus about local z: ``major_radius`` R (centre of the tube
-    circle) and ``minor_radius`` r (tube radius), 0 < r < R [m]; ``center`` is
-    the torus centre.
+    """Solid ring torus about local z.
 
+    Parameters
+    ----------
+    major_radius : float [m]
+        R, radius of the tube's centre circle, in (0, inf).
+    minor_radius : float [m]
+        r, tube radius, in (0, major_radius).
+    center : (3,) float64 array [m]
+        Torus centre.
+    rotation : (3, 3) float64 array
+        Columns = local x, y, z axes; z is the symmetry axis.
+
+    Notes
+    -----
     Ray intersection solves the quartic ``(|p|^2 + R^2 - r^2)^2 = 4 R^2 (x^2 + y^2)``
     for the rays that hit the bounding sphere only, in batch, through the
     eigenvalues of (M, 4, 4) companion matrices, followed by a vectorised Newton
