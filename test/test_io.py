@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import struct
 from pathlib import Path
 
@@ -26,7 +27,8 @@ from geomodel_ros.io import (
     write_ply,
 )
 
-DATA = Path("/work/shared/data")
+# The project's shared data sits beside the repository (../shared/data).
+DATA = Path(os.environ.get("GEOMODEL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 OSD_LEARN0 = DATA / "osd_learn" / "learn0.pcd"
 MUG = DATA / "pcl_mug" / "table_scene_mug_stereo_textured.pcd"
 
