@@ -26,7 +26,7 @@ from .ransac import (ConeModel, CylinderModel, PlaneModel, SphereModel, fit_plan
                      refine)
 from .surface_type import face_feature, principal_curvatures
 
-__all__ = ["model_objects", "model_object", "InputError"]
+__all__ = ["model_objects", "model_object", "model_scene", "InputError"]
 
 
 class InputError(ValueError):
@@ -70,6 +70,30 @@ class _Object:
     spacing: float
     params: ModelingParams
     rng: np.random.Generator
+    supports: tuple[tuple[NDArray[np.float64], float], ...] = ()
+
+    def support_ends(self, axis: NDArray[np.float64], origin: NDArray[np.float64],
+                     vmin: float, vmax: float) -> tuple[float | None, float | None]:
+        """Where support planes (desk, floor) close the extent [vmin, vmax] along ``axis``.
+
+        Extents are coordinates ``(x - origin) . axis``. An object resting on a support
+        plane has its hidden end on that plane: when a support plane perpendicular to
+        ``axis`` crosses the object's axis line (through its centroid) within twice
+        ``seg_plane_threshold`` of an end, that crossing is the end.
+        """
+        ref = self.points.mean(axis=0)
+        lo = hi = None
+        tol = 2.0 * self.params.seg_plane_threshold
+        for n, d in self.supports:
+            c = float(n @ axis)
+            if abs(c) < math.cos(self.params.angle_tolerance):
+                continue
+            t = float((ref - origin) @ axis) - (d + float(n @ ref)) / c
+            if abs(t - vmin) <= tol:
+                lo = t
+            elif abs(t - vmax) <= tol:
+                hi = t
+        return lo, hi
 
     def sample(self, idx: NDArray[np.int64]) -> NDArray[np.float64]:
         """Full-resolution points of ``idx``, at most ``refine_max_points`` of them."""
@@ -242,9 +266,10 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
                 continue
             pos = float(np.median(pf[:, a]))
             (closed_hi if vmax - pos < pos - vmin else closed_lo).append(pos)
+        s_lo, s_hi = o.support_ends(rot[:, a], np.zeros(3), vmin, vmax)
         lo[a], hi[a] = obb.interval(vals, o.spacing,
-                                    float(np.min(closed_lo)) if closed_lo else None,
-                                    float(np.max(closed_hi)) if closed_hi else None,
+                                    float(np.min(closed_lo)) if closed_lo else s_lo,
+                                    float(np.max(closed_hi)) if closed_hi else s_hi,
                                     correct=p.edge_correction)
     center = rot @ ((lo + hi) / 2)
     ext = hi - lo
@@ -339,8 +364,9 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
     tmin, tmax = float(t_all.min()), float(t_all.max())
     closed_lo = [c for c in closed if c - tmin < tmax - c]
     closed_hi = [c for c in closed if c - tmin >= tmax - c]
-    lo, hi = obb.interval(t_all, o.spacing, min(closed_lo) if closed_lo else None,
-                          max(closed_hi) if closed_hi else None, correct=p.edge_correction)
+    s_lo, s_hi = o.support_ends(axis, origin, tmin, tmax)
+    lo, hi = obb.interval(t_all, o.spacing, min(closed_lo) if closed_lo else s_lo,
+                          max(closed_hi) if closed_hi else s_hi, correct=p.edge_correction)
     if kind == "cylinder":
         if hi - lo <= 0:
             return None, "cylinder has no height"
@@ -368,7 +394,8 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
 
 def model_object(points: NDArray[np.float64], object_id: int, params: ModelingParams,
                  rng: np.random.Generator, spacing: float,
-                 face_labels: NDArray[np.int64] | None = None) -> Primitive:
+                 face_labels: NDArray[np.int64] | None = None,
+                 supports: tuple[tuple[NDArray[np.float64], float], ...] = ()) -> Primitive:
     """Model one segmented object.
 
     Parameters
@@ -381,6 +408,8 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
         Median point spacing of the object (for edge corrections).
     face_labels : (n,) int64, optional
         Known faces; when absent faces are found by region growing.
+    supports : tuple of (normal (3,), d) planes n . x + d = 0
+        Support surfaces the object may rest on (they close its hidden bottom end).
     """
     n = len(points)
     if n < max(params.min_object_points, 4):
@@ -402,7 +431,7 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
     decision = decide_type(infos, adjacency, params.angle_tolerance, 3 * params.ransac_threshold,
                            curvature, params.sphere_curvature_ratio,
                            params.developable_curvature_ratio, params.cone_curvature_variation)
-    obj = _Object(object_id, points, wc, faces, adjacency, spacing, params, rng)
+    obj = _Object(object_id, points, wc, faces, adjacency, spacing, params, rng, supports)
     reasons = [decision.reason]
     for kind in decision.candidates:
         try:
@@ -444,7 +473,9 @@ def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
 
 def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | None = None, *,
                   face_labels: NDArray | None = None,
-                  rng: np.random.Generator | int | None = None) -> ModelingResult:
+                  rng: np.random.Generator | int | None = None,
+                  supports: dict[int, tuple[NDArray[np.float64], float]] | None = None
+                  ) -> ModelingResult:
     """Model every labelled object of a scene.
 
     Parameters
@@ -458,6 +489,8 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
         Known face id per point (faces are then not searched).
     rng : Generator, seed or None
         Randomness for RANSAC; defaults to ``params.seed``.
+    supports : dict id -> (normal (3,), d), optional
+        Support planes found by the segmentation; other objects may rest on them.
 
     Returns
     -------
@@ -486,6 +519,43 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
             sel = order[s:e]
             opts = pts[sel]
             spacing = estimate_spacing(opts, rng)
+            planes = tuple(v for k, v in (supports or {}).items() if k != oid)
             objects.append(model_object(opts, int(oid), params, rng, spacing,
-                                        None if flab is None else flab[sel]))
+                                        None if flab is None else flab[sel], planes))
     return ModelingResult(objects, {"modeling_s": time.perf_counter() - t0})
+
+
+def model_scene(points: NDArray, params: ModelingParams | None = None, *,
+                organized_shape: tuple[int, int] | None = None,
+                rng: np.random.Generator | int | None = None
+                ) -> tuple[NDArray[np.int64], ModelingResult]:
+    """Segment a raw scene cloud, then model every segment.
+
+    Parameters
+    ----------
+    points : (N, 3) float array [m]
+        Scene cloud in the sensor frame (non-finite rows allowed, labelled -1).
+    params : ModelingParams, optional
+    organized_shape : (H, W), optional
+        Image shape when ``points`` are the rows of an organized cloud (N = H * W).
+    rng : Generator, seed or None
+
+    Returns
+    -------
+    labels : (N,) int64
+        Object id per input row (-1 = invalid or noise).
+    result : ModelingResult
+        Objects by id; timing has ``segmentation_s`` and ``modeling_s``.
+    """
+    from .segmentation import segment_scene
+
+    params = params if params is not None else ModelingParams()
+    pts = _check_points(points)
+    if organized_shape is not None and organized_shape[0] * organized_shape[1] != len(pts):
+        raise InputError(f"organized_shape {organized_shape} does not match {len(pts)} points")
+    rng = np.random.default_rng(params.seed if rng is None else rng)
+    seg = segment_scene(pts, params, rng=rng)
+    result = model_objects(pts, seg.labels, params, rng=rng, supports=seg.support_planes)
+    result.timing.update(seg.timing)
+    result.timing["total_s"] = result.timing["modeling_s"] + seg.timing["segmentation_s"]
+    return seg.labels, result
