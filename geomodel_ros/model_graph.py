@@ -58,7 +58,8 @@ class GraphDecision:
     main_face : int
         Index of the main (or auxiliary) matching surface, -1 if none.
     axis_of_face : tuple[int, ...]
-        For cuboids: which of the three axes each face's normal belongs to.
+        For cuboids: which of the three axes each face's normal belongs to (-1: a sliver
+        that fits none and is ignored).
     reason : str
     """
 
@@ -69,9 +70,15 @@ class GraphDecision:
     reason: str = ""
 
 
+#: Faces smaller than this share of an object's working points that fit no relation are
+#: slivers (contact rims, noise) and do not veto the object's type.
+SLIVER_SHARE = 0.05
+
+
 def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
                      coplanar_tol: float) -> GraphDecision:
     sizes = np.array([f.size for f in faces])
+    sliver = sizes < SLIVER_SHARE * sizes.sum()
     main = int(np.argmax(sizes))
     normals = np.array([f.normal for f in faces])
     cos_main = np.abs(normals @ normals[main])
@@ -85,13 +92,16 @@ def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: f
         axes = np.array([normals[main], normals[second], third])
         cos_axes = np.abs(normals @ axes.T)
         assignment = np.argmax(cos_axes, axis=1)
-        if np.all(cos_axes.max(axis=1) >= math.cos(tol)):
+        aligned = cos_axes.max(axis=1) >= math.cos(tol)
+        if np.all(aligned | sliver):
+            assignment = np.where(aligned, assignment, -1)
             return GraphDecision("planar", ("cuboid",), main, tuple(int(a) for a in assignment),
                                  "planar faces with perpendicular adjacent normals")
         return GraphDecision("planar", (), main, (),
                              "planar faces not aligned with three orthogonal axes")
-    if parallel.all():
-        offsets = np.array([f.offset * np.sign(f.normal @ normals[main]) for f in faces])
+    if (parallel | sliver).all():
+        offsets = np.array([f.offset * np.sign(f.normal @ normals[main])
+                            for f, ok in zip(faces, parallel) if ok])
         if np.ptp(offsets) <= coplanar_tol:
             return GraphDecision("planar", ("plane",), main, (),
                                  "parallel coplanar planar faces merged into one plane"
@@ -108,7 +118,7 @@ def _mixed_decision(faces: list[FaceInfo], tol: float) -> GraphDecision:
     total = sum(f.size for f in faces)
     others = [i for i in planar if i != main]
     # Small planar pieces at an angle to the main plane are slivers of the curved surface.
-    if any(abs(faces[i].normal @ n0) < math.cos(tol) and faces[i].size > 0.1 * total
+    if any(abs(faces[i].normal @ n0) < math.cos(tol) and faces[i].size > 2 * SLIVER_SHARE * total
            for i in others):
         return GraphDecision("mixed", (), main, (),
                              "several non-parallel planar faces with curved faces")

@@ -227,8 +227,11 @@ def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
 
 def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Primitive | None, str]:
     p = o.params
+    # Sliver faces (assignment -1) fit no axis; their points join the nearest real face.
+    keep = [i for i, a in enumerate(assignment) if a >= 0]
+    faces = [o.faces[i] for i in keep]
     normals, weights, planes, inlier_ok, inlier_all = [], [], [], 0, 0
-    for f in o.faces:
+    for f in faces:
         w = o.wc.points[f.working]
         model = refine(fit_plane_svd(w), w, p.ransac_threshold)
         model = refine(model, o.sample(f.points), p.ransac_threshold)
@@ -241,7 +244,7 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     bad = _verify(inlier_ok / max(inlier_all, 1), p, "cuboid")
     if bad:
         return None, bad
-    assign = np.asarray(assignment, dtype=np.int64)
+    assign = np.asarray([assignment[i] for i in keep], dtype=np.int64)
     rot = obb.orthonormalize_axes(np.array(normals), np.array(weights), assign)
     # Every point is re-assigned to its nearest face plane (edge points may sit in the
     # wrong face) and, optionally, moved onto that plane along its viewing ray.
