@@ -1,0 +1,282 @@
+"""The basic geometric model graph (geomodel_ros.model_graph) on hand-built faces."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from geomodel_ros.model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
+
+TOL = 0.14  # angle tolerance [rad] (the default)
+COPLANAR = 0.006  # coplanarity tolerance [m] (3 x the default RANSAC threshold)
+SPHERE_RATIO, DEVELOPABLE_RATIO, CONE_VARIATION = 0.45, 0.3, 0.25
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=np.float64)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def planar(normal, point, size):
+    """Planar face through ``point`` [m] with ``normal``; offset d of n . x + d = 0."""
+    n = _unit(normal)
+    return FaceInfo(True, n, float(-n @ np.asarray(point, dtype=float)), size,
+                    np.tile(n, (size, 1)))
+
+
+def curved(point_normals):
+    pn = _unit(point_normals)
+    mean = _unit(pn.mean(axis=0))
+    return FaceInfo(False, mean, 0.0, len(pn), pn)
+
+
+def all_adjacent(k):
+    return ~np.eye(k, dtype=bool)
+
+
+def decide(faces, adjacency=None, curvature=None):
+    adj = all_adjacent(len(faces)) if adjacency is None else adjacency
+    return decide_type(faces, adj, TOL, COPLANAR, curvature, SPHERE_RATIO, DEVELOPABLE_RATIO,
+                       CONE_VARIATION)
+
+
+def _rotation(yaw, pitch):
+    cy, sy, cp, sp = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch)
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1.0]])
+    rx = np.array([[1.0, 0, 0], [0, cp, -sp], [0, sp, cp]])
+    return rx @ rz
+
+
+# ---------------------------------------------------------------------------------------
+# Only planar faces
+# ---------------------------------------------------------------------------------------
+
+
+def test_no_faces_is_empty():
+    d = decide_type([], np.zeros((0, 0), dtype=bool), TOL, COPLANAR)
+    assert d == GraphDecision("empty", (), -1, (), "no faces")
+
+
+def test_box_faces_give_cuboid_with_axis_assignment():
+    rot = _rotation(0.3, 0.7)
+    c = np.array([0.0, 0.0, 0.5])
+    faces = [planar(-rot[:, 0], c - 0.03 * rot[:, 0], 300),
+             planar(-rot[:, 1], c - 0.02 * rot[:, 1], 200),
+             planar(-rot[:, 2], c - 0.04 * rot[:, 2], 100)]
+    d = decide(faces)
+    assert d.category == "planar"
+    assert d.candidates == ("cuboid",)
+    assert d.main_face == 0
+    assert d.axis_of_face == (0, 1, 2)
+
+
+def test_box_axes_follow_face_sizes():
+    """Main = largest face (axis 0), second = largest adjacent perpendicular face (axis 1)."""
+    rot = _rotation(-0.4, 0.2)
+    c = np.array([0.05, 0.0, 0.6])
+    faces = [planar(-rot[:, 2], c - 0.04 * rot[:, 2], 100),   # smallest -> axis 2
+             planar(-rot[:, 0], c - 0.03 * rot[:, 0], 300),   # largest  -> axis 0 (main)
+             planar(-rot[:, 1], c - 0.02 * rot[:, 1], 200)]   # second   -> axis 1
+    d = decide(faces)
+    assert d.candidates == ("cuboid",)
+    assert d.main_face == 1
+    assert d.axis_of_face == (2, 0, 1)
+
+
+def test_box_with_two_parallel_faces_shares_an_axis():
+    rot = _rotation(0.1, 0.5)
+    c = np.array([0.0, 0.0, 0.5])
+    faces = [planar(-rot[:, 0], c - 0.03 * rot[:, 0], 300),
+             planar(-rot[:, 1], c - 0.02 * rot[:, 1], 200),
+             planar(rot[:, 0], c + 0.03 * rot[:, 0], 50)]   # opposite side of face 0
+    d = decide(faces)
+    assert d.candidates == ("cuboid",)
+    assert d.axis_of_face == (0, 1, 0)
+
+
+def test_perpendicular_faces_that_do_not_touch_are_not_a_cuboid():
+    c = np.array([0.0, 0.0, 0.5])
+    faces = [planar([0, 0, -1], c, 300), planar([1, 0, 0], c + [0.2, 0, 0], 200)]
+    d = decide(faces, adjacency=np.zeros((2, 2), dtype=bool))
+    assert d.candidates == ()
+    assert d.category == "planar"
+
+
+def test_nearly_perpendicular_face_off_the_box_axes_rejects_cuboid():
+    c = np.array([0.0, 0.0, 0.5])
+    faces = [planar([0, 0, -1], c, 300), planar([1, 0, 0], c, 200),
+             planar(_unit([1, 1, 0]), c, 100)]   # 45 deg between the box axes
+    d = decide(faces)
+    assert d.candidates == ()
+    assert d.axis_of_face == ()
+
+
+def test_single_planar_face_is_a_plane():
+    d = decide([planar([0, -0.6, -0.8], [0, 0, 0.5], 500)])
+    assert d.candidates == ("plane",)
+    assert d.main_face == 0
+
+
+def test_parallel_coplanar_faces_give_one_plane():
+    n = _unit([0.0, -0.766, -0.643])
+    p0 = np.array([0.0, -0.04, 0.52])
+    x = _unit(np.cross(n, [1.0, 0, 0]))
+    faces = [planar(n, p0, 500), planar(n, p0 + 0.1 * x, 80),
+             planar(-n, p0 - 0.1 * x, 40)]   # same plane, normal flipped
+    d = decide(faces)
+    assert d.candidates == ("plane",)
+    assert d.main_face == 0
+
+
+# Offsets are compared at the sensor origin (d of n . x + d = 0): a face lying on the main
+# plane whose fitted normal is tilted by a small angle delta (well inside the parallel
+# tolerance) gets an offset differing by ~ delta * (lateral distance of the face from the
+# origin), e.g. 1.5 deg at 0.45 m -> 12 mm > the coplanarity tolerance.
+COPLANAR_BUG = ("model_graph._planar_decision compares the plane offsets d of faces with "
+                "different normals, i.e. at the sensor origin: a coplanar face whose normal is "
+                "3 deg off (inside angle_tolerance) differs by ~16 mm at 0.3 m lateral distance "
+                "and the plane is rejected as 'parallel planar faces at different offsets'")
+
+
+@pytest.mark.xfail(strict=True, reason=COPLANAR_BUG)
+def test_coplanar_face_with_slightly_tilted_normal_gives_one_plane():
+    p0 = np.array([0.0, 0.0, 0.5])
+    p1 = np.array([0.3, 0.0, 0.5])   # on the same plane z = 0.5
+    tilt = math.radians(3.0)
+    faces = [planar([0, 0, -1], p0, 500),
+             planar([math.sin(tilt), 0, -math.cos(tilt)], p1, 40)]
+    d = decide(faces)
+    assert d.candidates == ("plane",)
+
+
+def test_parallel_faces_at_different_offsets_give_no_candidate():
+    n = np.array([0.0, 0.0, -1.0])
+    faces = [planar(n, [0, 0, 0.5], 500), planar(n, [0.05, 0, 0.52], 200)]
+    d = decide(faces)
+    assert d.candidates == ()
+    assert d.reason == "parallel planar faces at different offsets"
+
+
+def test_wedge_gives_no_candidate():
+    c = np.array([0.0, 0.0, 0.5])
+    faces = [planar([0, 0, -1], c, 300),
+             planar(_unit([math.sin(math.pi / 4), 0, -math.cos(math.pi / 4)]), c, 200)]
+    d = decide(faces)
+    assert d.category == "planar"
+    assert d.candidates == ()
+    assert d.reason == "planar faces neither perpendicular nor parallel to the main face"
+
+
+# ---------------------------------------------------------------------------------------
+# Planar + curved faces
+# ---------------------------------------------------------------------------------------
+
+
+def _ring_normals(axis, angle_to_plane, m=200):
+    """Normals around ``axis`` at ``angle_to_plane`` [rad] to the plane perpendicular to it."""
+    a = _unit(axis)
+    helper = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0])
+    x = _unit(np.cross(helper, a))
+    y = np.cross(a, x)
+    th = np.linspace(0, np.pi, m)   # the visible half
+    radial = np.cos(th)[:, None] * x + np.sin(th)[:, None] * y
+    return radial * math.cos(angle_to_plane) + a * math.sin(angle_to_plane)
+
+
+def test_cap_and_perpendicular_curved_normals_give_cylinder_first():
+    axis = _unit([0.1, -0.7, -0.7])
+    faces = [curved(_ring_normals(axis, 0.0, 400)), planar(axis, [0, 0, 0.5], 100)]
+    d = decide(faces)
+    assert d.category == "mixed"
+    assert d.candidates == ("cylinder", "cone")
+    assert d.main_face == 1
+
+
+def test_base_and_constant_angle_normals_give_cone_first():
+    axis = _unit([0.0, -0.8, -0.6])
+    faces = [curved(_ring_normals(axis, math.radians(31), 400)), planar(-axis, [0, 0, 0.5], 120)]
+    d = decide(faces)
+    assert d.category == "mixed"
+    assert d.candidates == ("cone", "cylinder")
+    assert d.main_face == 1
+
+
+def test_plane_with_normals_at_varying_angles_gives_no_candidate():
+    """A sphere-like curved face next to a plane: normal angles spread over 0-80 deg."""
+    axis = np.array([0.0, 0.0, -1.0])
+    pn = np.vstack([_ring_normals(axis, math.radians(a), 50) for a in range(0, 81, 10)])
+    d = decide([curved(pn), planar(axis, [0, 0, 0.5], 100)])
+    assert d.category == "mixed"
+    assert d.candidates == ()
+
+
+def test_big_oblique_planar_face_with_curved_faces_gives_no_candidate():
+    axis = np.array([0.0, 0.0, -1.0])
+    faces = [curved(_ring_normals(axis, 0.0, 300)), planar(axis, [0, 0, 0.5], 200),
+             planar(_unit([1, 0, -1]), [0, 0, 0.5], 150)]
+    d = decide(faces)
+    assert d.candidates == ()
+
+
+# ---------------------------------------------------------------------------------------
+# Only curved faces: principal curvatures
+# ---------------------------------------------------------------------------------------
+
+
+def _cands(k_max, k_min):
+    return curvature_candidates(np.asarray(k_max, float), np.asarray(k_min, float),
+                                SPHERE_RATIO, DEVELOPABLE_RATIO, CONE_VARIATION)[0]
+
+
+def test_sphere_like_curvatures():
+    rng = np.random.default_rng(0)
+    k = 1 / 0.03 + rng.normal(0, 1.0, 500)
+    assert _cands(k, k * rng.uniform(0.9, 1.0, 500)) == ("sphere",)
+
+
+def test_cylinder_like_curvatures():
+    rng = np.random.default_rng(1)
+    assert _cands(1 / 0.02 + rng.normal(0, 1.0, 500), rng.normal(0, 1.0, 500)) == \
+        ("cylinder", "cone")
+
+
+def test_cone_like_curvatures():
+    """k1 = cos(alpha) / r(s) with the radius growing from 10 to 40 mm along the cone."""
+    rng = np.random.default_rng(2)
+    radius = rng.uniform(0.01, 0.04, 500)
+    k1 = math.cos(math.radians(30)) / radius
+    assert _cands(k1, rng.normal(0, 0.5, 500)) == ("cone", "cylinder")
+
+
+def test_torus_like_curvatures_give_no_candidate():
+    """Torus R = 20 mm, r = 15 mm: k1 = 1/r, k2 = cos(t) / (R + r cos(t)) (outer half).
+
+    (A slender torus, R >> r, has k2 ~ 0 and looks developable to the curvature rule; the
+    RANSAC verification rejects it, see test_pipeline.)
+    """
+    t = np.linspace(-math.pi / 2, math.pi / 2, 500)
+    big, small = 0.02, 0.015
+    k2 = np.cos(t) / (big + small * np.cos(t))
+    k1 = np.full_like(t, 1 / small)
+    ratio = np.median(np.abs(k2)) / np.median(k1)
+    assert DEVELOPABLE_RATIO < ratio < SPHERE_RATIO   # the configuration tested
+    cands, why = curvature_candidates(k1, k2, SPHERE_RATIO, DEVELOPABLE_RATIO, CONE_VARIATION)
+    assert cands == ()
+    assert why.startswith("principal curvature ratio")
+
+
+def test_flat_or_nan_curvatures_give_no_candidate():
+    assert _cands(np.zeros(10), np.zeros(10)) == ()
+    assert _cands(np.full(10, np.nan), np.full(10, np.nan)) == ()
+
+
+def test_all_curved_uses_curvature_in_decide_type():
+    rng = np.random.default_rng(3)
+    faces = [curved(_unit(rng.normal(size=(100, 3))))]
+    k = np.full(100, 1 / 0.03)
+    d = decide(faces, curvature=(k, k))
+    assert d == GraphDecision("curved", ("sphere",), -1, (), d.reason)
+    d = decide(faces, curvature=None)
+    assert d.candidates == ("cylinder", "cone", "sphere")

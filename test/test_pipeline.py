@@ -1,0 +1,386 @@
+"""End to end: model_objects on small synthetic scenes and on degenerate / malformed input."""
+
+from __future__ import annotations
+
+import functools
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geomodel_ros.evaluation import score_objects
+from geomodel_ros.params import ModelingParams, load_params_file
+from geomodel_ros.pipeline import InputError, model_objects
+from geomodel_ros.primitives import DIMENSION_NAMES, PRIMITIVE_TYPES, ModelingResult
+from geomodel_ros.synth import SENSOR_NOISE, PinholeCamera, Rectangle, render_scene
+from geomodel_ros.synth.scenes import scene_geometry
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"
+MM = 1e-3
+#: Camera of the hand-built test clouds: 320 x 240, ~1.4 mm pixel footprint at 0.4 m.
+SMALL_CAMERA = PinholeCamera(fx=280.0, fy=280.0, cx=160.0, cy=120.0, width=320, height=240)
+
+
+@functools.lru_cache(maxsize=None)
+def _tiny_shapes(noisy: bool = False, seed: int = 1):
+    scene = render_scene("tiny_shapes", noise=SENSOR_NOISE if noisy else None, rng=seed)
+    params = load_params_file(CONFIG / "sensor_noise.yaml") if noisy else ModelingParams()
+    return scene, model_objects(scene.points, scene.labels, params)
+
+
+def _by_id(result: ModelingResult):
+    return {o.id: o for o in result.objects}
+
+
+def _gt(scene, oid):
+    return next(o for o in scene.objects if o.id == oid)
+
+
+def _check_schema(d: dict) -> None:
+    assert set(d) == {"objects", "timing"}
+    assert all(isinstance(v, float) and v >= 0 for v in d["timing"].values())
+    for o in d["objects"]:
+        assert set(o) == {"id", "type", "center", "rotation", "dimensions", "point_count",
+                          "rmse", "faces", "reason"}
+        assert isinstance(o["id"], int)
+        assert o["type"] in PRIMITIVE_TYPES
+        assert len(o["center"]) == 3 and all(isinstance(v, float) for v in o["center"])
+        assert len(o["rotation"]) == 3 and all(len(row) == 3 for row in o["rotation"])
+        assert set(o["dimensions"]) == set(DIMENSION_NAMES[o["type"]])
+        assert all(isinstance(v, float) and v > 0 for v in o["dimensions"].values())
+        assert isinstance(o["point_count"], int) and o["point_count"] >= 0
+        assert isinstance(o["rmse"], float) and o["rmse"] >= 0
+        assert isinstance(o["reason"], str) and o["reason"]
+        for f in o["faces"]:
+            assert set(f) == {"surface", "cf", "point_count"}
+            assert f["surface"] in ("planar", "curved")
+            assert 0.0 <= f["cf"] <= 1.0
+            assert isinstance(f["point_count"], int) and f["point_count"] > 0
+        rot = np.array(o["rotation"])
+        np.testing.assert_allclose(rot.T @ rot, np.eye(3), atol=1e-9)
+        assert np.linalg.det(rot) == pytest.approx(1.0, abs=1e-9)
+
+
+def _all_finite(d) -> bool:
+    if isinstance(d, dict):
+        return all(_all_finite(v) for v in d.values())
+    if isinstance(d, (list, tuple)):
+        return all(_all_finite(v) for v in d)
+    if isinstance(d, float):
+        return math.isfinite(d)
+    return True
+
+
+# ---------------------------------------------------------------------------------------
+# Synthetic scenes: type, size, pose
+# ---------------------------------------------------------------------------------------
+
+EXPECTED_TINY = {0: "plane", 1: "cuboid", 2: "sphere", 3: "cylinder", 4: "cone", 5: "unknown"}
+
+
+def test_tiny_shapes_types():
+    scene, result = _tiny_shapes()
+    assert [o.type for o in scene.objects] == ["plane", "cuboid", "sphere", "cylinder", "cone",
+                                               "torus"]
+    assert {o.id: o.type for o in result.objects} == EXPECTED_TINY
+    counts = np.bincount(scene.labels)
+    for o in result.objects:
+        assert o.point_count == counts[o.id]
+
+
+def test_tiny_shapes_sizes_within_a_millimetre():
+    scene, result = _tiny_shapes()
+    scores = score_objects(result.objects, scene.objects)
+    for s in scores:
+        if s.expected == "unknown":
+            assert s.errors == ()
+            continue
+        assert len(s.errors) == len(DIMENSION_NAMES[s.expected])
+        for e in s.errors:
+            assert abs(e.error) < 1.0 * MM, (s.gt_id, e)
+
+
+def test_tiny_shapes_poses():
+    scene, result = _tiny_shapes()
+    objs = _by_id(result)
+    for oid in (1, 2, 3, 4):
+        assert np.linalg.norm(objs[oid].center - _gt(scene, oid).center) < 1.0 * MM, oid
+    # Cylinder: z = axis (either direction); cone: z = axis from the base to the apex.
+    cyl_z, cyl_gt = objs[3].rotation[:, 2], _gt(scene, 3).rotation[:, 2]
+    assert abs(cyl_z @ cyl_gt) > math.cos(math.radians(1.0))
+    cone_z, cone_gt = objs[4].rotation[:, 2], _gt(scene, 4).rotation[:, 2]
+    assert cone_z @ cone_gt > math.cos(math.radians(1.0))
+    # Cuboid axes coincide with the box axes up to a permutation and signs.
+    cos = np.abs(objs[1].rotation.T @ _gt(scene, 1).rotation)
+    np.testing.assert_allclose(np.sort(cos.max(axis=1)), 1.0, atol=1e-3)
+    assert sorted(np.argmax(cos, axis=1)) == [0, 1, 2]
+    # Plane (desk): z = normal towards the sensor at the origin.
+    desk = objs[0]
+    assert desk.rotation[:, 2] @ desk.center < 0
+    assert desk.rotation[:, 2] @ _gt(scene, 0).rotation[:, 2] > math.cos(math.radians(0.5))
+    # Sphere: identity rotation.
+    np.testing.assert_array_equal(objs[2].rotation, np.eye(3))
+
+
+def test_tiny_shapes_result_schema_and_finite():
+    _, result = _tiny_shapes()
+    d = result.to_dict()
+    _check_schema(d)
+    assert _all_finite(d)
+    assert {o["id"] for o in d["objects"]} == set(EXPECTED_TINY)
+    assert [o["id"] for o in d["objects"]] == sorted(EXPECTED_TINY)   # ordered by id
+    for o in result.objects:
+        assert o.type == "unknown" or 0.0 <= o.rmse < 1.0 * MM
+
+
+def test_tiny_shapes_with_sensor_noise():
+    """Sensor noise + config/sensor_noise.yaml: objects keep their type, sizes within 1.5 mm."""
+    scene, result = _tiny_shapes(noisy=True, seed=1)
+    objs = _by_id(result)
+    assert {oid: objs[oid].type for oid in EXPECTED_TINY} == EXPECTED_TINY
+    for s in score_objects(result.objects, scene.objects):
+        for e in s.errors:
+            assert abs(e.error) < 1.5 * MM, (s.gt_id, e)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "the noisy desk splits into a 4648-point face and a 29-point face 1.5 deg off; "
+    "model_graph compares their offsets d at the sensor origin (13.7 mm apart > 12 mm) "
+    "although the small face's centroid lies 0.24 mm from the main plane -> desk 'unknown'"))
+def test_noisy_desk_is_a_plane():
+    _, result = _tiny_shapes(noisy=True, seed=0)
+    assert _by_id(result)[0].type == "plane"
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 17.0, 40.0])
+def test_plane_sizes(yaw_deg):
+    """A 120 x 80 mm rectangle at 0.4 m, tilted 30 deg, at several in-plane angles."""
+    yaw, tilt = math.radians(yaw_deg), math.radians(30.0)
+    rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0],
+                   [0, 0, 1.0]])
+    rx = np.array([[1.0, 0, 0], [0, math.cos(tilt), -math.sin(tilt)],
+                   [0, math.sin(tilt), math.cos(tilt)]])
+    rot = rx @ rz @ np.diag([1.0, -1.0, -1.0])   # z = normal facing the sensor
+    rect = Rectangle(0.12, 0.08, center=[0.01, 0.0, 0.4], rotation=rot)
+    organized, labels = SMALL_CAMERA.render([rect], ids=[7])
+    valid = np.isfinite(organized).all(axis=2)
+    result = model_objects(organized[valid], labels[valid].astype(np.int64))
+    (obj,) = result.objects
+    assert (obj.id, obj.type) == (7, "plane")
+    assert obj.dimensions["length"] == pytest.approx(0.12, abs=1.0 * MM)
+    assert obj.dimensions["width"] == pytest.approx(0.08, abs=1.0 * MM)
+    assert np.linalg.norm(obj.center - rect.center) < 1.0 * MM
+    assert obj.rotation[:, 2] @ rot[:, 2] > math.cos(math.radians(0.5))
+    # x along the longer side
+    assert abs(obj.rotation[:, 0] @ rot[:, 0]) > math.cos(math.radians(1.0))
+
+
+def test_paper_size_torus_scene():
+    """The one full-resolution render of the suite: torus 'unknown', box and desk sub-mm."""
+    scene = render_scene("torus")
+    result = model_objects(scene.points, scene.labels)
+    assert [o.type for o in result.objects] == ["plane", "unknown", "cuboid"]
+    assert "rejected" in result.objects[1].reason
+    for s in score_objects(result.objects, scene.objects):
+        for e in s.errors:
+            assert abs(e.error) < 0.3 * MM, (s.gt_id, e)
+
+
+def _box_face_labels(scene_name="tiny_box"):
+    """Per-point face ids from the analytic box: 1 + 2 * axis + (side > 0); desk = 0."""
+    _, shapes = scene_geometry(scene_name)
+    box = shapes[1]
+    scene = render_scene(scene_name)
+    half = np.array([box.length, box.width, box.height]) / 2
+    local = box.to_local(scene.points) / half
+    axis = np.argmax(np.abs(local), axis=1)
+    side = local[np.arange(len(local)), axis] > 0
+    faces = np.where(scene.labels == 1, 1 + 2 * axis + side, 0).astype(np.int64)
+    return scene, faces
+
+
+def test_face_labels_path():
+    scene, faces = _box_face_labels()
+    result = model_objects(scene.points, scene.labels, face_labels=faces)
+    objs = _by_id(result)
+    assert (objs[0].type, objs[1].type) == ("plane", "cuboid")
+    box_faces = np.unique(faces[scene.labels == 1])
+    assert len(objs[1].faces) == len(box_faces) == 3
+    assert sorted(f.point_count for f in objs[1].faces) == \
+        sorted(np.count_nonzero(faces == f) for f in box_faces)
+    assert all(f.surface == "planar" for f in objs[1].faces)
+    for s in score_objects(result.objects, scene.objects):
+        for e in s.errors:
+            assert abs(e.error) < 1.0 * MM, (s.gt_id, e)
+
+
+def test_face_labels_of_wrong_length():
+    scene, faces = _box_face_labels()
+    with pytest.raises(InputError, match=r"face_labels must be an \(\d+,\) integer array"):
+        model_objects(scene.points, scene.labels, face_labels=faces[:-1])
+
+
+def test_reproducible_with_the_same_seed():
+    scene = render_scene("tiny_shapes", noise=SENSOR_NOISE, rng=3)
+    params = load_params_file(CONFIG / "sensor_noise.yaml")
+    a = model_objects(scene.points, scene.labels, params, rng=5).to_dict()
+    b = model_objects(scene.points, scene.labels, params, rng=5).to_dict()
+    c = model_objects(scene.points, scene.labels, params).to_dict()   # params.seed = 0
+    d = model_objects(scene.points, scene.labels, params, rng=0).to_dict()
+    assert a["objects"] == b["objects"]
+    assert c["objects"] == d["objects"]
+
+
+# ---------------------------------------------------------------------------------------
+# Degenerate input: 'unknown' or no objects, never an exception
+# ---------------------------------------------------------------------------------------
+
+
+def _degenerate_cases():
+    rng = np.random.default_rng(0)
+    line = np.array([0.0, 0.0, 0.5]) + np.linspace(0, 0.1, 500)[:, None] * [1.0, 2.0, 3.0]
+    return {
+        "zero points": (np.zeros((0, 3)), np.zeros(0, dtype=np.int64), None),
+        "one point": (np.array([[0.0, 0.0, 0.5]]), np.zeros(1, dtype=np.int64), 1),
+        "three points": (rng.normal(0, 0.01, (3, 3)) + [0, 0, 0.5], np.zeros(3, dtype=np.int64), 3),
+        "1000 duplicates": (np.tile([0.01, 0.02, 0.5], (1000, 1)), np.zeros(1000, dtype=np.int64),
+                            1000),
+        "all NaN rows": (np.full((200, 3), np.nan), np.zeros(200, dtype=np.int64), None),
+        "labels all -1": (rng.normal(0, 0.05, (200, 3)) + [0, 0, 0.5],
+                          np.full(200, -1, dtype=np.int64), None),
+        "axis-parallel line": (np.c_[np.linspace(0, 0.1, 300), np.zeros(300), np.full(300, 0.5)],
+                               np.zeros(300, dtype=np.int64), 300),
+        "tiny cluster": (rng.normal(0, 1e-5, (200, 3)) + [0, 0, 0.5],
+                         np.zeros(200, dtype=np.int64), 200),
+        "random blob": (rng.uniform(-0.05, 0.05, (500, 3)) + [0, 0, 0.5],
+                        np.zeros(500, dtype=np.int64), 500),
+        "line": (line, np.zeros(500, dtype=np.int64), 500),
+    }
+
+
+COLLINEAR_BUG = (
+    "pipeline.model_object detects collinear input only by axis-aligned extents "
+    "(count_nonzero(ptp > 1e-9) < 2); a line along (1, 2, 3) passes, and _fit_plane returns a "
+    "'plane' 302 x 223 mm (the 374 mm line projected on two arbitrary in-plane axes)")
+
+
+@pytest.mark.parametrize("case", [
+    pytest.param(name, marks=[pytest.mark.xfail(strict=True, reason=COLLINEAR_BUG)]
+                 if name == "line" else [])
+    for name in _degenerate_cases()
+])
+def test_degenerate_input_gives_unknown_or_nothing(case):
+    points, labels, expected_count = _degenerate_cases()[case]
+    result = model_objects(points, labels)
+    if expected_count is None:
+        assert result.objects == []
+    else:
+        assert [(o.id, o.type, o.point_count) for o in result.objects] == \
+            [(0, "unknown", expected_count)]
+        assert result.objects[0].reason
+    d = result.to_dict()
+    _check_schema(d)
+    assert _all_finite(d)
+
+
+def test_non_finite_rows_and_negative_labels_are_ignored():
+    scene, clean = _tiny_shapes()
+    pts = np.vstack([scene.points, np.full((50, 3), np.nan), [[np.inf, 0, 0.5]]])
+    labels = np.r_[scene.labels, np.full(50, 2), [2]]
+    pts[:10] = [0.0, 0.0, 0.5]
+    labels[:10] = -1   # desk points removed from any object
+    result = model_objects(pts, labels)
+    objs = _by_id(result)
+    assert objs[2].point_count == _by_id(clean)[2].point_count
+    assert objs[0].point_count == _by_id(clean)[0].point_count - np.count_nonzero(
+        scene.labels[:10] == 0)
+    assert [o.type for o in result.objects] == [o.type for o in clean.objects]
+
+
+def test_objects_with_few_points_are_unknown():
+    scene, _ = _tiny_shapes()
+    params = ModelingParams(min_object_points=10000)
+    result = model_objects(scene.points, scene.labels, params)
+    assert {o.type for o in result.objects} == {"unknown"}
+    assert all("min_object_points" in o.reason for o in result.objects)
+
+
+# ---------------------------------------------------------------------------------------
+# Malformed input: InputError
+# ---------------------------------------------------------------------------------------
+
+
+I64 = np.int64
+SHAPE_MSG = r"points must be an \(N, 3\) array"
+LABELS_MSG = r"labels must be an \(5,\) integer array"
+
+
+@pytest.mark.parametrize(("points", "labels", "match"), [
+    (np.zeros((5, 2)), np.zeros(5, dtype=I64), SHAPE_MSG + r", got shape \(5, 2\)"),
+    (np.zeros(6), np.zeros(6, dtype=I64), SHAPE_MSG + r", got shape \(6,\)"),
+    (np.zeros((2, 5, 3)), np.zeros(10, dtype=I64), SHAPE_MSG),
+    (np.array([["a", "b", "c"]]), np.zeros(1, dtype=I64), r"points must be numeric"),
+    (np.zeros((5, 3)), np.zeros(4, dtype=I64), LABELS_MSG + r" .* got shape \(4,\)"),
+    (np.zeros((5, 3)), np.zeros((5, 1), dtype=I64), LABELS_MSG),
+    (np.zeros((5, 3)), np.zeros(5), r"labels must be integers, got dtype float64"),
+    (np.zeros((5, 3)), np.array(["a"] * 5), r"labels must be integers"),
+])
+def test_malformed_input_raises_input_error(points, labels, match):
+    with pytest.raises(InputError, match=match):
+        model_objects(points, labels)
+
+
+def test_input_error_is_a_value_error():
+    assert issubclass(InputError, ValueError)
+
+
+def test_float32_points_and_int32_labels_are_accepted():
+    scene, clean = _tiny_shapes()
+    result = model_objects(scene.points.astype(np.float32), scene.labels.astype(np.int32))
+    assert [o.type for o in result.objects] == [o.type for o in clean.objects]
+
+
+# ---------------------------------------------------------------------------------------
+# A single stray point (a "flying pixel" behind the object at a depth edge)
+# ---------------------------------------------------------------------------------------
+
+
+def _with_flying_pixel(oid, behind):
+    """tiny_shapes with the first point of object ``oid`` pushed ``behind`` [m] along its ray."""
+    scene, clean = _tiny_shapes()
+    pts = scene.points.copy()
+    i = int(np.flatnonzero(scene.labels == oid)[0])
+    pts[i] *= 1.0 + behind / np.linalg.norm(pts[i])
+    return scene, clean, model_objects(pts, scene.labels)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "one point 50 mm behind a 574-point box makes a face 'curved' (the face's plane RMSE "
+    "in _build_faces is not robust: 50 mm / sqrt(257) > ransac_threshold) and the box "
+    "becomes 'unknown' (cylinder/cone tried)"))
+def test_one_flying_pixel_keeps_the_cuboid():
+    scene, _, result = _with_flying_pixel(1, 0.05)
+    box = _by_id(result)[1]
+    assert box.type == "cuboid"
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "sizes are taken from the extremes of every point nearest to the fitted surface, "
+    "inliers or not: one point 200 mm behind a cone (radius 45, height 70 mm) gives "
+    "radius 64 mm, height 100 mm"))
+def test_one_flying_pixel_does_not_change_the_cone_size():
+    scene, _, result = _with_flying_pixel(4, 0.2)
+    cone = _by_id(result)[4]
+    assert cone.type == "cone"
+    assert cone.dimensions["radius"] == pytest.approx(0.045, abs=1.0 * MM)
+    assert cone.dimensions["height"] == pytest.approx(0.070, abs=1.0 * MM)
+
+
+def test_one_close_flying_pixel_keeps_the_cylinder():
+    """A stray point 50 mm behind the cylinder is tolerated (cf. the box above)."""
+    scene, _, result = _with_flying_pixel(3, 0.05)
+    cyl = _by_id(result)[3]
+    assert cyl.type == "cylinder"
+    assert cyl.dimensions["radius"] == pytest.approx(0.040, abs=1.0 * MM)
+    assert cyl.dimensions["height"] == pytest.approx(0.070, abs=1.0 * MM)
