@@ -85,7 +85,11 @@ def _labels_for(args: argparse.Namespace, cloud) -> np.ndarray:
         if args.labels_field not in cloud.fields:
             raise CliError(f"input has no field {args.labels_field!r}; fields: "
                            f"{', '.join(sorted(cloud.fields)) or 'none'}")
-        return np.asarray(cloud.fields[args.labels_field]).astype(np.int64).reshape(n)
+        field = np.asarray(cloud.fields[args.labels_field])
+        if field.shape != (n,) or not np.issubdtype(field.dtype, np.integer):
+            raise CliError(f"field {args.labels_field!r} must hold one integer per point, got "
+                           f"{field.dtype} {field.shape}")
+        return field.astype(np.int64)
     raise CliError("no object labels: pass --labels LABELS.npy or --labels-field NAME "
                    "(scene segmentation of raw clouds is not available yet)")
 

@@ -36,6 +36,7 @@ class FaceInfo:
     offset : float [m], plane offset d of n . x + d = 0 (planar faces)
     size : int, working points on the face (a proxy for its visible area)
     point_normals : (m, 3) float64, normals of the face's working points
+    center : (3,) float64 [m], centroid of the face
     """
 
     planar: bool
@@ -43,6 +44,7 @@ class FaceInfo:
     offset: float
     size: int
     point_normals: NDArray[np.float64] = field(repr=False)
+    center: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -100,9 +102,13 @@ def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: f
         return GraphDecision("planar", (), main, (),
                              "planar faces not aligned with three orthogonal axes")
     if (parallel | sliver).all():
-        offsets = np.array([f.offset * np.sign(f.normal @ normals[main])
-                            for f, ok in zip(faces, parallel) if ok])
-        if np.ptp(offsets) <= coplanar_tol:
+        # Coplanar: every parallel face's centre lies on the main face's plane (distances
+        # are measured where the faces are, not at the sensor's origin).
+        m = faces[main]
+        gaps = [abs(float(m.normal @ f.center) + m.offset) if f.center is not None and
+                m.center is not None else abs(f.offset * np.sign(f.normal @ m.normal) - m.offset)
+                for f, ok in zip(faces, parallel) if ok]
+        if max(gaps) <= coplanar_tol:
             return GraphDecision("planar", ("plane",), main, (),
                                  "parallel coplanar planar faces merged into one plane"
                                  if len(faces) > 1 else "single planar face")

@@ -152,10 +152,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Smallest area of a plane treated as a support surface (desk, floor, wall)."),
     ParamSpec("seg_max_supports", 3, "count", 0, 20,
               "Most support planes extracted before objects are clustered."),
-    ParamSpec("seg_smooth_angle", 0.3, "rad", 0.0, 1.5,
-              "Neighbouring normals closer than this are linked as one smooth surface."),
-    ParamSpec("seg_convexity_margin", 0.05, "1", -1.0, 1.0,
-              "Links between non-smooth neighbours need (n_i - n_j).(p_i - p_j)/|p_i - p_j| above this (convex)."),
+    ParamSpec("seg_concavity_tolerance", 0.1, "1", 0.0, 2.0,
+              "Neighbours are not linked where (n_i - n_j).(p_i - p_j)/|p_i - p_j| is below minus this (a concave crease)."),
     ParamSpec("seg_max_edge_factor", 2.5, "1", 1.0, 20.0,
               "Neighbours farther apart than this many voxels are not linked (depth jumps)."),
     ParamSpec("seg_min_cluster_points", 150, "count", 1, 10000000,
@@ -169,17 +167,30 @@ _SPECS: dict[str, ParamSpec] = {p.name: p for p in PARAMETERS}
 
 def _make_dataclass() -> type:
     fields = [(p.name, p.type, dataclasses.field(default=p.default)) for p in PARAMETERS]
-    return dataclasses.make_dataclass("_ModelingParamsBase", fields, frozen=True)
+    # The generated __init__ calls __post_init__ only if the dataclass itself has one:
+    # delegate to the subclass's _validate.
+    return dataclasses.make_dataclass("_ModelingParamsBase", fields, frozen=True,
+                                      namespace={"__post_init__": lambda self: self._validate()})
 
 
-class ModelingParams(_make_dataclass()):  # type: ignore[misc]
+class _ModelingParamsMeta(type):
+    def __call__(cls, *args: Any, **kwargs: Any) -> Any:
+        unknown = sorted(set(kwargs) - set(_SPECS))
+        if unknown or args:
+            what = f"unknown parameter(s) {', '.join(unknown)}" if unknown else \
+                "parameters are keyword-only"
+            raise ParameterError(f"{what}; known: {', '.join(sorted(_SPECS))}")
+        return super().__call__(**kwargs)
+
+
+class ModelingParams(_make_dataclass(), metaclass=_ModelingParamsMeta):  # type: ignore[misc]
     """Frozen set of modeling parameters (see :data:`PARAMETERS` for names and units).
 
     Construct with keyword arguments (unknown names, wrong types, out-of-range or
     inconsistent values raise :class:`ParameterError`) or :meth:`from_mapping`.
     """
 
-    def __post_init__(self) -> None:
+    def _validate(self) -> None:
         for spec in PARAMETERS:
             object.__setattr__(self, spec.name, spec.check(getattr(self, spec.name)))
         self.check_consistency()
@@ -227,7 +238,10 @@ def load_params_file(path: str | Path) -> ModelingParams:
     except OSError as exc:
         raise ParameterError(f"cannot read parameter file {path}: {exc.strerror}") from None
     except yaml.YAMLError as exc:
-        raise ParameterError(f"parameter file {path} is not valid YAML: {exc}") from None
+        where = getattr(exc, "problem_mark", None)
+        at = f" (line {where.line + 1}, column {where.column + 1})" if where is not None else ""
+        problem = getattr(exc, "problem", None) or "syntax error"
+        raise ParameterError(f"parameter file {path} is not valid YAML{at}: {problem}") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):

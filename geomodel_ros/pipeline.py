@@ -124,6 +124,16 @@ def _perp_frame(z: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.column_stack([x, np.cross(z, x), z])
 
 
+#: Points farther than this many RANSAC thresholds from the fitted surfaces are outliers
+#: for sizing.
+OUTLIER_FACTOR = 3.0
+
+
+def _robust_sigma(d: NDArray[np.float64]) -> float:
+    """Standard deviation estimated from the median absolute deviation (outlier-proof)."""
+    return float(1.4826 * np.median(np.abs(d - np.median(d)))) if d.size else 0.0
+
+
 def _rms(d: NDArray[np.float64]) -> float:
     return float(np.sqrt(np.mean(d * d))) if d.size else 0.0
 
@@ -158,7 +168,8 @@ def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
         fpts = obj_pts[pidx]
         feat = face_feature(fpts, weights, params.cf_threshold, params.cf_radius_fraction)
         plane = fit_plane_svd(wc.points[widx]) if len(widx) >= 3 else PlaneModel(np.array([0, 0, 1.0]), 0.0)
-        plane_rmse = _rms(plane.distance(wc.points[widx]))
+        # Robust spread (MAD) so that a few flying pixels do not make a flat face curved.
+        plane_rmse = _robust_sigma(plane.distance(wc.points[widx]))
         # RANSAC-style verification of the CF decision (paper 3.2: a fit that fails rejects
         # the type): a "planar" face no plane fits is curved, a "curved" face that a plane
         # fits to well within the inlier threshold is planar.
@@ -175,7 +186,7 @@ def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
             mn = wc.normals[widx].mean(axis=0)
             normal = mn / max(np.linalg.norm(mn), 1e-12)
             offset = 0.0
-        info = FaceInfo(planar, normal, offset, len(widx), wc.normals[widx])
+        info = FaceInfo(planar, normal, offset, len(widx), wc.normals[widx], center)
         summary = FaceSummary("planar" if planar else "curved", feat.cf_total, len(pidx), normal)
         faces.append(_Face(info, summary, widx, pidx))
     return wc, faces, fs.adjacency
@@ -204,8 +215,10 @@ def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
         return None, bad
     n = _toward_sensor(model.normal, o.points.mean(axis=0))
     d = -model.d if n @ model.normal < 0 else model.d
-    pts = obb.ray_to_plane(o.points, n, d, 4 * p.ransac_threshold) if p.reproject_along_rays \
-        else o.points
+    # Sizing uses the points on the model (flying pixels and strays do not stretch it).
+    pts = o.points[np.abs(o.points @ n + d) <= OUTLIER_FACTOR * p.ransac_threshold]
+    if p.reproject_along_rays:
+        pts = obb.ray_to_plane(pts, n, d, 4 * p.ransac_threshold)
     frame = _perp_frame(n)
     # Rectangle direction from the (re-projected) full-resolution outline.
     direction, _ = obb.min_area_rectangle((pts - pts.mean(axis=0)) @ frame[:, :2])
@@ -250,6 +263,8 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     # wrong face) and, optionally, moved onto that plane along its viewing ray.
     dist = np.stack([np.abs(m.distance(o.points)) for m in planes], axis=1)
     nearest = np.argmin(dist, axis=1)
+    # Points far from every face (flying pixels, strays) take no part in the sizing.
+    nearest[dist[np.arange(len(nearest)), nearest] > OUTLIER_FACTOR * p.ransac_threshold] = -1
     q = o.points.copy()
     proj_faces = []
     for fi, model in enumerate(planes):
@@ -258,7 +273,7 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
             q[sel] = obb.ray_to_plane(o.points[sel], model.normal, model.d,
                                            4 * p.ransac_threshold)
         proj_faces.append(q[sel] @ rot)
-    proj = q @ rot
+    proj = q[nearest >= 0] @ rot
     lo, hi = np.empty(3), np.empty(3)
     for a in range(3):
         vals = proj[:, a]
@@ -278,7 +293,7 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     ext = hi - lo
     prim = Primitive(o.oid, "cuboid", center, rot,
                      {"length": float(ext[0]), "width": float(ext[1]), "height": float(ext[2])},
-                     len(o.points), _rms(dist[np.arange(len(q)), nearest]))
+                     len(o.points), _rms(dist.min(axis=1)))
     return prim, "cuboid verified"
 
 
@@ -340,7 +355,9 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
     # Each point goes to its nearest surface: the curved model or one of its caps.
     dists = [np.abs(model.distance(o.points))] + \
         [np.abs(o.points @ f.info.normal + f.info.offset) for f in caps]
-    nearest = np.argmin(np.stack(dists, axis=1), axis=1)
+    stacked = np.stack(dists, axis=1)
+    nearest = np.argmin(stacked, axis=1)
+    nearest[stacked.min(axis=1) > OUTLIER_FACTOR * p.ransac_threshold] = -1
     curved_pts = o.points[nearest == 0]
     if kind == "cylinder":
         if not p.min_radius <= model.radius <= p.max_radius:
@@ -417,8 +434,10 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
     n = len(points)
     if n < max(params.min_object_points, 4):
         return _unknown(object_id, points, f"{n} points < min_object_points")
-    extent = np.ptp(points, axis=0)
-    if not np.all(np.isfinite(extent)) or np.count_nonzero(extent > 1e-9) < 2:
+    sub = points[:: max(1, n // 5000)]
+    sv = np.linalg.svd(sub - sub.mean(axis=0), compute_uv=False) if np.all(np.isfinite(sub)) \
+        else np.zeros(3)
+    if sv[0] <= 1e-9 or sv[1] <= 1e-6 * sv[0]:
         return _unknown(object_id, points, "degenerate point set (collinear or duplicate)")
     wc, faces, adjacency = _build_faces(points, params, face_labels)
     if len(wc.points) < 6 or not faces:

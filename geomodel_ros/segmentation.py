@@ -4,9 +4,8 @@
 2. Support surfaces (desk, floor, walls) are found first: RANSAC planes, with normals,
    whose connected inlier area exceeds ``seg_min_support_area``.
 3. The rest is split into objects by local convexity (as in LCCP, Stein et al. 2014):
-   neighbouring working points are linked when their surfaces meet smoothly or at a
-   convex edge; concave creases (object on object, object against the desk) and depth
-   jumps (occlusion boundaries) cut the links. Objects are the connected components
+   neighbouring working points are linked unless they meet at a concave crease (object
+   on object, object against the desk) or across a depth jump (occlusion boundary). Objects are the connected components
    (:func:`scipy.sparse.csgraph.connected_components`); tiny ones are noise.
 4. Labels go back to every input point through the voxel map.
 """
@@ -169,11 +168,10 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     dist = np.linalg.norm(d, axis=1)
     near = dist <= params.seg_max_edge_factor * params.seg_voxel_size
     i, j, d, dist = i[near], j[near], d[near], dist[near]
-    ni, nj = wn[i], wn[j]
-    smooth = np.einsum("ij,ij->i", ni, nj) >= math.cos(params.seg_smooth_angle)
-    convex = np.einsum("ij,ij->i", ni - nj, d) / np.maximum(dist, 1e-12) > \
-        params.seg_convexity_margin
-    link = smooth | convex
+    # Convexity of the link: (n_i - n_j) . (p_i - p_j) / |p_i - p_j| is ~0 on a smooth
+    # surface, positive across a convex edge and negative across a concave crease.
+    convexity = np.einsum("ij,ij->i", wn[i] - wn[j], d) / np.maximum(dist, 1e-12)
+    link = convexity >= -params.seg_concavity_tolerance
     graph = coo_matrix((np.ones(int(link.sum()), dtype=np.int8), (i[link], j[link])),
                        shape=(m, m))
     _, comp = connected_components(graph, directed=False)

@@ -9,7 +9,11 @@ A face is planar or curved by its multi-scale covariance feature CF:
   (eq. 2), b = (1 - C)^2 (eq. 3) and cf = P * b (eq. 4);
 * CF = sum w_i cf_i (eq. 5) with w = (e^-t, 1 - e^-t, 2 (1 - e^-t)) (eq. 6), t the noise
   amplitude. The face is planar iff CF / sum(w) > CF_th (dividing by the weight sum keeps
-  one threshold valid at every noise level).
+  CF in [0, 1] whatever t is).
+
+With t -> 0 only the smallest neighbourhood counts, where gently curved faces look flat;
+the pipeline therefore verifies every face's type with a plane fit (paper 3.2: a fit that
+fails rejects the type).
 """
 
 from __future__ import annotations

