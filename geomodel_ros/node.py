@@ -11,8 +11,9 @@ Topics (names relative to the node, so ``-r`` and namespaces work):
   ``reproject_along_rays`` the frame must be the sensor's (sensor at the origin).
   Sensor-data QoS: best effort (``qos_reliability``), keep last ``qos_depth``.
 * ``~/primitives`` (visualization_msgs/MarkerArray): one marker and one label per object.
-* ``~/segments`` (sensor_msgs/PointCloud2): the input's finite points with fields
-  ``object_id`` and ``rgb`` (``publish_segments``).
+* ``~/segments`` (sensor_msgs/PointCloud2): the input's points in the input's layout
+  (organized clouds stay organized, NaN rows kept) with fields ``object_id`` (-1 = no
+  object) and ``rgb`` (``publish_segments``).
 * ``~/reconstruction`` (sensor_msgs/PointCloud2): surface samples of the modeled objects,
   hidden parts included, with ``object_id`` and ``rgb`` (``publish_reconstruction``).
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz, when ``diagnostics`` is true):
@@ -56,7 +57,7 @@ from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
 from msg_adapters.markers import primitives_to_markers, reconstruction_cloud, segments_cloud
-from msg_adapters.pointcloud2 import PointCloud2Error, cloud_to_xyz_and_mask
+from msg_adapters.pointcloud2 import PointCloud2Error, cloud_to_xyz
 
 from . import pipeline
 from .params import PARAMETERS, ModelingParams, ParameterError, ParamSpec
@@ -382,7 +383,9 @@ class ModelerNode(Node):
         timing: dict[str, float] = {}
         t0 = time.perf_counter()
         try:
-            points, _ = cloud_to_xyz_and_mask(msg)
+            # Every row, NaNs included: labels stay aligned with the input's points (and
+            # pixels, for an organized cloud).
+            points = cloud_to_xyz(msg, keep_organized=True).reshape(-1, 3)
         except PointCloud2Error as exc:
             self._count_failure()
             self.get_logger().warning(
@@ -390,28 +393,29 @@ class ModelerNode(Node):
                 f"{_stamp(msg)}): {exc}", throttle_duration_sec=WARN_THROTTLE_S)
             return
         organized = (int(msg.height), int(msg.width)) if msg.height > 1 else None
+        n_valid = int(np.count_nonzero(np.isfinite(points).all(axis=1)))
         t1 = time.perf_counter()
         timing["convert_s"] = t1 - t0
 
-        if len(points):
+        if n_valid:
             try:
                 labels, result = pipeline.model_scene(points, params, organized_shape=organized)
                 labels = np.asarray(labels)
-                if labels.shape != (len(points),):
-                    raise ValueError(f"model_scene returned labels of shape {labels.shape} "
-                                     f"for {len(points)} points")
+                if labels.shape != (len(points),) or labels.dtype.kind not in "ui":
+                    raise ValueError(f"model_scene returned {labels.dtype} labels of shape "
+                                     f"{labels.shape} for {len(points)} points")
                 objects = list(result.objects)
             except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the node
                 self._count_failure()
                 self.get_logger().warning(
                     f"modeling failed on frame '{msg.header.frame_id}' {_stamp(msg)} "
-                    f"({len(points)} points), frame skipped: {type(exc).__name__}: {exc}",
+                    f"({n_valid} points), frame skipped: {type(exc).__name__}: {exc}",
                     throttle_duration_sec=WARN_THROTTLE_S)
                 self.get_logger().debug(traceback.format_exc())
                 return
             core_timing = {f"core_{k}": float(v) for k, v in result.timing.items()}
         else:  # nothing to model: publish empty outputs (this clears RViz)
-            labels, objects, core_timing = np.zeros(0, dtype=np.int64), [], {}
+            labels, objects, core_timing = np.full(len(points), -1, dtype=np.int64), [], {}
         t2 = time.perf_counter()
         timing["model_s"] = t2 - t1
 
@@ -420,7 +424,7 @@ class ModelerNode(Node):
         timing["markers_s"] = t3 - t2
         segments = recon = None
         if options.publish_segments:
-            segments = segments_cloud(points, labels, msg.header)
+            segments = segments_cloud(points, labels, msg.header, organized_shape=organized)
         t4 = time.perf_counter()
         timing["segments_s"] = t4 - t3
         if options.publish_reconstruction:
@@ -444,7 +448,7 @@ class ModelerNode(Node):
             self._stats.last_timing = timing
         stages = ", ".join(f"{k[:-2]} {1000 * v:.1f}" for k, v in {**timing, **core_timing}.items())
         self.get_logger().debug(
-            f"frame {_stamp(msg)}: {len(points)} points, {len(objects)} objects, "
+            f"frame {_stamp(msg)}: {n_valid} points, {len(objects)} objects, "
             f"latency {1000 * latency:.1f} ms ({stages} ms)")
 
     # ---------------------------------------------------------------------------------
@@ -478,7 +482,7 @@ class ModelerNode(Node):
             "last_processing_s": f"{s.last_timing.get('total_s', math.nan):.4f}",
         }
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
-        msg = DiagnosticArray(statuses=[status])
+        msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()  # the time of this report
         self._pub_diagnostics.publish(msg)
 

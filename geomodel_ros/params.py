@@ -148,7 +148,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Distance from a support plane (desk, floor, wall) within which points belong to it."),
     ParamSpec("seg_plane_normal_angle", 0.5, "rad", 0.01, 1.5,
               "Largest normal deviation of a support-plane point."),
-    ParamSpec("seg_min_support_area", 0.04, "m^2", 0.0, 1000.0,
+    ParamSpec("seg_min_support_area", 0.1, "m^2", 0.0, 1000.0,
               "Smallest area of a plane treated as a support surface (desk, floor, wall)."),
     ParamSpec("seg_max_supports", 3, "count", 0, 20,
               "Most support planes extracted before objects are clustered."),

@@ -22,7 +22,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .faces import estimate_normals, voxelize
+from .faces import WorkingCloud, estimate_normals, split_faces, voxelize
 from .params import ModelingParams
 from .ransac import PlaneModel, fit_plane_svd, ransac, refine
 
@@ -104,6 +104,45 @@ def _support_planes(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     return supports
 
 
+def _convex_objects(points: NDArray[np.float64], params: ModelingParams) -> NDArray[np.int64]:
+    """Object label of every point of a support-free working cloud (local convexity).
+
+    Patches are smooth regions (:func:`geomodel_ros.faces.split_faces`). Across the border
+    of two adjacent patches every neighbour link votes with its convexity
+    (n_i - n_j) . (p_i - p_j) / |p_i - p_j| (~0 flat, > 0 convex, < 0 concave); the patches
+    belong to one object when at least half the votes are above ``-seg_concavity_tolerance``.
+    Links longer than ``seg_max_edge_factor`` voxels (depth jumps) do not vote.
+    """
+    m = len(points)
+    tree = cKDTree(points)
+    normals, variation, nbrs = estimate_normals(points, params.normal_neighbors, tree=tree)
+    cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
+                         np.arange(m))
+    patches = split_faces(cloud, params.face_angle_threshold, params.edge_variation_threshold,
+                          params.min_face_points).labels
+    k = nbrs.shape[1]
+    i = np.repeat(np.arange(m), k)
+    j = nbrs.ravel()
+    d = points[i] - points[j]
+    dist = np.linalg.norm(d, axis=1)
+    ok = (i != j) & (dist <= params.seg_max_edge_factor * params.seg_voxel_size)
+    i, j, d, dist = i[ok], j[ok], d[ok], dist[ok]
+    convexity = np.einsum("ij,ij->i", normals[i] - normals[j], d) / np.maximum(dist, 1e-12)
+    pi, pj = patches[i], patches[j]
+    cross = pi != pj
+    n_p = int(patches.max()) + 1
+    key = np.minimum(pi[cross], pj[cross]) * n_p + np.maximum(pi[cross], pj[cross])
+    good = convexity[cross] >= -params.seg_concavity_tolerance
+    pairs, inv = np.unique(key, return_inverse=True)
+    votes = np.bincount(inv, minlength=len(pairs))
+    yes = np.bincount(inv, weights=good, minlength=len(pairs))
+    join = yes >= 0.5 * votes
+    a, b = pairs[join] // n_p, pairs[join] % n_p
+    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n_p, n_p))
+    _, obj = connected_components(graph, directed=False)
+    return obj[patches].astype(np.int64)
+
+
 def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
                   rng: np.random.Generator | int | None = None) -> Segmentation:
     """Segment a scene cloud into support planes and objects.
@@ -157,24 +196,14 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     t2 = time.perf_counter()
     timing["seg_supports_s"] = t2 - t1
 
-    # Objects: local convexity on the remaining working points.
-    rest = wlabel < 0
-    k = nbrs.shape[1]
-    i = np.repeat(np.arange(m), k)
-    j = nbrs.ravel()
-    ok = rest[i] & rest[j] & (i != j)
-    i, j = i[ok], j[ok]
-    d = wp[i] - wp[j]
-    dist = np.linalg.norm(d, axis=1)
-    near = dist <= params.seg_max_edge_factor * params.seg_voxel_size
-    i, j, d, dist = i[near], j[near], d[near], dist[near]
-    # Convexity of the link: (n_i - n_j) . (p_i - p_j) / |p_i - p_j| is ~0 on a smooth
-    # surface, positive across a convex edge and negative across a concave crease.
-    convexity = np.einsum("ij,ij->i", wn[i] - wn[j], d) / np.maximum(dist, 1e-12)
-    link = convexity >= -params.seg_concavity_tolerance
-    graph = coo_matrix((np.ones(int(link.sum()), dtype=np.int8), (i[link], j[link])),
-                       shape=(m, m))
-    _, comp = connected_components(graph, directed=False)
+    # Objects: smooth patches of the remaining working points (normals recomputed without
+    # the supports, so they do not blend into the desk), then patches joined where most
+    # links along their common border are flat or convex.
+    rest_idx = np.flatnonzero(wlabel < 0)
+    comp = np.full(m, -1, dtype=np.int64)
+    if len(rest_idx) >= 4:
+        comp[rest_idx] = _convex_objects(wp[rest_idx], params)
+    rest = comp >= 0
     # Component sizes in input points; small ones are noise.
     comp_rest = np.where(rest, comp, -1)
     size = np.bincount(comp_rest[rest], weights=counts[rest], minlength=int(comp.max()) + 1)
