@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -167,93 +166,51 @@ def cmd_params(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fmt_dims(errors, which: str) -> str:
-    return ", ".join(f"{e.name[0].upper()}={getattr(e, which) * 1000:.3f}" for e in errors)
-
-
-def figure9_table(scene, result) -> str:
-    """Figure-9-style table: object, type, true size, estimate, error [mm]."""
-    from .evaluation import score_objects
-
-    lines = [f"{'id':>3} {'true type':<9} {'modeled':<9} {'true size (mm)':<28} "
-             f"{'estimate (mm)':<30} {'error (mm)':<24}"]
-    for s in score_objects(result.objects, scene.objects):
-        gt = next(o for o in scene.objects if o.id == s.gt_id)
-        true = _fmt_dims(s.errors, "true") if s.errors else \
-            ", ".join(f"{k[0].upper()}={v * 1000:.3f}" for k, v in gt.dimensions.items())
-        est = _fmt_dims(s.errors, "estimate") if s.errors else "-"
-        err = ", ".join(f"{e.error * 1000:+.3f}" for e in s.errors) if s.errors else "-"
-        mark = "" if s.type_correct else "  <- type wrong"
-        lines.append(f"{s.gt_id:>3} {s.true_type:<9} {s.estimated:<9} {true:<28} {est:<30} "
-                     f"{err:<24}{mark}")
-    return "\n".join(lines)
-
-
-def run_benchmark(scenes: Sequence[str], repeats: int, noisy_params: ModelingParams,
-                  clean_params: ModelingParams, seed: int = 1) -> dict:
-    """Accuracy and parameter-extraction time over scenes, noise-free and noisy."""
-    from .evaluation import score_objects
-    from .pipeline import model_objects
-    from .synth import SENSOR_NOISE, render_scene
-
-    report: dict = {"runs": []}
-    for noisy in (False, True):
-        params = noisy_params if noisy else clean_params
-        for name in scenes:
-            scene = render_scene(name, noise=SENSOR_NOISE if noisy else None, rng=seed)
-            times, result = [], None
-            for _ in range(repeats):
-                t0 = time.perf_counter()
-                result = model_objects(scene.points, scene.labels, params)
-                times.append(time.perf_counter() - t0)
-            scores = score_objects(result.objects, scene.objects)
-            errs = [abs(e.error) for s in scores for e in s.errors]
-            report["runs"].append({
-                "scene": name, "noisy": noisy, "points": int(len(scene.points)),
-                "objects": len(scene.objects),
-                "type_correct": sum(s.type_correct for s in scores),
-                "size_errors_mm": [e * 1000 for e in errs],
-                "time_median_s": statistics.median(times),
-                "table": figure9_table(scene, result) if name == "scene3" else None,
-            })
-    return report
-
-
-def _summary_lines(report: dict) -> list[str]:
-    lines = [f"{'scene':<8} {'noise':<6} {'points':>7} {'types':>7} {'size err mm mean/median/max':>28} "
-             f"{'extract s (median)':>19}"]
-    for noisy in (False, True):
-        runs = [r for r in report["runs"] if r["noisy"] == noisy]
-        for r in runs:
-            e = r["size_errors_mm"] or [float("nan")]
-            lines.append(f"{r['scene']:<8} {'noisy' if noisy else 'clean':<6} {r['points']:>7} "
-                         f"{r['type_correct']:>3}/{r['objects']:<3} "
-                         f"{np.mean(e):>9.3f} /{np.median(e):>7.3f} /{np.max(e):>7.3f} "
-                         f"{r['time_median_s']:>19.3f}")
-        if runs:
-            allerr = [x for r in runs for x in r["size_errors_mm"]] or [float("nan")]
-            correct = sum(r["type_correct"] for r in runs)
-            total = sum(r["objects"] for r in runs)
-            lines.append(f"{'all':<8} {'noisy' if noisy else 'clean':<6} {'':>7} "
-                         f"{correct:>3}/{total:<3} {np.mean(allerr):>9.3f} /{np.median(allerr):>7.3f} "
-                         f"/{np.max(allerr):>7.3f} {'':>19}   type accuracy {100 * correct / total:.1f}%")
-    return lines
-
-
 def cmd_bench(args: argparse.Namespace) -> int:
+    from . import benchmark as bm
+    from .synth import SENSOR_NOISE
+
     clean = _params(args)
     noisy = load_params_file(CONFIG_DIR / "sensor_noise.yaml") if args.noisy_params is None \
         else load_params_file(args.noisy_params)
-    report = run_benchmark(args.scenes, args.repeats, noisy, clean, seed=args.seed)
-    for r in report["runs"]:
-        if r["table"]:
-            print(f"\nFigure 9 table, {r['scene']} ({'noisy' if r['noisy'] else 'noise-free'}, "
-                  "ground-truth object labels):")
-            print(r["table"])
-    print("\nSummary (ground-truth object labels; extraction = model_objects wall time):")
-    print("\n".join(_summary_lines(report)))
+    report: dict = {}
+    if args.part in ("modeling", "all"):
+        report["modeling"] = bm.run_benchmark(args.scenes, args.repeats, noisy, clean,
+                                              seed=args.seed)
+        for r in report["modeling"]["runs"]:
+            if r["table"]:
+                print(f"\nFigure 9 table, {r['scene']} ({'noisy' if r['noisy'] else 'noise-free'}, "
+                      "ground-truth object labels):")
+                print(r["table"])
+        print("\nModeling with ground-truth object labels (extraction = model_objects wall time):")
+        print("\n".join(bm.summary_lines(report["modeling"])))
+    if args.part in ("segmentation", "all"):
+        print("\nEnd to end (segmentation + modeling) on the synthetic scenes:")
+        print(f"{'scene':<8} {'noise':<6} {'objects':>7} {'IoU>=0.8':>8} {'min IoU':>8} "
+              f"{'types':>6} {'size err mm median/max':>23} {'seg s':>7} {'total s':>8}")
+        rows = []
+        for noise in (None, SENSOR_NOISE):
+            params = clean if noise is None else noisy
+            for r in bm.synthetic_segmentation(args.scenes, params, args.repeats, noise, args.seed):
+                r["noisy"] = noise is not None
+                rows.append(r)
+                e = r["size_errors_mm"] or [float("nan")]
+                print(f"{r['scene']:<8} {'noisy' if noise else 'clean':<6} {r['objects']:>7} "
+                      f"{r['iou_ok']:>4}/{r['objects']:<3} {r['min_iou']:>8.3f} "
+                      f"{r['types']:>3}/{r['objects']:<2} {np.median(e):>11.3f} /{np.max(e):>9.3f} "
+                      f"{r['segmentation_s']:>7.3f} {r['total_s']:>8.3f}")
+        report["synthetic_segmentation"] = rows
+        kinect = load_params_file(CONFIG_DIR / "kinect.yaml")
+        osd = bm.osd_benchmark(kinect)
+        report["osd"] = osd
+        print("\nReal Kinect scenes, osd_learn (config/kinect.yaml; objects = labels >= 20):")
+        print("\n".join(bm.osd_lines(osd)))
+        mug = bm.mug_benchmark(kinect)
+        report["mug"] = mug
+        print("\nPCL mug scene (config/kinect.yaml):", json.dumps(mug))
+    print(f"\npeak RSS {bm.peak_rss_mb():.0f} MiB")
     if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=2))
+        Path(args.json).write_text(json.dumps(report, indent=2, default=float))
     return 0
 
 
@@ -268,6 +225,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     dt = time.perf_counter() - t0
     print(f"Scene 3 (paper Figure 9 objects): {len(scene.points)} points, "
           f"{len(scene.objects)} objects, modeled in {dt:.3f} s with ground-truth labels\n")
+    from .benchmark import figure9_table
+
     print(figure9_table(scene, result))
     return 0 if result.objects else 1
 
@@ -305,6 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--noisy-params", help="parameters for the noisy runs "
                    "(default config/sensor_noise.yaml)")
+    p.add_argument("--part", choices=("modeling", "segmentation", "all"), default="all")
     p.add_argument("--json", help="write the full report here")
     add_params(p)
     p.set_defaults(func=cmd_bench)

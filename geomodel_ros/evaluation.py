@@ -76,3 +76,66 @@ def score_objects(estimates: list[Primitive], ground_truth) -> list[ObjectScore]
         errors = tuple(dimension_errors(est, gt)) if est is not None else ()
         scores.append(ObjectScore(gt.id, gt.type, expected_type(gt.type), estimated, errors))
     return scores
+
+
+@dataclass(frozen=True)
+class SegmentScore:
+    """Segmentation quality of one ground-truth object.
+
+    Attributes
+    ----------
+    gt_id : int
+    iou : float
+        Best intersection-over-union with any predicted segment (0 if all its points are
+        noise).
+    under : bool
+        Its best segment also holds more than ``share`` of another ground-truth object.
+    over : bool
+        Two or more segments each hold at least ``share`` of its points.
+    """
+
+    gt_id: int
+    iou: float
+    under: bool
+    over: bool
+
+
+def segmentation_scores(pred: np.ndarray, gt: np.ndarray, object_ids, share: float = 0.2
+                        ) -> list[SegmentScore]:
+    """Per-object best-match IoU, under- and over-segmentation.
+
+    Parameters
+    ----------
+    pred, gt : (N,) int arrays
+        Predicted and true labels per point (-1 = none).
+    object_ids : iterable of int
+        Ground-truth ids to score (e.g. the objects, without the table).
+    share : float
+        Fraction of an object's points that counts as a real part of a segment.
+    """
+    pred = np.asarray(pred)
+    gt = np.asarray(gt)
+    valid = (pred >= 0) & (gt >= 0)
+    # Contingency table via one bincount over (gt, pred) pairs.
+    g_ids, g_inv = np.unique(gt[valid], return_inverse=True)
+    p_ids, p_inv = np.unique(pred[valid], return_inverse=True)
+    table = np.bincount(g_inv * len(p_ids) + p_inv, minlength=len(g_ids) * len(p_ids)
+                        ).reshape(len(g_ids), len(p_ids))
+    gt_size = {int(g): int((gt == g).sum()) for g in object_ids}
+    pred_size = np.bincount(p_inv, minlength=len(p_ids))
+    row_of = {int(g): i for i, g in enumerate(g_ids)}
+    scores = []
+    for g in object_ids:
+        g = int(g)
+        if g not in row_of or table[row_of[g]].max() == 0:
+            scores.append(SegmentScore(g, 0.0, False, False))
+            continue
+        row = table[row_of[g]]
+        b = int(np.argmax(row))
+        inter = int(row[b])
+        iou = inter / (gt_size[g] + int(pred_size[b]) - inter)
+        others = [o for o in object_ids if int(o) != g and int(o) in row_of
+                  and table[row_of[int(o)], b] > share * gt_size[int(o)]]
+        over = int(np.sum(row >= share * gt_size[g])) >= 2
+        scores.append(SegmentScore(g, float(iou), bool(others), bool(over)))
+    return scores

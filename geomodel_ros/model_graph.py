@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["FaceInfo", "GraphDecision", "decide_type"]
+__all__ = ["FaceInfo", "GraphDecision", "curvature_candidates", "decide_type"]
 
 
 @dataclass(frozen=True)
@@ -163,7 +163,7 @@ def curvature_candidates(k_max: NDArray[np.float64], k_min: NDArray[np.float64],
 
 def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
                 coplanar_tol: float, curvature: tuple[NDArray, NDArray] | None = None,
-                sphere_ratio: float = 0.45, developable_ratio: float = 0.3,
+                sphere_ratio: float = 0.45, developable_ratio: float = 0.35,
                 cone_variation: float = 0.25) -> GraphDecision:
     """Apply the model graph.
 

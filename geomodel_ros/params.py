@@ -110,7 +110,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Tolerance for 'perpendicular' and 'parallel' normal relations."),
     ParamSpec("sphere_curvature_ratio", 0.45, "1", 0.0, 1.0,
               "Median |k2|/|k1| at or above which an all-curved object is a sphere candidate."),
-    ParamSpec("developable_curvature_ratio", 0.3, "1", 0.0, 1.0,
+    ParamSpec("developable_curvature_ratio", 0.35, "1", 0.0, 1.0,
               "Median |k2|/|k1| at or below which an all-curved object is a cylinder/cone candidate."),
     ParamSpec("cone_curvature_variation", 0.25, "1", 0.0, 10.0,
               "Relative spread of k1 (IQR/median) above which cone is tried before cylinder."),

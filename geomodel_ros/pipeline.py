@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from . import obb
 from .faces import WorkingCloud, build_working_cloud, faces_from_labels, split_faces
-from .model_graph import FaceInfo, decide_type
+from .model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
 from .params import ModelingParams
 from .primitives import FaceSummary, ModelingResult, Primitive
 from .ransac import (ConeModel, CylinderModel, PlaneModel, SphereModel, fit_plane_svd, ransac,
@@ -444,17 +444,33 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
         return _unknown(object_id, points, "too few distinct points after voxelization")
     summaries = tuple(f.summary for f in faces)
     infos = [f.info for f in faces]
+    def curvature_of(which: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
+        k_max, k_min = principal_curvatures(wc.points, wc.normals, wc.neighbors)
+        smooth = which & (wc.variation <= params.edge_variation_threshold)
+        sel = smooth if smooth.sum() >= 10 else which
+        return k_max[sel], k_min[sel]
+
     curvature = None
     if not any(i.planar for i in infos):
-        curvature = principal_curvatures(wc.points, wc.normals, wc.neighbors)
-        smooth = wc.variation <= params.edge_variation_threshold
-        if smooth.sum() >= 10:
-            curvature = (curvature[0][smooth], curvature[1][smooth])
+        curvature = curvature_of(np.ones(len(wc.points), dtype=bool))
     decision = decide_type(infos, adjacency, params.angle_tolerance, 3 * params.ransac_threshold,
                            curvature, params.sphere_curvature_ratio,
                            params.developable_curvature_ratio, params.cone_curvature_variation)
-    obj = _Object(object_id, points, wc, faces, adjacency, spacing, params, rng, supports)
     reasons = [decision.reason]
+    if not decision.candidates and decision.category == "mixed":
+        # The planar faces fit no rule with the curved ones (handles, rims, slivers of
+        # noise): judge the curved faces alone, as an all-curved object (no axis prior).
+        curved_mask = np.zeros(len(wc.points), dtype=bool)
+        for f in faces:
+            if not f.info.planar:
+                curved_mask[f.working] = True
+        cands, why = curvature_candidates(*curvature_of(curved_mask),
+                                          params.sphere_curvature_ratio,
+                                          params.developable_curvature_ratio,
+                                          params.cone_curvature_variation)
+        decision = GraphDecision("curved", cands, -1, (), why)
+        reasons.append(f"curved faces alone: {why}")
+    obj = _Object(object_id, points, wc, faces, adjacency, spacing, params, rng, supports)
     for kind in decision.candidates:
         try:
             if kind == "plane":

@@ -1,0 +1,245 @@
+"""Benchmarks: modeling accuracy and speed on the paper's synthetic scenes, segmentation
+quality on real Kinect data (osd_learn) and the PCL mug scene.
+
+Run through ``geomodel bench`` (``make bench``); figures go to BENCHMARKS.md. Nothing here
+is used by tests as a timing assertion.
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import statistics
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .evaluation import score_objects, segmentation_scores
+from .params import ModelingParams
+
+__all__ = ["figure9_table", "run_benchmark", "summary_lines", "data_dir", "osd_benchmark",
+           "osd_lines", "mug_benchmark", "synthetic_segmentation", "peak_rss_mb"]
+
+
+def data_dir() -> Path:
+    """The shared data folder: $GEOMODEL_DATA or ../shared/data beside the repository."""
+    env = os.environ.get("GEOMODEL_DATA")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process so far [MiB]."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _fmt_dims(errors, which: str) -> str:
+    return ", ".join(f"{e.name[0].upper()}={getattr(e, which) * 1000:.3f}" for e in errors)
+
+
+def figure9_table(scene, result) -> str:
+    """Figure-9-style table: object, type, true size, estimate, error [mm]."""
+    lines = [f"{'id':>3} {'true type':<9} {'modeled':<9} {'true size (mm)':<28} "
+             f"{'estimate (mm)':<30} {'error (mm)':<24}"]
+    for s in score_objects(result.objects, scene.objects):
+        gt = next(o for o in scene.objects if o.id == s.gt_id)
+        true = _fmt_dims(s.errors, "true") if s.errors else \
+            ", ".join(f"{k[0].upper()}={v * 1000:.3f}" for k, v in gt.dimensions.items())
+        est = _fmt_dims(s.errors, "estimate") if s.errors else "-"
+        err = ", ".join(f"{e.error * 1000:+.3f}" for e in s.errors) if s.errors else "-"
+        mark = "" if s.type_correct else "  <- type wrong"
+        lines.append(f"{s.gt_id:>3} {s.true_type:<9} {s.estimated:<9} {true:<28} {est:<30} "
+                     f"{err:<24}{mark}")
+    return "\n".join(lines)
+
+
+def run_benchmark(scenes: Sequence[str], repeats: int, noisy_params: ModelingParams,
+                  clean_params: ModelingParams, seed: int = 1) -> dict:
+    """Accuracy and parameter-extraction time over scenes, noise-free and noisy."""
+    from .pipeline import model_objects
+    from .synth import SENSOR_NOISE, render_scene
+
+    report: dict = {"runs": []}
+    for noisy in (False, True):
+        params = noisy_params if noisy else clean_params
+        for name in scenes:
+            scene = render_scene(name, noise=SENSOR_NOISE if noisy else None, rng=seed)
+            times, result = [], None
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                result = model_objects(scene.points, scene.labels, params)
+                times.append(time.perf_counter() - t0)
+            scores = score_objects(result.objects, scene.objects)
+            errs = [abs(e.error) for s in scores for e in s.errors]
+            report["runs"].append({
+                "scene": name, "noisy": noisy, "points": int(len(scene.points)),
+                "objects": len(scene.objects),
+                "type_correct": sum(s.type_correct for s in scores),
+                "size_errors_mm": [e * 1000 for e in errs],
+                "time_median_s": statistics.median(times),
+                "table": figure9_table(scene, result) if name == "scene3" else None,
+            })
+    return report
+
+
+def summary_lines(report: dict) -> list[str]:
+    lines = [f"{'scene':<8} {'noise':<6} {'points':>7} {'types':>7} {'size err mm mean/median/max':>28} "
+             f"{'extract s (median)':>19}"]
+    for noisy in (False, True):
+        runs = [r for r in report["runs"] if r["noisy"] == noisy]
+        for r in runs:
+            e = r["size_errors_mm"] or [float("nan")]
+            lines.append(f"{r['scene']:<8} {'noisy' if noisy else 'clean':<6} {r['points']:>7} "
+                         f"{r['type_correct']:>3}/{r['objects']:<3} "
+                         f"{np.mean(e):>9.3f} /{np.median(e):>7.3f} /{np.max(e):>7.3f} "
+                         f"{r['time_median_s']:>19.3f}")
+        if runs:
+            allerr = [x for r in runs for x in r["size_errors_mm"]] or [float("nan")]
+            correct = sum(r["type_correct"] for r in runs)
+            total = sum(r["objects"] for r in runs)
+            lines.append(f"{'all':<8} {'noisy' if noisy else 'clean':<6} {'':>7} "
+                         f"{correct:>3}/{total:<3} {np.mean(allerr):>9.3f} /{np.median(allerr):>7.3f} "
+                         f"/{np.max(allerr):>7.3f} {'':>19}   type accuracy {100 * correct / total:.1f}%")
+    return lines
+
+
+
+
+# ---------------------------------------------------------------------------------------
+# Segmentation
+# ---------------------------------------------------------------------------------------
+
+#: osd_learn scene groups (see the data README).
+OSD_GROUPS = {"boxes": range(0, 17), "stacked": range(17, 25), "occluded": range(25, 33),
+              "cylinders": range(33, 45)}
+
+
+def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(45)),
+                  model: bool = True) -> list[dict]:
+    """Segment (and model) osd_learn scenes; per-scene IoU scores and timings."""
+    from .io import load_osd
+    from .pipeline import model_objects
+    from .segmentation import segment_scene
+
+    rows = []
+    for k in scenes:
+        path = data_dir() / "osd_learn" / f"learn{k}.pcd"
+        points, gt = load_osd(path)
+        organized = points.reshape(480, 640, 3)
+        t0 = time.perf_counter()
+        seg = segment_scene(organized, params)
+        t1 = time.perf_counter()
+        objects = [int(g) for g in np.unique(gt) if g >= 2]
+        scores = segmentation_scores(seg.labels, gt, objects)
+        row = {"scene": k, "objects": len(objects), "segmentation_s": t1 - t0,
+               "scores": [(s.gt_id, s.iou, s.under, s.over) for s in scores]}
+        if model:
+            result = model_objects(points, seg.labels, params, supports=seg.support_planes)
+            row["total_s"] = time.perf_counter() - t0
+            row["types"] = {o.id: o.type for o in result.objects}
+        rows.append(row)
+    return rows
+
+
+def osd_lines(rows: list[dict]) -> list[str]:
+    """Per-group summary of :func:`osd_benchmark` rows."""
+    lines = [f"{'group':<10} {'scenes':>6} {'objects':>7} {'IoU>=0.8':>9} {'under':>6} "
+             f"{'over':>5} {'mean IoU':>9} {'seg s (median)':>15} {'seg+model s':>12}"]
+    groups = dict(OSD_GROUPS)
+    groups["all"] = range(0, 45)
+    for name, members in groups.items():
+        rs = [r for r in rows if r["scene"] in members]
+        if not rs:
+            continue
+        sc = [s for r in rs for s in r["scores"]]
+        n = len(sc)
+        good = sum(s[1] >= 0.8 for s in sc)
+        under = sum(s[2] for s in sc)
+        over = sum(s[3] for s in sc)
+        seg_t = statistics.median(r["segmentation_s"] for r in rs)
+        tot = [r["total_s"] for r in rs if "total_s" in r]
+        tot_t = f"{statistics.median(tot):12.3f}" if tot else f"{'-':>12}"
+        lines.append(f"{name:<10} {len(rs):>6} {n:>7} {100 * good / n:>8.1f}% "
+                     f"{100 * under / n:>5.1f}% {100 * over / n:>4.1f}% "
+                     f"{np.mean([s[1] for s in sc]):>9.3f} {seg_t:>15.3f} {tot_t}")
+    return lines
+
+
+#: PCL cylinder-segmentation tutorial's answer for the mug scene.
+MUG_AXIS = np.array([0.20495, -0.721649, -0.661225])
+MUG_POINT = np.array([0.0452105, 0.0924601, 0.790215])
+MUG_RADIUS = 0.0396354
+
+
+def mug_benchmark(params: ModelingParams) -> dict:
+    """Model the PCL mug scene (points with 0 <= z <= 1.5 m) and compare with the tutorial."""
+    from .io import read_cloud
+    from .pipeline import model_scene
+
+    cloud = read_cloud(data_dir() / "pcl_mug" / "table_scene_mug_stereo_textured.pcd")
+    pts = cloud.points
+    keep = np.all(np.isfinite(pts), axis=1) & (pts[:, 2] >= 0) & (pts[:, 2] <= 1.5)
+    pts = pts[keep]
+    t0 = time.perf_counter()
+    labels, result = model_scene(pts, params)
+    dt = time.perf_counter() - t0
+    out = {"points": int(len(pts)), "time_s": dt,
+           "types": sorted(o.type for o in result.objects)}
+    best = None
+    for o in result.objects:
+        if o.type != "cylinder":
+            continue
+        axis = o.rotation[:, 2]
+        # distance of the tutorial's axis point from this cylinder's axis line
+        off = np.linalg.norm(np.cross(MUG_POINT - o.center, axis))
+        if best is None or off < best[0]:
+            best = (off, o)
+    if best is not None:
+        o = best[1]
+        cosang = abs(float(o.rotation[:, 2] @ MUG_AXIS) / np.linalg.norm(MUG_AXIS))
+        out.update(cylinder_radius=o.dimensions["radius"], cylinder_height=o.dimensions["height"],
+                   axis_error_deg=float(np.degrees(np.arccos(min(1.0, cosang)))),
+                   axis_offset_m=float(best[0]), cylinder_points=o.point_count)
+    planes = [o for o in result.objects if o.type == "plane"]
+    if planes:
+        table = max(planes, key=lambda o: o.point_count)
+        out["table_points"] = table.point_count
+        out["table_normal"] = [float(v) for v in table.rotation[:, 2]]
+    return out
+
+
+def synthetic_segmentation(scenes: Sequence[str], params: ModelingParams, repeats: int = 5,
+                           noise=None, seed: int = 1) -> list[dict]:
+    """End-to-end (segmentation + modeling) on synthetic scenes: IoU, types, sizes, time."""
+    from .evaluation import dimension_errors, expected_type
+    from .pipeline import model_scene
+    from .synth import render_scene
+
+    rows = []
+    for name in scenes:
+        scene = render_scene(name, noise=noise, rng=seed)
+        seg_t, tot_t = [], []
+        for _ in range(repeats):
+            labels, result = model_scene(scene.points, params)
+            seg_t.append(result.timing["segmentation_s"])
+            tot_t.append(result.timing["total_s"])
+        ids = [o.id for o in scene.objects]
+        scores = segmentation_scores(labels, scene.labels, ids)
+        by_id = {o.id: o for o in result.objects}
+        types, errs = 0, []
+        for sc, gt in zip(scores, scene.objects):
+            # the segment that best matches this object
+            inter = np.bincount(labels[(scene.labels == gt.id) & (labels >= 0)])
+            est = by_id.get(int(np.argmax(inter))) if inter.size else None
+            types += est is not None and est.type == expected_type(gt.type)
+            if est is not None:
+                errs += [abs(e.error) * 1000 for e in dimension_errors(est, gt)]
+        rows.append({"scene": name, "objects": len(ids), "points": int(len(scene.points)),
+                     "iou_ok": sum(s.iou >= 0.8 for s in scores),
+                     "under": sum(s.under for s in scores), "over": sum(s.over for s in scores),
+                     "min_iou": min(s.iou for s in scores), "types": types,
+                     "size_errors_mm": errs,
+                     "segmentation_s": statistics.median(seg_t),
+                     "total_s": statistics.median(tot_t)})
+    return rows
