@@ -24,6 +24,7 @@ setup(
     entry_points={
         "console_scripts": [
             "geomodel = geomodel_ros.cli:main",
+            "modeler = geomodel_ros.node:main",
         ],
     },
 )

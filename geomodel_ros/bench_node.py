@@ -83,7 +83,7 @@ class _Peer:
         self.pub.publish(msg)
         with self._cond:
             if not self._cond.wait_for(lambda: len(self.marker_times) > n, timeout):
-                raise RuntimeError("no MarkerArray within {timeout} s")
+                raise RuntimeError(f"no MarkerArray within {timeout} s")
             return self.marker_times[n] - t0
 
 

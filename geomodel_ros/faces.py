@@ -60,6 +60,54 @@ def voxelize(points: NDArray[np.float64], voxel_size: float,
     return centroids, inverse, counts
 
 
+def smallest_eigenpairs(cov: NDArray[np.float64]
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Smallest eigenvalue and its unit eigenvector of many symmetric 3x3 matrices.
+
+    Closed form (trigonometric solution of the characteristic cubic, eigenvector from the
+    largest cross product of two rows of A - lambda I), vectorised; falls back to
+    :func:`numpy.linalg.eigh` for the rare near-degenerate matrices.
+
+    Parameters
+    ----------
+    cov : (M, 3, 3) float64 array, symmetric positive semi-definite
+
+    Returns
+    -------
+    lam : (M,) float64, smallest eigenvalue
+    vec : (M, 3) float64, unit eigenvectors
+    """
+    a = cov
+    scale = np.maximum(np.abs(a).reshape(len(a), -1).max(axis=1), 1e-300)
+    a = a / scale[:, None, None]
+    q = np.trace(a, axis1=1, axis2=2) / 3.0
+    off = a[:, 0, 1] ** 2 + a[:, 0, 2] ** 2 + a[:, 1, 2] ** 2
+    diag = a[:, [0, 1, 2], [0, 1, 2]] - q[:, None]
+    p = np.sqrt((np.sum(diag * diag, axis=1) + 2.0 * off) / 6.0)
+    p_safe = np.where(p > 0, p, 1.0)
+    b = (a - q[:, None, None] * np.eye(3)) / p_safe[:, None, None]
+    r = np.clip(np.linalg.det(b) / 2.0, -1.0, 1.0)
+    phi = np.arccos(r) / 3.0
+    lam = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)   # smallest root
+    shifted = a - lam[:, None, None] * np.eye(3)
+    c01 = np.cross(shifted[:, 0], shifted[:, 1])
+    c02 = np.cross(shifted[:, 0], shifted[:, 2])
+    c12 = np.cross(shifted[:, 1], shifted[:, 2])
+    cands = np.stack([c01, c02, c12], axis=1)
+    norms = np.linalg.norm(cands, axis=2)
+    best = np.argmax(norms, axis=1)
+    idx = np.arange(len(a))
+    vec = cands[idx, best]
+    nrm = norms[idx, best]
+    bad = nrm < 1e-8
+    vec = vec / np.where(bad, 1.0, nrm)[:, None]
+    if bad.any():
+        w, v = np.linalg.eigh(cov[bad])
+        vec[bad] = v[:, :, 0]
+        lam[bad] = w[:, 0] / scale[bad]
+    return np.maximum(lam, 0.0) * scale, vec
+
+
 def estimate_normals(points: NDArray[np.float64], k: int,
                      viewpoint: NDArray[np.float64] | None = None,
                      tree: cKDTree | None = None
@@ -77,15 +125,14 @@ def estimate_normals(points: NDArray[np.float64], k: int,
     m = len(points)
     k = int(min(k, m))
     tree = tree if tree is not None else cKDTree(points)
-    _, neighbors = tree.query(points, k=k, workers=-1 if m > 50000 else 1)
+    _, neighbors = tree.query(points, k=k, workers=-1 if m > 5000 else 1)
     neighbors = np.asarray(neighbors, dtype=np.int64).reshape(m, k)
     nb = points[neighbors]
     nb = nb - nb.mean(axis=1, keepdims=True)
     cov = np.einsum("mki,mkj->mij", nb, nb) / k
-    evals, evecs = np.linalg.eigh(cov)
-    normals = evecs[:, :, 0]
-    total = evals.sum(axis=1)
-    variation = np.divide(evals[:, 0], total, out=np.zeros(m), where=total > 0)
+    lam, normals = smallest_eigenpairs(cov)
+    total = np.trace(cov, axis1=1, axis2=2)
+    variation = np.divide(lam, total, out=np.zeros(m), where=total > 0)
     vp = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64)
     flip = np.einsum("mi,mi->m", normals, points - vp) > 0
     normals[flip] *= -1

@@ -233,19 +233,11 @@ class ModelerNode(Node):
         super().__init__(node_name, **kwargs)
         self._spec_names = frozenset(p.name for p in PARAMETERS)
         self._option_names = frozenset(p.name for p in NODE_PARAMETERS)
-        self.declare_parameters("", [(p.name, p.default, _descriptor(p)) for p in PARAMETERS])
-        self.declare_parameters("", [(p.name, p.default, _node_descriptor(p))
-                                     for p in NODE_PARAMETERS])
-        # Initial values are checked as a whole (the per-parameter callbacks are registered
-        # afterwards, so that e.g. min_radius and max_radius can both move in the YAML).
-        self._params: ModelingParams = ModelingParams.from_mapping(
-            {p.name: self.get_parameter(p.name).value for p in PARAMETERS})
-        self._options = NodeOptions(**{p.name: self.get_parameter(p.name).value
-                                       for p in NODE_PARAMETERS})
-        if self._options.qos_reliability not in _RELIABILITY:
-            raise ParameterError(
-                f"parameter 'qos_reliability' = {self._options.qos_reliability!r} is not "
-                f"allowed; use one of: {', '.join(_RELIABILITY)}")
+        try:
+            self._params, self._options = self._initial_parameters()
+        except Exception:
+            Node.destroy_node(self)  # nothing else exists yet
+            raise
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
@@ -302,6 +294,22 @@ class ModelerNode(Node):
     # ---------------------------------------------------------------------------------
     # parameters
     # ---------------------------------------------------------------------------------
+
+    def _initial_parameters(self) -> tuple[ModelingParams, NodeOptions]:
+        self.declare_parameters("", [(p.name, p.default, _descriptor(p)) for p in PARAMETERS])
+        self.declare_parameters("", [(p.name, p.default, _node_descriptor(p))
+                                     for p in NODE_PARAMETERS])
+        # Initial values are checked as a whole (the per-parameter callbacks are registered
+        # afterwards, so that e.g. min_radius and max_radius can both move in the YAML).
+        params = ModelingParams.from_mapping(
+            {p.name: self.get_parameter(p.name).value for p in PARAMETERS})
+        options = NodeOptions(**{p.name: self.get_parameter(p.name).value
+                                 for p in NODE_PARAMETERS})
+        if options.qos_reliability not in _RELIABILITY:
+            raise ParameterError(
+                f"parameter 'qos_reliability' = {options.qos_reliability!r} is not "
+                f"allowed; use one of: {', '.join(_RELIABILITY)}")
+        return params, options
 
     def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Accept or reject a set of parameters; no side effects."""
@@ -371,7 +379,7 @@ class ModelerNode(Node):
                     return
                 self._count_failure()
                 self.get_logger().error(
-                    f"frame {_stamp(msg)} failed while publishing: "
+                    f"frame {_stamp(msg)} modeled but its outputs could not be published: "
                     f"{type(exc).__name__}: {exc}", throttle_duration_sec=WARN_THROTTLE_S)
 
     def _count_failure(self) -> None:

@@ -320,6 +320,11 @@ def test_object_colours_are_deterministic_and_distinct():
     assert np.array_equal(a, b)
     assert tuple(a[0]) == (128, 128, 128)
     assert len({tuple(c) for c in a}) == 13
+    # sparse ids (looked up through np.unique) get the same colours as dense ones
+    sparse = object_colours(np.array([5, 10**12, -3, 5]))
+    assert np.array_equal(sparse[[0, 3]], object_colours(np.array([5, 5])))
+    assert tuple(sparse[2]) == (128, 128, 128)
+    assert object_colours(np.zeros(0, dtype=np.int32)).shape == (0, 3)
 
 
 @pytest.mark.parametrize("build", [segments_cloud, reconstruction_cloud])

@@ -1,0 +1,84 @@
+"""Working cloud, normals and face splitting (geomodel_ros.faces)."""
+
+import numpy as np
+import pytest
+
+from geomodel_ros.faces import (build_working_cloud, estimate_normals, smallest_eigenpairs,
+                                split_faces, voxelize)
+
+
+def test_smallest_eigenpairs_match_eigh():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(2000, 3, 3))
+    cov = a @ a.transpose(0, 2, 1)
+    cov[:5] = np.diag([1.0, 1.0, 0.0])      # repeated largest eigenvalue
+    cov[5:10] = np.eye(3)                   # fully degenerate: any unit vector is right
+    cov[10:15] = 0.0
+    lam, vec = smallest_eigenpairs(cov)
+    w, v = np.linalg.eigh(cov)
+    np.testing.assert_allclose(lam, w[:, 0], atol=1e-10)
+    np.testing.assert_allclose(np.linalg.norm(vec, axis=1), 1.0, atol=1e-12)
+    residual = np.einsum("mij,mj->mi", cov, vec) - lam[:, None] * vec
+    assert np.abs(residual).max() < 1e-9
+    # unique eigenvectors agree with eigh up to sign
+    sel = np.arange(15, 2000)
+    agree = np.abs(np.einsum("mi,mi->m", vec[sel], v[sel, :, 0]))
+    assert agree.min() > 1 - 1e-8
+    np.testing.assert_allclose(np.abs(vec[:5, 2]), 1.0, atol=1e-12)
+
+
+def test_voxelize_averages_points_per_voxel():
+    pts = np.array([[0.0001, 0.0001, 0.0001], [0.0009, 0.0009, 0.0009], [0.0051, 0.0, 0.0]])
+    centroids, inverse, counts = voxelize(pts, 0.001)
+    assert len(centroids) == 2
+    assert inverse[0] == inverse[1] != inverse[2]
+    np.testing.assert_allclose(centroids[inverse[0]], [0.0005] * 3)
+    assert sorted(counts.tolist()) == [1, 2]
+    # groups keep points of different groups apart even in one voxel
+    c2, inv2, _ = voxelize(pts, 0.001, groups=np.array([0, 1, 0]))
+    assert len(c2) == 3 and inv2[0] != inv2[1]
+
+
+def _box_surface(spacing=0.002):
+    """Three visible faces of a 60 x 40 x 50 mm box at z ~ 0.5 m (seen from the origin)."""
+    u = np.arange(0, 0.06 + 1e-9, spacing)
+    v = np.arange(0, 0.04 + 1e-9, spacing)
+    w = np.arange(0, 0.05 + 1e-9, spacing)
+    top = np.stack(np.meshgrid(u, v), -1).reshape(-1, 2)
+    front = np.stack(np.meshgrid(u, w), -1).reshape(-1, 2)
+    side = np.stack(np.meshgrid(v, w), -1).reshape(-1, 2)
+    pts = np.vstack([
+        np.c_[top[:, 0], top[:, 1], np.zeros(len(top))],          # z = 0 face
+        np.c_[front[:, 0], np.zeros(len(front)), front[:, 1]],    # y = 0 face
+        np.c_[np.zeros(len(side)), side[:, 0], side[:, 1]],       # x = 0 face
+    ])
+    return np.unique(pts, axis=0) + np.array([-0.03, -0.02, 0.45])  # edges appear once
+
+
+def test_split_faces_finds_the_three_box_faces_and_their_adjacency():
+    pts = _box_surface()
+    cloud = build_working_cloud(pts, 0.003, 16)
+    faces = split_faces(cloud, 0.2, 0.04, 12)
+    assert faces.count == 3
+    adj = faces.adjacency
+    assert adj.sum() == 6 and not adj.diagonal().any()  # each pair touches
+    # every face's normal is one of the axes
+    for f in range(3):
+        n = cloud.normals[faces.labels == f].mean(axis=0)
+        n /= np.linalg.norm(n)
+        assert np.abs(n).max() > 0.99
+
+
+def test_normals_point_to_the_viewpoint():
+    pts = _box_surface()
+    normals, variation, nbrs = estimate_normals(pts, 12)
+    assert np.all(np.einsum("ij,ij->i", normals, pts) <= 0)
+    assert nbrs.shape == (len(pts), 12) and np.all(nbrs[:, 0] == np.arange(len(pts)))
+    assert np.median(variation) < 1e-6
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_tiny_inputs_do_not_crash(n):
+    pts = np.random.default_rng(n).random((n, 3))
+    normals, variation, nbrs = estimate_normals(pts, 16)
+    assert normals.shape == (n, 3) and np.all(np.isfinite(normals))

@@ -1,0 +1,458 @@
+"""The ``modeler`` node with real rclpy pub/sub in one process (private Context per test).
+
+The core is the real :func:`geomodel_ros.pipeline.model_scene`, wrapped by
+:class:`CoreProbe`, which records its calls and can hold the worker (newest-frame-wins
+test) or fail a frame.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.context import Context
+from rclpy.exceptions import ParameterException
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Header
+from visualization_msgs.msg import Marker, MarkerArray
+
+from geomodel_ros import pipeline
+from geomodel_ros.node import NODE_PARAMETERS, ModelerNode
+from geomodel_ros.params import PARAMETERS, ModelingParams, ParameterError
+from geomodel_ros.synth import render_scene
+from msg_adapters.pointcloud2 import cloud_to_fields, cloud_to_xyz_and_mask, xyz_to_cloud
+
+TIMEOUT = 30.0
+FRAME = "camera_optical"
+RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def wait_until(predicate, what: str, timeout: float = TIMEOUT) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.002)
+
+
+def scene_cloud(name: str, sec: int = 42, nanosec: int = 500) -> PointCloud2:
+    """Organized (H, W) cloud of a synthetic scene, NaN where the camera saw nothing."""
+    scene = render_scene(name)
+    header = Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=FRAME)
+    return xyz_to_cloud(scene.organized, header)
+
+
+class Collector:
+    """Subscription that stores messages and lets the test wait for them."""
+
+    def __init__(self, node: Node, msg_type, topic: str, qos=RELIABLE) -> None:
+        self.msgs: list = []
+        self._cond = threading.Condition()
+        self.sub = node.create_subscription(msg_type, topic, self._on_msg, qos)
+
+    def _on_msg(self, msg) -> None:
+        with self._cond:
+            self.msgs.append(msg)
+            self._cond.notify_all()
+
+    def wait(self, n: int = 1, timeout: float = TIMEOUT):
+        with self._cond:
+            if not self._cond.wait_for(lambda: len(self.msgs) >= n, timeout):
+                pytest.fail(f"timed out after {timeout} s waiting for message #{n} on "
+                            f"{self.sub.topic_name} (got {len(self.msgs)})")
+            return self.msgs[n - 1]
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self.msgs)
+
+
+class CoreProbe:
+    """Wraps ``model_scene``: records calls, can hold the worker or fail frames."""
+
+    def __init__(self, inner) -> None:
+        self.inner = inner
+        self.calls: list[dict] = []
+        self.gate = threading.Event()
+        self.gate.set()
+        self.entered = threading.Semaphore(0)
+        self.fail_next = 0
+
+    def __call__(self, points, params, organized_shape=None):
+        self.calls.append({"n": len(points), "params": params,
+                           "organized_shape": organized_shape, "dtype": points.dtype})
+        self.entered.release()
+        if not self.gate.wait(TIMEOUT):
+            raise RuntimeError("test gate never opened")
+        if self.fail_next:
+            self.fail_next -= 1
+            raise RuntimeError("injected core failure")
+        return self.inner(points, params, organized_shape=organized_shape)
+
+
+@pytest.fixture
+def context():
+    ctx = Context()
+    rclpy.init(args=[], context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture
+def core(monkeypatch):
+    probe = CoreProbe(pipeline.model_scene)
+    monkeypatch.setattr(pipeline, "model_scene", probe, raising=False)
+    return probe
+
+
+class Harness:
+    """The node under test + a peer node publishing clouds and collecting outputs."""
+
+    def __init__(self, context: Context, overrides: dict | None = None) -> None:
+        values = {"qos_reliability": "reliable", "qos_depth": 5, **(overrides or {})}
+        self.node = ModelerNode(
+            context=context,
+            cli_args=["--ros-args", "-r", "points:=/test/points"],
+            parameter_overrides=[Parameter(k, value=v) for k, v in values.items()],
+        )
+        self.peer = Node("peer", context=context)
+        self.pub = self.peer.create_publisher(PointCloud2, "/test/points", RELIABLE)
+        self.markers = Collector(self.peer, MarkerArray, "/modeler/primitives")
+        self.segments = Collector(self.peer, PointCloud2, "/modeler/segments")
+        self.recon = Collector(self.peer, PointCloud2, "/modeler/reconstruction")
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.peer)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        wait_until(lambda: self.pub.get_subscription_count() >= 1
+                   and all(c.sub.get_publisher_count() >= 1
+                           for c in (self.markers, self.segments, self.recon)),
+                   "publishers and subscriptions to match")
+
+    def publish_and_wait_received(self, msg: PointCloud2) -> None:
+        before = self.node.stats().received
+        self.pub.publish(msg)
+        wait_until(lambda: self.node.stats().received > before, "the node to receive a frame")
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=10.0)
+        self.thread.join(10.0)
+        self.node.destroy_node()
+        self.peer.destroy_node()
+
+
+@pytest.fixture
+def make_harness(context, core):
+    made: list[Harness] = []
+
+    def make(**overrides) -> Harness:
+        h = Harness(context, overrides)
+        made.append(h)
+        return h
+
+    yield make
+    for h in made:
+        h.close()
+
+
+def shapes(array: MarkerArray) -> dict[str, list[Marker]]:
+    out: dict[str, list[Marker]] = {}
+    for m in array.markers:
+        if m.action == Marker.ADD and m.ns != "labels":
+            out.setdefault(m.ns, []).append(m)
+    return out
+
+
+def mm(*values) -> np.ndarray:
+    return 1000.0 * np.array(values, dtype=float)
+
+
+# --------------------------------------------------------------------------- end to end
+def _size_mm(m: Marker) -> dict[str, float]:
+    """Dimensions [mm] shown by a shape marker, named as in Primitive.dimensions."""
+    s = 1000.0 * np.array([m.scale.x, m.scale.y, m.scale.z])
+    if m.type == Marker.TRIANGLE_LIST:  # cone mesh in the marker's local frame
+        local = 1000.0 * np.array([[p.x, p.y, p.z] for p in m.points])
+        return {"radius": float(np.hypot(local[:, 0], local[:, 1]).max()),
+                "height": float(np.ptp(local[:, 2]))}
+    if m.ns == "plane":
+        return {"length": s[0], "width": s[1]}
+    if m.ns == "cylinder":
+        return {"radius": s[0] / 2, "height": s[2]}
+    if m.ns == "sphere":
+        return {"radius": s[0] / 2}
+    return {"length": s[0], "width": s[1], "height": s[2]}
+
+
+def test_scene_is_modeled_and_published_with_the_input_header(make_harness, core):
+    h = make_harness()
+    scene = render_scene("scene3")
+    cloud = scene_cloud("scene3", sec=1700000000, nanosec=123456789)
+    h.pub.publish(cloud)
+    markers = h.markers.wait()
+
+    assert markers.markers[0].action == Marker.DELETEALL
+    for m in markers.markers:
+        assert m.header.frame_id == FRAME
+        assert (m.header.stamp.sec, m.header.stamp.nanosec) == (1700000000, 123456789)
+    found = shapes(markers)
+    assert {"plane", "cuboid", "cylinder", "cone", "sphere"} <= set(found)
+    # every ground-truth object has a marker of its type, at its place, of its size
+    for gt in scene.objects:
+        candidates = [m for m in found.get(gt.type, [])
+                      if np.linalg.norm(_position(m) - gt.center) < 0.01]
+        assert len(candidates) == 1, f"no {gt.type} marker near {gt.center}"
+        got = _size_mm(candidates[0])
+        want = {k: 1000.0 * v for k, v in gt.dimensions.items()}
+        tol = 10.0 if gt.type == "plane" else 4.0
+        if gt.type == "cuboid":  # the modeler may name the box's axes differently
+            assert sorted(got.values()) == pytest.approx(sorted(want.values()), abs=tol)
+        else:
+            assert got == pytest.approx(want, abs=tol), gt.type
+    labels = [m for m in markers.markers if m.ns == "labels"]
+    assert any(m.text.startswith("cylinder r=50.0 h=60.0") for m in labels), \
+        [m.text for m in labels]
+
+    # the core got every row of the organized cloud as float64, and its image shape
+    assert core.calls[-1]["n"] == 624 * 1104
+    assert core.calls[-1]["dtype"] == np.float64
+    assert core.calls[-1]["organized_shape"] == (624, 1104)
+
+    segments = h.segments.wait()
+    recon = h.recon.wait()
+    for msg in (segments, recon):
+        assert msg.header.frame_id == FRAME
+        assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1700000000, 123456789)
+    # segments keep the input's layout, so labels are pixel-aligned
+    assert (segments.height, segments.width) == (624, 1104)
+    seg_ids = cloud_to_fields(segments, ["object_id"], keep_organized=True)["object_id"]
+    assert np.all(seg_ids[~scene.valid_mask] == -1)
+    object_ids = {m.id for ms in found.values() for m in ms}
+    assert set(np.unique(seg_ids[seg_ids >= 0]).tolist()) == object_ids
+    rec_pts, rec_mask = cloud_to_xyz_and_mask(recon)
+    rec_ids = cloud_to_fields(recon, ["object_id"], mask=rec_mask)["object_id"]
+    modeled = {m.id for ns, ms in found.items() if ns != "unknown" for m in ms}
+    assert set(np.unique(rec_ids).tolist()) == modeled
+    # the reconstructed cylinders lie on their markers' surfaces (caps inside)
+    for cyl in found["cylinder"]:
+        axis = _rot(cyl)[:, 2]
+        q = rec_pts[rec_ids == cyl.id] - _position(cyl)
+        radial = np.linalg.norm(q - np.outer(q @ axis, axis), axis=1)
+        assert radial.max() == pytest.approx(cyl.scale.x / 2, abs=1e-3)
+        assert np.abs(q @ axis).max() == pytest.approx(cyl.scale.z / 2, abs=1e-3)
+    stats = h.node.stats()
+    assert (stats.processed, stats.failed, stats.dropped) == (1, 0, 0)
+
+
+def _position(m: Marker) -> np.ndarray:
+    return np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
+
+
+def _rot(m: Marker) -> np.ndarray:
+    o = m.pose.orientation
+    x, y, z, w = o.x, o.y, o.z, o.w
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def test_empty_cloud_clears_markers_without_calling_the_core(make_harness, core):
+    h = make_harness()
+    empty = xyz_to_cloud(np.full((4, 5, 3), np.nan), Header(stamp=Time(sec=7), frame_id=FRAME))
+    h.pub.publish(empty)
+    markers = h.markers.wait()
+    assert [m.action for m in markers.markers] == [Marker.DELETEALL]
+    assert markers.markers[0].header.stamp.sec == 7
+    assert h.recon.wait().width == 0
+    segments = h.segments.wait()
+    assert (segments.height, segments.width) == (4, 5)
+    assert np.all(cloud_to_fields(segments, ["object_id"])["object_id"] == -1)
+    assert core.calls == []
+
+
+# --------------------------------------------------------------------------- robustness
+def test_malformed_cloud_is_skipped_and_the_node_keeps_running(make_harness, core, capfd):
+    h = make_harness()
+    good = scene_cloud("tiny_box", sec=5)
+    bad = scene_cloud("tiny_box", sec=4)
+    bad.data = bad.data[:-bad.point_step]  # data length != row_step * height
+    h.publish_and_wait_received(bad)
+    wait_until(lambda: h.node.stats().failed == 1, "the malformed frame to be counted")
+    no_z = scene_cloud("tiny_box", sec=4)
+    no_z.fields = [f for f in no_z.fields if f.name != "z"]
+    h.publish_and_wait_received(no_z)
+    wait_until(lambda: h.node.stats().failed == 2, "the frame without z to be counted")
+    h.pub.publish(good)
+    markers = h.markers.wait()
+    assert markers.markers[0].header.stamp.sec == 5
+    assert {"plane", "cuboid"} <= set(shapes(markers))
+    assert len(core.calls) == 1
+    assert h.node.stats().processed == 1
+    log = capfd.readouterr().err
+    assert "skipping malformed PointCloud2" in log and "expected row_step*height" in log
+    # throttled: the second malformed frame within WARN_THROTTLE_S is not logged again
+    assert log.count("skipping malformed PointCloud2") == 1
+
+
+def test_core_failure_is_skipped_and_the_next_frame_is_modeled(make_harness, core, capfd):
+    h = make_harness()
+    core.fail_next = 1
+    h.publish_and_wait_received(scene_cloud("tiny_box", sec=1))
+    wait_until(lambda: h.node.stats().failed == 1, "the failed frame to be counted")
+    h.pub.publish(scene_cloud("tiny_box", sec=2))
+    markers = h.markers.wait()
+    assert markers.markers[0].header.stamp.sec == 2
+    assert len(h.markers) == 1
+    assert h.node.stats().processed == 1
+    assert "RuntimeError: injected core failure" in capfd.readouterr().err
+
+
+def test_newest_frame_wins_and_drops_are_counted(make_harness, core, capfd):
+    h = make_harness()
+    core.gate.clear()  # hold the worker inside the core
+    h.publish_and_wait_received(scene_cloud("tiny_box", sec=1))
+    assert core.entered.acquire(timeout=TIMEOUT), "worker never reached the core"
+    for sec in (2, 3, 4):  # 2 waits in the mailbox, 3 replaces it, 4 replaces 3
+        h.publish_and_wait_received(scene_cloud("tiny_box", sec=sec))
+    stats = h.node.stats()
+    assert (stats.received, stats.dropped, stats.processed) == (4, 2, 0)
+    log = capfd.readouterr().err
+    assert log.count("input is faster than processing") == 1  # throttled
+    core.gate.set()
+    h.markers.wait(2)
+    wait_until(lambda: h.node.stats().processed == 2, "both frames to be processed")
+    assert [m.markers[0].header.stamp.sec for m in h.markers.msgs] == [1, 4]
+    assert len(core.calls) == 2
+    stats = h.node.stats()
+    assert stats.dropped == 2 and stats.failed == 0
+    assert stats.last_latency_s > 0 and stats.last_timing["total_s"] > 0
+
+
+# --------------------------------------------------------------------------- parameters
+def test_every_parameter_is_declared_with_descriptor(make_harness):
+    node = make_harness().node
+    for spec in PARAMETERS:
+        assert node.get_parameter(spec.name).value == spec.default
+        d = node.describe_parameter(spec.name)
+        assert spec.description in d.description
+        if spec.unit and spec.unit not in ("1", "count"):
+            assert f"[{spec.unit}]" in d.description
+        if spec.type is float:
+            assert d.floating_point_range[0].from_value == spec.low
+            assert d.floating_point_range[0].to_value == spec.high
+        elif spec.type is int:
+            r = d.integer_range[0]
+            assert (r.from_value, r.to_value, r.step) == (spec.low, spec.high, 1)
+    for p in NODE_PARAMETERS:
+        assert node.has_parameter(p.name)
+    assert node.describe_parameter("qos_depth").read_only
+    assert "best_effort" in node.describe_parameter("qos_reliability").additional_constraints
+    assert node.modeling_params == ModelingParams()
+
+
+def test_parameter_sets_are_validated_and_applied_from_the_next_frame(make_harness, core):
+    h = make_harness()
+    node = h.node
+
+    (ok,) = node.set_parameters([Parameter("voxel_size", value=0.004)])
+    assert ok.successful
+    assert node.modeling_params.voxel_size == 0.004
+
+    rejected = [
+        (Parameter("voxel_size", value=5.0), "out of range"),
+        (Parameter("voxel_size", value="fine"), "Wrong parameter type"),
+        (Parameter("voxel_size", value=math.nan), "out of range"),
+        (Parameter("min_radius", value=3.0), "min_radius"),  # >= max_radius (2.0)
+        (Parameter("developable_curvature_ratio", value=0.5), "sphere_curvature_ratio"),
+        (Parameter("qos_depth", value=3), "read-only"),
+        (Parameter("normal_neighbors", value=16.5), "Wrong parameter type"),
+    ]
+    for param, expected in rejected:
+        (result,) = node.set_parameters([param])
+        assert not result.successful, param.name
+        assert expected in result.reason, result.reason
+    assert node.modeling_params == ModelingParams(voxel_size=0.004)
+    assert node.get_parameter("voxel_size").value == 0.004
+    assert node.get_parameter("min_radius").value == 0.002
+
+    # both radii in one atomic set are consistent
+    result = node.set_parameters_atomically([Parameter("min_radius", value=3.0),
+                                             Parameter("max_radius", value=5.0)])
+    assert result.successful
+    assert (node.modeling_params.min_radius, node.modeling_params.max_radius) == (3.0, 5.0)
+
+    # the next frame is modeled with exactly the accepted parameters
+    h.pub.publish(scene_cloud("tiny_box"))
+    h.markers.wait()
+    assert core.calls[-1]["params"] == ModelingParams(voxel_size=0.004, min_radius=3.0,
+                                                      max_radius=5.0)
+
+
+def test_output_switches_take_effect(make_harness, core):
+    h = make_harness()
+    results = h.node.set_parameters([Parameter("publish_segments", value=False),
+                                     Parameter("publish_reconstruction", value=False)])
+    assert all(r.successful for r in results)
+    h.pub.publish(scene_cloud("tiny_box"))
+    h.markers.wait()
+    wait_until(lambda: h.node.stats().processed == 1, "the frame to be processed")
+    assert len(h.segments) == 0 and len(h.recon) == 0
+    assert h.node.stats().last_timing["reconstruction_s"] < 1e-3
+
+
+@pytest.mark.parametrize("overrides, error, match", [
+    ({"min_radius": 3.0}, ParameterError, "min_radius"),
+    ({"qos_reliability": "sometimes"}, ParameterError, "qos_reliability"),
+    ({"voxel_size": 5.0}, ParameterException, "out of range"),
+    ({"normal_neighbors": 1.5}, ParameterException, "normal_neighbors"),
+])
+def test_invalid_initial_parameters_raise(context, overrides, error, match):
+    with pytest.raises(error, match=match):
+        ModelerNode(context=context,
+                    parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
+
+
+def test_initial_parameters_may_move_both_radii(context):
+    node = ModelerNode(context=context, parameter_overrides=[
+        Parameter("min_radius", value=3.0), Parameter("max_radius", value=5.0)])
+    try:
+        assert (node.modeling_params.min_radius, node.modeling_params.max_radius) == (3.0, 5.0)
+    finally:
+        node.destroy_node()
+
+
+def test_topics_qos_and_namespace(context):
+    node = ModelerNode(context=context, namespace="/robot")
+    try:
+        assert node._subscription.topic_name == "/robot/points"
+        assert node._pub_markers.topic_name == "/robot/modeler/primitives"
+        assert node._pub_segments.topic_name == "/robot/modeler/segments"
+        assert node._pub_reconstruction.topic_name == "/robot/modeler/reconstruction"
+        qos = node._subscription.qos_profile
+        assert qos.reliability == ReliabilityPolicy.BEST_EFFORT and qos.depth == 1
+    finally:
+        node.destroy_node()
+
+
+def test_diagnostics_report_counters(make_harness):
+    h = make_harness()
+    diag = Collector(h.peer, DiagnosticArray, "/diagnostics", qos=10)
+    msg = diag.wait(timeout=10.0)
+    (status,) = [s for s in msg.status if s.hardware_id == "/modeler"]
+    values = {kv.key: kv.value for kv in status.values}
+    assert {"rate_hz", "frames_received", "frames_dropped", "frames_failed",
+            "last_latency_s"} <= set(values)
+    assert values["frames_dropped"] == "0"
