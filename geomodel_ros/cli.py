@@ -69,7 +69,8 @@ def _load_points(path: str):
     return cloud
 
 
-def _labels_for(args: argparse.Namespace, cloud) -> np.ndarray:
+def _labels_for(args: argparse.Namespace, cloud) -> np.ndarray | None:
+    """Object labels given on the command line, or None (the scene is segmented)."""
     n = len(cloud.points)
     if args.labels:
         try:
@@ -89,8 +90,7 @@ def _labels_for(args: argparse.Namespace, cloud) -> np.ndarray:
             raise CliError(f"field {args.labels_field!r} must hold one integer per point, got "
                            f"{field.dtype} {field.shape}")
         return field.astype(np.int64)
-    raise CliError("no object labels: pass --labels LABELS.npy or --labels-field NAME "
-                   "(scene segmentation of raw clouds is not available yet)")
+    return None
 
 
 # ---------------------------------------------------------------------------------------
@@ -117,7 +117,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 
 def cmd_model(args: argparse.Namespace) -> int:
-    from .pipeline import model_objects
+    from .pipeline import model_objects, model_scene
     from .reconstruction import reconstruct
 
     params = _params(args)
@@ -125,7 +125,13 @@ def cmd_model(args: argparse.Namespace) -> int:
     cloud = _load_points(args.input)
     labels = _labels_for(args, cloud)
     t_load = time.perf_counter() - t0
-    result = model_objects(cloud.points, labels, params)
+    if labels is None:
+        labels, result = model_scene(cloud.points, params)
+        result.timing["segmentation"] = result.timing["segmentation_s"]
+    else:
+        result = model_objects(cloud.points, labels, params)
+    if args.labels_out:
+        np.save(args.labels_out, labels.astype(np.int32))
     out = result.to_dict()
     out["timing"]["load_s"] = t_load
     if args.reconstruction:
@@ -249,11 +255,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1)
     p.set_defaults(func=cmd_synth)
 
-    p = sub.add_parser("model", help="model the objects of a labelled cloud")
+    p = sub.add_parser("model", help="segment a cloud (or take its labels) and model its objects")
     p.add_argument("input", help="cloud file (.pcd, .ply, .npy)")
     p.add_argument("--json", required=True, help="output JSON")
     p.add_argument("--labels", help="per-point integer object ids (.npy), -1 = none")
     p.add_argument("--labels-field", help="use this field of the input file as object ids")
+    p.add_argument("--labels-out", help="write the per-point object ids used (.npy, int32, "
+                   "-1 = none); without --labels/--labels-field these come from segmentation")
     p.add_argument("--reconstruction", help="write the reconstructed surfaces (.ply)")
     add_params(p)
     p.set_defaults(func=cmd_model)

@@ -221,10 +221,19 @@ def test_missing_labels_field(scene_files, capsys):
     _assert_one_error_line(code, err, "input has no field 'segment'; fields: label")
 
 
-def test_no_labels_at_all(scene_files, capsys):
-    _, pcd = scene_files
-    code, _, err = _model(capsys, pcd, labels_field=None)
-    _assert_one_error_line(code, err, "no object labels")
+def test_without_labels_the_scene_is_segmented(scene_files, capsys):
+    d, pcd = scene_files
+    out_json, labels_out = d / "seg.json", d / "seg_labels.npy"
+    code, out, err = _model(capsys, pcd, "--labels-out", labels_out, json_out=out_json,
+                            labels_field=None)
+    assert code == 0, err
+    data = json.loads(out_json.read_text())
+    assert "segmentation" in data["timing"] and data["timing"]["segmentation"] > 0
+    types = sorted(o["type"] for o in data["objects"])
+    assert types == ["cuboid", "plane"]  # tiny_box: a box on a desk
+    labels = np.load(labels_out)
+    assert labels.dtype == np.int32 and labels.ndim == 1
+    assert set(np.unique(labels[labels >= 0]).tolist()) == {o["id"] for o in data["objects"]}
 
 
 def test_unknown_set_parameter(scene_files, capsys):
