@@ -218,13 +218,14 @@ def _relabel_small(labels: NDArray[np.int64], points: NDArray[np.float64], min_s
 
 
 def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: float,
-                min_face_points: int) -> FaceSet:
+                min_face_points: int, max_edge: float | None = None) -> FaceSet:
     """Split the working cloud into smooth faces.
 
     Neighbouring non-edge points whose normals differ by less than ``angle_threshold``
     [rad] are linked; faces are the connected components with at least
     ``min_face_points`` points. Edge points (surface variation above ``edge_variation``)
-    and smaller components are assigned to the face of their nearest face point.
+    and smaller components are assigned to the face of their nearest face point. With
+    ``max_edge`` [m], neighbours farther apart (across a depth jump) are never linked.
     """
     m, k = cloud.neighbors.shape
     if m == 0:
@@ -234,6 +235,9 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
     j = cloud.neighbors.ravel()
     cos = np.abs(np.einsum("mi,mi->m", cloud.normals[i], cloud.normals[j]))
     keep = smooth[i] & smooth[j] & (cos >= np.cos(angle_threshold)) & (i != j)
+    if max_edge is not None:
+        keep &= np.einsum("ij,ij->i", cloud.points[i] - cloud.points[j],
+                          cloud.points[i] - cloud.points[j]) <= max_edge * max_edge
     graph = coo_matrix((np.ones(int(keep.sum()), dtype=np.int8), (i[keep], j[keep])),
                        shape=(m, m))
     _, comp = connected_components(graph, directed=False)

@@ -118,14 +118,15 @@ def _convex_objects(points: NDArray[np.float64], params: ModelingParams) -> NDAr
     normals, variation, nbrs = estimate_normals(points, params.normal_neighbors, tree=tree)
     cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
                          np.arange(m))
+    max_edge = params.seg_max_edge_factor * params.seg_voxel_size
     patches = split_faces(cloud, params.face_angle_threshold, params.edge_variation_threshold,
-                          params.min_face_points).labels
+                          params.min_face_points, max_edge).labels
     k = nbrs.shape[1]
     i = np.repeat(np.arange(m), k)
     j = nbrs.ravel()
     d = points[i] - points[j]
     dist = np.linalg.norm(d, axis=1)
-    ok = (i != j) & (dist <= params.seg_max_edge_factor * params.seg_voxel_size)
+    ok = (i != j) & (dist <= max_edge)
     i, j, d, dist = i[ok], j[ok], d[ok], dist[ok]
     convexity = np.einsum("ij,ij->i", normals[i] - normals[j], d) / np.maximum(dist, 1e-12)
     pi, pj = patches[i], patches[j]
@@ -136,11 +137,50 @@ def _convex_objects(points: NDArray[np.float64], params: ModelingParams) -> NDAr
     pairs, inv = np.unique(key, return_inverse=True)
     votes = np.bincount(inv, minlength=len(pairs))
     yes = np.bincount(inv, weights=good, minlength=len(pairs))
-    join = yes >= 0.5 * votes
-    a, b = pairs[join] // n_p, pairs[join] % n_p
-    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n_p, n_p))
-    _, obj = connected_components(graph, directed=False)
+    obj = _merge_patches(n_p, pairs // n_p, pairs % n_p, votes, yes)
     return obj[patches].astype(np.int64)
+
+
+def _merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDArray,
+                   yes: NDArray, min_cut_votes: int = 20, cut_share: float = 0.3
+                   ) -> NDArray[np.int64]:
+    """Group patches into objects from their border votes.
+
+    Pairs with at least half the votes flat/convex are joined, strongest evidence first
+    (union-find); a join is refused when the two groups already share a clearly concave
+    border (at least ``min_cut_votes`` votes, less than ``cut_share`` of them convex), so
+    a weak convex contact cannot glue together two objects that meet at a concave crease
+    elsewhere. Loops over patch pairs only (tens to hundreds), never over points.
+    """
+    parent = np.arange(n)
+
+    def find(x: int) -> int:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    share = yes / np.maximum(votes, 1)
+    cut = (votes >= min_cut_votes) & (share < cut_share)
+    cannot: dict[int, set[int]] = {}
+    for x, y in zip(a[cut].tolist(), b[cut].tolist()):
+        cannot.setdefault(x, set()).add(y)
+        cannot.setdefault(y, set()).add(x)
+    members: dict[int, set[int]] = {}
+    order = np.argsort(-yes, kind="stable")
+    for e in order[share[order] >= 0.5].tolist():
+        ra, rb = find(int(a[e])), find(int(b[e]))
+        if ra == rb:
+            continue
+        ma, mb = members.get(ra, {ra}), members.get(rb, {rb})
+        blocked = any(cannot.get(x, set()) & mb for x in ma)
+        if blocked:
+            continue
+        parent[rb] = ra
+        members[ra] = ma | mb
+        members.pop(rb, None)
+    roots = np.array([find(i) for i in range(n)])
+    return np.unique(roots, return_inverse=True)[1].ravel()
 
 
 def segment_scene(points: NDArray, params: ModelingParams | None = None, *,

@@ -384,6 +384,80 @@ def _tiny_shapes() -> list[Shape]:
     ]
 
 
+# --------------------------------------------------------------------------- segmentation scenes
+#: Moderate-resolution camera of the segmentation test scenes: the paper view at
+#: 320 x 181 (point spacing about 1.7 mm on the desk), each scene renders in ~0.1 s.
+SEGMENTATION_CAMERA = PAPER_CAMERA.scaled(320 / 1104)
+
+
+@dataclass(frozen=True)
+class _On:
+    """An object standing on the top of object ``base`` (its id, 1..K, placed earlier).
+
+    Only its position along the desk normal changes: its lowest point is put exactly on
+    the highest point of ``base`` (for upright shapes, bottom face on the top face).  Pose
+    it at the base's desk coordinates to centre it.
+    """
+
+    shape: Shape
+    base: int
+
+
+def _rest_on(shape: Shape, base: Shape) -> Shape:
+    """Translate ``shape`` along the desk normal so its lowest point is ``base``'s highest."""
+    lowest = -shape.support(-DESK_NORMAL)
+    return replace(shape, center=shape.center + (base.support(DESK_NORMAL) - lowest) * DESK_NORMAL)
+
+
+def _next_to(u_mm: float, v_mm: float, yaw_deg: float, dx_mm: float, dy_mm: float
+             ) -> tuple[float, float]:
+    """Desk coordinates [mm] of the point (dx, dy) [mm] of the local frame of an upright
+    object at (u, v) with yaw ``yaw_deg`` (to place objects face to face)."""
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    return u_mm + c * dx_mm - s * dy_mm, v_mm + s * dx_mm + c * dy_mm
+
+
+def _touching() -> list[Shape]:
+    # Tall box A; box B (lower) against A's +x face, shifted back along it so the two
+    # front faces are not coplanar; a cylinder against B's -y... see below.
+    yaw = 25.0
+    ua, va = -50.0, -30.0
+    objs = [Box(*_mm(60, 60, 90), **_standing(ua, va, yaw))]
+    ub, vb = _next_to(ua, va, yaw, 30 + 35, 20)
+    objs.append(Box(*_mm(70, 60, 50), **_standing(ub, vb, yaw)))
+    # Cylinder (r 30 mm) against A's -x face: its side touches the face along a line.
+    uc, vc = _next_to(ua, va, yaw, -30 - 30, 0)
+    objs.append(Cylinder(*_mm(30, 70), **_standing(uc, vc, 0)))
+    return objs
+
+
+def _stacked() -> list[Shape]:
+    # 1: big box, 2: smaller box centred on it (the big top shows all around);
+    # 3: box, 4: cylinder standing on it.
+    return [
+        Box(*_mm(110, 90, 50), **_standing(-80, -30, 20)),
+        _On(Box(*_mm(60, 50, 40), **_standing(-80, -30, 35)), base=1),
+        Box(*_mm(80, 80, 40), **_standing(90, 20, -15)),
+        _On(Cylinder(*_mm(25, 60), **_standing(90, 20, 0)), base=3),
+    ]
+
+
+def _occluded() -> list[Shape]:
+    # A tall box in front of a cylinder: the cylinder is seen beside and above the box.
+    return [
+        Box(*_mm(70, 40, 130), **_standing(-20, -60, 0)),
+        Cylinder(*_mm(35, 90), **_standing(25, 40, 0)),
+    ]
+
+
+def _apart() -> list[Shape]:
+    return [
+        Box(*_mm(70, 60, 50), **_standing(-100, -60, 30)),
+        Cylinder(*_mm(30, 70), **_standing(90, -60, 0)),
+        Sphere(*_mm(35), **_standing(0, 90, 0)),
+    ]
+
+
 _SCENES = {
     "scene1": (PAPER_CAMERA, _scene1),
     "scene2": (PAPER_CAMERA, _scene2),
@@ -391,6 +465,10 @@ _SCENES = {
     "torus": (PAPER_CAMERA, _torus_scene),
     "tiny_box": (TINY_CAMERA, _tiny_box),
     "tiny_shapes": (TINY_CAMERA, _tiny_shapes),
+    "touching": (SEGMENTATION_CAMERA, _touching),
+    "stacked": (SEGMENTATION_CAMERA, _stacked),
+    "occluded": (SEGMENTATION_CAMERA, _occluded),
+    "apart": (SEGMENTATION_CAMERA, _apart),
 }
 
 #: Names accepted by :func:`render_scene`.
@@ -420,7 +498,13 @@ def scene_geometry(name: str) -> tuple[PinholeCamera, list[Shape]]:
     """
     _check_name(name)
     camera, build = _SCENES[name]
-    return camera, [_desk()] + [_rest_on_desk(s) for s in build()]
+    placed: list[Shape] = []
+    for item in build():
+        if isinstance(item, _On):
+            placed.append(_rest_on(item.shape, placed[item.base - 1]))
+        else:
+            placed.append(_rest_on_desk(item))
+    return camera, [_desk()] + placed
 
 
 @functools.lru_cache(maxsize=8)
