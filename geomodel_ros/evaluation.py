@@ -92,12 +92,16 @@ class SegmentScore:
         Its best segment also holds more than ``share`` of another ground-truth object.
     over : bool
         Two or more segments each hold at least ``share`` of its points.
+    parts_iou : float
+        IoU of the union of all segments lying mostly (> 80 %) inside the object: an
+        occluded object seen as disjoint parts, each its own segment, scores 1 here.
     """
 
     gt_id: int
     iou: float
     under: bool
     over: bool
+    parts_iou: float = 0.0
 
 
 def segmentation_scores(pred: np.ndarray, gt: np.ndarray, object_ids, share: float = 0.2
@@ -128,7 +132,7 @@ def segmentation_scores(pred: np.ndarray, gt: np.ndarray, object_ids, share: flo
     for g in object_ids:
         g = int(g)
         if g not in row_of or table[row_of[g]].max() == 0:
-            scores.append(SegmentScore(g, 0.0, False, False))
+            scores.append(SegmentScore(g, 0.0, False, False, 0.0))
             continue
         row = table[row_of[g]]
         b = int(np.argmax(row))
@@ -137,5 +141,9 @@ def segmentation_scores(pred: np.ndarray, gt: np.ndarray, object_ids, share: flo
         others = [o for o in object_ids if int(o) != g and int(o) in row_of
                   and table[row_of[int(o)], b] > share * gt_size[int(o)]]
         over = int(np.sum(row >= share * gt_size[g])) >= 2
-        scores.append(SegmentScore(g, float(iou), bool(others), bool(over)))
+        inside = row > 0.8 * pred_size
+        inside[b] = True
+        union_inter = int(row[inside].sum())
+        parts_iou = union_inter / (gt_size[g] + int(pred_size[inside].sum()) - union_inter)
+        scores.append(SegmentScore(g, float(iou), bool(others), bool(over), float(parts_iou)))
     return scores

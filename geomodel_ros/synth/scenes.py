@@ -443,10 +443,12 @@ def _stacked() -> list[Shape]:
 
 
 def _occluded() -> list[Shape]:
-    # A tall box in front of a cylinder: the cylinder is seen beside and above the box.
+    # A tall box in front of a cylinder that stands 20 mm to its right and 130 mm behind
+    # it: about half of the cylinder's visible surface is hidden, the rest is one strip
+    # right of the box.  Bounding spheres 13 mm apart.
     return [
-        Box(*_mm(70, 40, 130), **_standing(-20, -60, 0)),
-        Cylinder(*_mm(35, 90), **_standing(25, 40, 0)),
+        Box(*_mm(60, 40, 120), **_standing(-25, -60, 0)),
+        Cylinder(*_mm(30, 80), **_standing(-5, 70, 0)),
     ]
 
 
