@@ -165,8 +165,10 @@ def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
     for f in range(fs.count):
         pidx = order[bounds[f]:bounds[f + 1]]
         widx = worder[wbounds[f]:wbounds[f + 1]]
-        fpts = obj_pts[pidx]
-        feat = face_feature(fpts, weights, params.cf_threshold, params.cf_radius_fraction)
+        # Eqs. 1-6 on the face's voxel centroids weighted by the points each stands for
+        # (the full-resolution covariance at a fraction of the cost).
+        feat = face_feature(wc.points[widx], weights, params.cf_threshold,
+                            params.cf_radius_fraction, wc.counts[widx])
         plane = fit_plane_svd(wc.points[widx]) if len(widx) >= 3 else PlaneModel(np.array([0, 0, 1.0]), 0.0)
         # Robust spread (MAD) so that a few flying pixels do not make a flat face curved.
         plane_rmse = _robust_sigma(plane.distance(wc.points[widx]))
@@ -178,7 +180,7 @@ def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
             planar = False
         elif not planar and plane_rmse <= params.ransac_threshold / 2.0:
             planar = True
-        center = fpts.mean(axis=0)
+        center = wc.counts[widx] @ wc.points[widx] / max(int(wc.counts[widx].sum()), 1)
         if planar:
             normal = _toward_sensor(plane.normal, center)
             offset = float(-normal @ center)
@@ -494,7 +496,7 @@ def _finite(p: Primitive) -> bool:
 
 
 def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
-                     max_points: int = 20000) -> float:
+                     max_points: int = 4000) -> float:
     """Approximate median point spacing [m] of a surface sampled by ``points`` (n, 3).
 
     Large sets are estimated from a random subset: on a surface the nearest-neighbour
@@ -505,7 +507,7 @@ def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
     if n < 2:
         return 0.0
     sub = points if n <= max_points else points[rng.choice(n, max_points, replace=False)]
-    d, _ = cKDTree(sub).query(sub[: min(len(sub), 2000)], k=2)
+    d, _ = cKDTree(sub).query(sub[: min(len(sub), 1000)], k=2)
     return float(np.median(d[:, 1]) * math.sqrt(len(sub) / n))
 
 

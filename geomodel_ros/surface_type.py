@@ -26,19 +26,25 @@ from numpy.typing import NDArray
 __all__ = ["FaceFeature", "covariance_features", "face_feature", "principal_curvatures"]
 
 
-def covariance_features(points: NDArray[np.float64]) -> tuple[float, float, float]:
+def covariance_features(points: NDArray[np.float64], mass: NDArray[np.float64] | None = None
+                        ) -> tuple[float, float, float]:
     """Planarity P (eq. 1), curvature C (eq. 2) and cf = P * (1 - C)^2 (eqs. 3-4).
 
     Parameters
     ----------
     points : (n, 3) float64 array [m], n >= 3
+    mass : (n,) float64 array, optional
+        Weight of each point (e.g. input points a voxel centroid stands for).
 
     Returns
     -------
     (P, C, cf) : floats in [0, 1]
     """
-    centered = points - points.mean(axis=0)
-    evals = np.linalg.eigvalsh(centered.T @ centered / len(points))[::-1]
+    w = np.ones(len(points)) if mass is None else np.asarray(mass, dtype=np.float64)
+    mean = w @ points / w.sum()
+    centered = points - mean
+    cov = (centered * w[:, None]).T @ centered / w.sum()
+    evals = np.linalg.eigvalsh(cov)[::-1]
     s = np.sqrt(np.clip(evals, 0.0, None))
     if s[0] <= 0:
         return 0.0, 0.0, 0.0
@@ -75,24 +81,29 @@ class FaceFeature:
 
 
 def face_feature(points: NDArray[np.float64], weights: tuple[float, float, float],
-                 cf_threshold: float, radius_fraction: float) -> FaceFeature:
+                 cf_threshold: float, radius_fraction: float,
+                 mass: NDArray[np.float64] | None = None) -> FaceFeature:
     """Classify one face as planar or curved (paper eqs. 1-6).
 
     Parameters
     ----------
     points : (n, 3) float64 array [m]
-        All points of the face.
+        Points of the face (all input points, or voxel centroids with ``mass``).
     weights : (w1, w2, w3)
         Eq. 6 weights for the smallest to the largest radius.
     cf_threshold : float
         CF_th in [0, 1] (applied to the normalised CF).
     radius_fraction : float
         Largest radius as a fraction of the face's minimum width.
+    mass : (n,) float64 array, optional
+        Input points each of ``points`` stands for; covariances are weighted by it so that
+        voxel centroids give the covariance of the full-resolution face.
     """
-    centroid = points.mean(axis=0)
-    d2c = np.einsum("ij,ij->i", points - centroid, points - centroid)
-    center = points[int(np.argmin(d2c))]
+    w_pts = np.ones(len(points)) if mass is None else np.asarray(mass, dtype=np.float64)
+    centroid = w_pts @ points / w_pts.sum()
     centered = points - centroid
+    d2c = np.einsum("ij,ij->i", centered, centered)
+    center = points[int(np.argmin(d2c))]
     _, _, vt = np.linalg.svd(centered[:: max(1, len(points) // 20000)], full_matrices=False)
     proj = centered @ vt[1]
     min_width = float(proj.max() - proj.min()) if len(points) else 0.0
@@ -100,9 +111,9 @@ def face_feature(points: NDArray[np.float64], weights: tuple[float, float, float
     dist2 = np.einsum("ij,ij->i", points - center, points - center)
     cf = np.full(3, np.nan)
     for i, r in enumerate(radii):
-        nb = points[dist2 <= r * r]
-        if len(nb) >= 5:
-            cf[i] = covariance_features(nb)[2]
+        inside = dist2 <= r * r
+        if inside.sum() >= 5:
+            cf[i] = covariance_features(points[inside], w_pts[inside])[2]
     w = np.asarray(weights, dtype=np.float64)
     valid = np.isfinite(cf) & (w > 0)
     if not valid.any():
