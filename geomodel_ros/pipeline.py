@@ -10,7 +10,9 @@ geometry, only for malformed arguments.
 from __future__ import annotations
 
 import math
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,6 +20,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from . import obb
+from .errors import InputError, as_points
 from .faces import WorkingCloud, build_working_cloud, faces_from_labels, split_faces
 from .model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
 from .params import ModelingParams
@@ -29,17 +32,8 @@ from .surface_type import face_feature, principal_curvatures
 __all__ = ["model_objects", "model_object", "model_scene", "InputError"]
 
 
-class InputError(ValueError):
-    """Malformed input arrays (wrong shape, dtype or length)."""
-
-
 def _check_points(points: NDArray) -> NDArray[np.float64]:
-    arr = np.asarray(points)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise InputError(f"points must be an (N, 3) array, got shape {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.number):
-        raise InputError(f"points must be numeric, got dtype {arr.dtype}")
-    return np.ascontiguousarray(arr, dtype=np.float64)
+    return as_points(points)
 
 
 def _check_labels(labels: NDArray, n: int, what: str) -> NDArray[np.int64]:
@@ -555,13 +549,29 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
         order = idx_all[np.argsort(sub_lab, kind="stable")]
         ids, starts = np.unique(lab[order], return_index=True)
         ends = np.r_[starts[1:], len(order)]
-        for oid, s, e in zip(ids, starts, ends):
-            sel = order[s:e]
+        # One independent generator per object: results do not depend on the order in
+        # which the worker threads finish (numpy and scipy release the GIL in the heavy
+        # parts, so objects are modeled in parallel).
+        streams = rng.spawn(len(ids))
+
+        def one(k: int) -> Primitive:
+            sel = order[starts[k]:ends[k]]
             opts = pts[sel]
-            spacing = estimate_spacing(opts, rng)
-            planes = tuple(v for k, v in (supports or {}).items() if k != oid)
-            objects.append(model_object(opts, int(oid), params, rng, spacing,
-                                        None if flab is None else flab[sel], planes))
+            orng = streams[k]
+            oid = int(ids[k])
+            planes = tuple(v for key, v in (supports or {}).items() if key != oid)
+            return model_object(opts, oid, params, orng, estimate_spacing(opts, orng),
+                                None if flab is None else flab[sel], planes)
+
+        workers = min(len(ids), os.cpu_count() or 1)
+        if workers > 1:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                # Largest objects first so that the pool stays balanced.
+                order_k = np.argsort(-(ends - starts), kind="stable").tolist()
+                done = dict(zip(order_k, pool.map(one, order_k)))
+            objects = [done[k] for k in range(len(ids))]
+        else:
+            objects = [one(k) for k in range(len(ids))]
     return ModelingResult(objects, {"modeling_s": time.perf_counter() - t0})
 
 

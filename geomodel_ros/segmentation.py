@@ -22,6 +22,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from .errors import as_points
 from .faces import WorkingCloud, estimate_normals, split_faces, voxelize
 from .params import ModelingParams
 from .ransac import PlaneModel, fit_plane_svd, ransac, refine
@@ -203,13 +204,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     """
     t0 = time.perf_counter()
     params = params if params is not None else ModelingParams()
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim == 3 and pts.shape[2] == 3:
-        pts = pts.reshape(-1, 3)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        from .pipeline import InputError
-
-        raise InputError(f"points must be (N, 3) or (H, W, 3), got shape {np.shape(points)}")
+    pts = as_points(points, allow_organized=True)
     rng = np.random.default_rng(params.seed if rng is None else rng)
     n = len(pts)
     labels = np.full(n, -1, dtype=np.int64)

@@ -286,7 +286,11 @@ EXPECTED_TYPES = {
 }
 
 
-@pytest.mark.parametrize("name", SCENE_NAMES)
+# Scenes whose objects touch or stack by design; test_segmentation.py checks their contacts.
+CONTACT_SCENES = ("touching", "stacked")
+
+
+@pytest.mark.parametrize("name", [n for n in SCENE_NAMES if n not in CONTACT_SCENES])
 def test_ground_truth_consistency(name):
     camera, shapes = scene_geometry(name)
     objects = [s.ground_truth(i) for i, s in enumerate(shapes)]

@@ -4,7 +4,14 @@ All scenes share one desk: a 400 x 400 mm rectangle centred at
 (-9.030, -43.117, 518.281) mm with unit normal along (0, -0.766, -0.643), i.e.
 tilted 40 degrees and facing the camera.  Objects rest on the desk (their
 lowest point lies exactly on the desk plane, computed from the analytic
-support function).  Labels: desk = 0, objects 1..K in the documented order.
+support function), except stacked ones, whose bottom lies exactly on the top of the
+object below.  Labels: desk = 0, objects 1..K in the documented order.
+
+The segmentation scenes (:data:`SEGMENTATION_SCENE_NAMES`, rendered with
+:data:`SEGMENTATION_CAMERA`) have objects in contact: ``touching`` (two boxes face to
+face, a cylinder against a box), ``stacked`` (box on box, cylinder on box),
+``occluded`` (a tall box hiding half of a cylinder) and ``apart`` (box, cylinder,
+sphere well apart).
 """
 
 from __future__ import annotations
@@ -27,6 +34,8 @@ __all__ = [
     "PAPER_SCENE_NAMES",
     "PAPER_CAMERA",
     "TINY_CAMERA",
+    "SEGMENTATION_CAMERA",
+    "SEGMENTATION_SCENE_NAMES",
     "DESK_CENTER",
     "DESK_NORMAL",
     "DESK_SIZE",
@@ -418,22 +427,22 @@ def _next_to(u_mm: float, v_mm: float, yaw_deg: float, dx_mm: float, dy_mm: floa
 
 
 def _touching() -> list[Shape]:
-    # Tall box A; box B (lower) against A's +x face, shifted back along it so the two
-    # front faces are not coplanar; a cylinder against B's -y... see below.
+    # 1: tall box; 2: lower box with its -x face on 1's +x face, slid 20 mm back along
+    # it (the front faces are not coplanar); 3: cylinder whose side touches 1's -x face
+    # along a vertical line.
     yaw = 25.0
     ua, va = -50.0, -30.0
     objs = [Box(*_mm(60, 60, 90), **_standing(ua, va, yaw))]
     ub, vb = _next_to(ua, va, yaw, 30 + 35, 20)
     objs.append(Box(*_mm(70, 60, 50), **_standing(ub, vb, yaw)))
-    # Cylinder (r 30 mm) against A's -x face: its side touches the face along a line.
     uc, vc = _next_to(ua, va, yaw, -30 - 30, 0)
     objs.append(Cylinder(*_mm(30, 70), **_standing(uc, vc, 0)))
     return objs
 
 
 def _stacked() -> list[Shape]:
-    # 1: big box, 2: smaller box centred on it (the big top shows all around);
-    # 3: box, 4: cylinder standing on it.
+    # 1: big box; 2: smaller box centred on it, turned by 15 degrees (the big box's top
+    # shows all around it); 3: box; 4: cylinder standing on its centre.
     return [
         Box(*_mm(110, 90, 50), **_standing(-80, -30, 20)),
         _On(Box(*_mm(60, 50, 40), **_standing(-80, -30, 35)), base=1),
@@ -477,6 +486,8 @@ _SCENES = {
 SCENE_NAMES: tuple[str, ...] = tuple(_SCENES)
 #: The three scenes of the paper.
 PAPER_SCENE_NAMES: tuple[str, ...] = ("scene1", "scene2", "scene3")
+#: Scenes with touching, stacked and occluded objects for the segmentation tests.
+SEGMENTATION_SCENE_NAMES: tuple[str, ...] = ("touching", "stacked", "occluded", "apart")
 
 
 def _check_name(name: str) -> None:
@@ -527,7 +538,10 @@ def render_scene(name: str, *, noise: NoiseModel | None = None, rng=None) -> Sce
         One of :data:`SCENE_NAMES`: ``scene1`` (4 cuboids), ``scene2`` (2
         spheres, standing and lying cylinder, cone), ``scene3`` (the paper's
         Figure 9 mixed scene), ``torus`` (torus + box), ``tiny_box`` and
-        ``tiny_shapes`` (160 x 120 test scenes).
+        ``tiny_shapes`` (160 x 120 test scenes); ``touching`` (2 boxes face to
+        face, cylinder against a box), ``stacked`` (box on box, cylinder on box),
+        ``occluded`` (tall box, half-hidden cylinder) and ``apart`` (box, cylinder,
+        sphere) at 320 x 181 for segmentation tests.
     noise : NoiseModel, optional
         Sensor degradations; ``None`` gives the exact ray-cast cloud.
     rng : None, int, or numpy.random.Generator
