@@ -21,8 +21,8 @@ def as_points(points, *, allow_organized: bool = False) -> NDArray[np.float64]:
     if allow_organized and arr.ndim == 3 and arr.shape[2] == 3:
         arr = arr.reshape(-1, 3)
     if arr.ndim != 2 or arr.shape[1] != 3:
-        allowed = "(N, 3) or (H, W, 3)" if allow_organized else "(N, 3)"
-        raise InputError(f"points must be an {allowed} array, got shape {np.shape(points)}")
+        allowed = "(N, 3) or (H, W, 3)" if allow_organized else "an (N, 3) array"
+        raise InputError(f"points must be {allowed}, got shape {np.shape(points)}")
     if not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
         raise InputError(f"points must be numeric, got dtype {arr.dtype}")
     return np.ascontiguousarray(arr, dtype=np.float64)
