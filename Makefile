@@ -18,7 +18,9 @@ test: setup
 	$(PY) -m pytest -q test
 
 bench: setup
-	$(PY) -m geomodel_ros.cli bench
+	@mkdir -p bench_out
+	$(PY) -m geomodel_ros.cli bench --json bench_out/bench.json
+	$(PY) -m geomodel_ros.bench_node
 
 clean:
 	rm -rf $(VENV) build install log demo_out bench_out

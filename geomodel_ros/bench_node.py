@@ -106,12 +106,14 @@ def _run(cloud: PointCloud2, frames: int, core) -> tuple[list[float], list[dict[
                        parameter_overrides=[Parameter("qos_reliability", value="reliable"),
                                             Parameter("diagnostics", value=False)])
     peer = _Peer(context)
-    executors = []
+    executors, threads = [], []
     for n in (node, peer.node):
         ex = SingleThreadedExecutor(context=context)
         ex.add_node(n)
-        threading.Thread(target=ex.spin, daemon=True).start()
+        t = threading.Thread(target=ex.spin, daemon=True)
+        t.start()
         executors.append(ex)
+        threads.append(t)
     try:
         _wait(lambda: peer.pub.get_subscription_count() >= 1
               and peer.node.count_publishers("/modeler/primitives") >= 1, "discovery")
@@ -125,6 +127,8 @@ def _run(cloud: PointCloud2, frames: int, core) -> tuple[list[float], list[dict[
     finally:
         for ex in executors:
             ex.shutdown(timeout_sec=5.0)
+        for t in threads:  # spin loops must be done before their nodes go away
+            t.join(timeout=5.0)
         node.destroy_node()
         peer.node.destroy_node()
         rclpy.try_shutdown(context=context)

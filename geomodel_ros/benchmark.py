@@ -198,17 +198,34 @@ def mug_benchmark(params: ModelingParams) -> dict:
         off = np.linalg.norm(np.cross(MUG_POINT - o.center, axis))
         if best is None or off < best[0]:
             best = (off, o)
-    if best is not None:
-        o = best[1]
-        cosang = abs(float(o.rotation[:, 2] @ MUG_AXIS) / np.linalg.norm(MUG_AXIS))
-        out.update(cylinder_radius=o.dimensions["radius"], cylinder_height=o.dimensions["height"],
-                   axis_error_deg=float(np.degrees(np.arccos(min(1.0, cosang)))),
-                   axis_offset_m=float(best[0]), cylinder_points=o.point_count)
     planes = [o for o in result.objects if o.type == "plane"]
+    table_n = None
     if planes:
         table = max(planes, key=lambda o: o.point_count)
+        table_n = table.rotation[:, 2]
         out["table_points"] = table.point_count
-        out["table_normal"] = [float(v) for v in table.rotation[:, 2]]
+        out["table_normal"] = [float(v) for v in table_n]
+    if best is not None:
+        o = best[1]
+        axis = o.rotation[:, 2]
+        ref = MUG_AXIS / np.linalg.norm(MUG_AXIS)
+
+        def angle(a: np.ndarray, b: np.ndarray) -> float:
+            return float(np.degrees(np.arccos(min(1.0, abs(float(a @ b))))))
+
+        def radial(center: np.ndarray, direction: np.ndarray) -> list[float]:
+            v = pts[labels == o.id] - center
+            r = np.linalg.norm(v - np.outer(v @ direction, direction), axis=1)
+            return [float(x) for x in np.percentile(r, [25, 50, 75])]
+
+        out.update(cylinder_radius=o.dimensions["radius"], cylinder_height=o.dimensions["height"],
+                   axis_error_deg=angle(axis, ref), axis_offset_m=float(best[0]),
+                   cylinder_points=o.point_count,
+                   radial_quartiles_ours_m=radial(o.center, axis),
+                   radial_quartiles_tutorial_m=radial(MUG_POINT, ref))
+        if table_n is not None:
+            out["axis_to_table_normal_deg"] = angle(axis, table_n)
+            out["tutorial_axis_to_table_normal_deg"] = angle(ref, table_n)
     return out
 
 
