@@ -184,6 +184,165 @@ def _merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: ND
     return np.unique(roots, return_inverse=True)[1].ravel()
 
 
+def _join_occluded_parts(points: NDArray[np.float64], normals: NDArray[np.float64],
+                         comp: NDArray[np.int64], valid: NDArray[np.bool_],
+                         params: ModelingParams) -> NDArray[np.int64]:
+    """Join segments that are two visible parts of one surface cut by an occluder.
+
+    Two segments are joined when their closest points are farther apart than a link
+    (they do not touch) but closer than ``seg_max_occlusion_gap``, the surface continues
+    across the gap (the mean normals around both ends agree and lie across the gap
+    direction), and the gap is hidden: on the viewing ray (sensor at the origin) of most
+    gap samples a measured point lies clearly nearer, and on none is the gap seen open.
+    Rays that meet no point (holes, sensor shadows) are no evidence either way.
+    Loops over segment pairs only (tens), never over points.
+    """
+    ids = np.unique(comp[valid])
+    if len(ids) < 2:
+        return comp
+    v = params.seg_voxel_size
+    link = params.seg_max_edge_factor * v
+    depth = np.linalg.norm(points, axis=1)
+    rays = points / np.maximum(depth, 1e-12)[:, None]
+    ray_tree = cKDTree(rays)
+    members = {int(i): np.flatnonzero(valid & (comp == i)) for i in ids}
+    trees = {i: cKDTree(points[m]) for i, m in members.items()}
+    centers = {i: points[m].mean(axis=0) for i, m in members.items()}
+    radius = {i: float(np.linalg.norm(points[m] - centers[i], axis=1).max())
+              for i, m in members.items()}
+    parent = {i: i for i in members}
+
+    def find(x: int) -> int:
+        while parent[x] != x:
+            x = parent[x]
+        return x
+
+    cos_n = math.cos(math.radians(20.0))
+    sin_g = math.sin(math.radians(15.0))
+    t = np.linspace(0.15, 0.85, 8)
+    keys = sorted(members)
+    for ai, a in enumerate(keys):
+        for b in keys[ai + 1:]:
+            reach = float(np.linalg.norm(centers[a] - centers[b])) - radius[a] - radius[b]
+            if reach > params.seg_max_occlusion_gap or find(a) == find(b):
+                continue
+            small, big = (a, b) if len(members[a]) <= len(members[b]) else (b, a)
+            d, j = trees[big].query(points[members[small]], k=1)
+            k = int(np.argmin(d))
+            gap = float(d[k])
+            if gap <= link or gap > params.seg_max_occlusion_gap:
+                continue
+            pa = members[small][k]
+            pb = members[big][int(j[k])]
+            g = (points[pb] - points[pa]) / gap
+
+            def local_normal(seg: int, at: int) -> NDArray[np.float64]:
+                # Mean normal around the end point (boundary normals are unreliable).
+                near = members[seg][trees[seg].query_ball_point(points[at], 3.0 * link)]
+                nrm = normals[near]
+                nrm = nrm * np.sign(nrm @ normals[at])[:, None]
+                mean = nrm.sum(axis=0)
+                return mean / max(float(np.linalg.norm(mean)), 1e-12)
+
+            na, nb = local_normal(small, pa), local_normal(big, pb)
+            if abs(float(na @ nb)) < cos_n or abs(float(na @ g)) > sin_g \
+                    or abs(float(nb @ g)) > sin_g:
+                continue
+            samples = points[pa] + t[:, None] * (points[pb] - points[pa])
+            s_depth = np.linalg.norm(samples, axis=1)
+            tol = 1.5 * v / s_depth
+            dist, hit = ray_tree.query(samples / s_depth[:, None], k=1)
+            hit = np.minimum(hit, len(points) - 1)
+            seen = dist <= tol  # a measured point on this ray (else a hole: no evidence)
+            nearer = depth[hit] < s_depth - 2.0 * v
+            # Join when most of the gap is hidden behind nearer points and no part of it
+            # is seen open (a point at or behind the gap on its ray).
+            if np.all(nearer[seen]) and seen.sum() >= 0.6 * len(t):
+                parent[find(b)] = find(a)
+    out = comp.copy()
+    for i in members:
+        root = find(i)
+        if root != i:
+            out[members[i]] = root
+    return out
+
+
+def _join_contained_parts(points: NDArray[np.float64], normals: NDArray[np.float64],
+                          comp: NDArray[np.int64], valid: NDArray[np.bool_],
+                          support: PlaneModel, min_points: int = 30) -> NDArray[np.int64]:
+    """Join the inner wall of an open round container (bowl, cup, pot) to its outer wall.
+
+    Seen from above an open container shows its outer front wall and, behind the rim,
+    its inner back wall; they meet only at the hidden back rim, so local convexity keeps
+    them apart. A segment is joined to a round segment when its footprint on the support
+    plane lies inside the round segment's footprint circle and their heights above the
+    support overlap. A segment is round when its footprint fits a circle tightly and its
+    normals point along the circle's radii (a wall of revolution, not a box). Loops over
+    segment pairs only.
+    """
+    ids = [int(i) for i in np.unique(comp[valid])]
+    if len(ids) < 2:
+        return comp
+    n = support.normal
+    e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    members = {i: np.flatnonzero(valid & (comp == i)) for i in ids}
+    foot = {i: points[m] @ np.column_stack([e1, e2]) for i, m in members.items()}
+    height = {i: np.abs(points[m] @ n + support.d) for i, m in members.items()}
+    circles = {}
+    for i, xy in foot.items():
+        if len(xy) < min_points:
+            continue
+        # Algebraic circle fit x^2 + y^2 + a x + b y + c = 0, then its geometric spread.
+        a = np.c_[xy, np.ones(len(xy))]
+        sol, *_ = np.linalg.lstsq(a, -(xy * xy).sum(axis=1), rcond=None)
+        center = -0.5 * sol[:2]
+        r2 = center @ center - sol[2]
+        if r2 <= 0:
+            continue
+        r = float(np.sqrt(r2))
+        offsets = xy - center
+        radial = offsets / np.maximum(np.linalg.norm(offsets, axis=1), 1e-12)[:, None]
+        spread = np.median(np.abs(np.linalg.norm(offsets, axis=1) - r))
+        n_xy = normals[members[i]] @ np.column_stack([e1, e2])
+        n_xy /= np.maximum(np.linalg.norm(n_xy, axis=1), 1e-12)[:, None]
+        along = np.median(np.abs(np.einsum("ij,ij->i", n_xy, radial)))
+        # A flat face is a circle of huge radius: require a container-sized circle seen
+        # over a real arc.
+        ang = np.arctan2(radial[:, 1], radial[:, 0])
+        arc = np.ptp(np.unwrap(np.sort(ang))) if len(ang) > 1 else 0.0
+        # ... and whose normals turn continuously (a box's faces give a few directions).
+        azimuth = np.degrees(np.arctan2(n_xy[:, 1], n_xy[:, 0]))
+        hist = np.bincount(((azimuth + 180.0) // 10).astype(int) % 36, minlength=36)
+        turning = int(np.sum(hist >= 0.02 * len(azimuth)))
+        if spread < 0.08 * r and along > 0.85 and r < 0.25 and arc > math.radians(60.0) \
+                and turning >= 6:
+            circles[i] = (center, r)
+    parent = {i: i for i in ids}
+
+    def find(x: int) -> int:
+        while parent[x] != x:
+            x = parent[x]
+        return x
+
+    for a_id, (center, r) in sorted(circles.items(), key=lambda kv: -len(members[kv[0]])):
+        for b_id in ids:
+            if len(members[b_id]) < min_points or find(a_id) == find(b_id):
+                continue
+            inside = np.linalg.norm(foot[b_id] - center, axis=1) <= 1.05 * r
+            ha, hb = height[a_id], height[b_id]
+            overlap = min(ha.max(), hb.max()) - max(ha.min(), hb.min())
+            if inside.mean() >= 0.9 and overlap > 0:
+                parent[find(b_id)] = find(a_id)
+    out = comp.copy()
+    for i in ids:
+        root = find(i)
+        if root != i:
+            out[members[i]] = root
+    return out
+
+
 def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
                   rng: np.random.Generator | int | None = None) -> Segmentation:
     """Segment a scene cloud into support planes and objects.
@@ -244,6 +403,10 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     size = np.bincount(comp_rest[rest], weights=counts[rest], minlength=int(comp.max()) + 1)
     good = size >= params.seg_min_cluster_points
     comp_ok = rest & good[np.where(rest, comp, 0)]
+    if params.seg_max_occlusion_gap > 0:
+        comp = _join_occluded_parts(wp, wn, comp, comp_ok, params)
+    if params.seg_join_contained and supports:
+        comp = _join_contained_parts(wp, wn, comp, comp_ok, fit_plane_svd(wp[supports[0]]))
     uniq, compact = np.unique(comp[comp_ok], return_inverse=True)
     # Order objects by size (largest first) for stable, meaningful ids.
     sizes = np.bincount(compact.ravel(), weights=counts[comp_ok], minlength=len(uniq))
