@@ -71,7 +71,11 @@ class ParamSpec:
                 raise ParameterError(f"parameter '{self.name}' must be an integer, got {value!r}")
             value = int(value)
         else:
-            value = float(value)
+            try:
+                value = float(value)
+            except OverflowError:
+                raise ParameterError(f"parameter '{self.name}' = {value!r} is too large for "
+                                     f"a float; allowed range [{self.low}, {self.high}]") from None
             if not math.isfinite(value):
                 raise ParameterError(f"parameter '{self.name}' must be finite, got {value!r}")
         if (self.low is not None and value < self.low) or (

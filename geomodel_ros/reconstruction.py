@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from .primitives import Primitive
 
-__all__ = ["sample_primitive", "reconstruct"]
+__all__ = ["sample_primitive", "reconstruct", "surface_area"]
 
 
 def _grid(a: float, b: float, spacing: float) -> NDArray[np.float64]:
@@ -76,6 +76,23 @@ def _local_surface(kind: str, dims: dict[str, float], spacing: float) -> NDArray
     return np.zeros((0, 3))
 
 
+def surface_area(primitive: Primitive) -> float:
+    """Area [m^2] of the modeled surface (0 for ``unknown``)."""
+    d = primitive.dimensions
+    if primitive.type == "plane":
+        return d["length"] * d["width"]
+    if primitive.type == "cuboid":
+        lx, ly, lz = d["length"], d["width"], d["height"]
+        return 2.0 * (lx * ly + lx * lz + ly * lz)
+    if primitive.type == "cylinder":
+        return 2.0 * math.pi * d["radius"] * (d["radius"] + d["height"])
+    if primitive.type == "cone":
+        return math.pi * d["radius"] * (d["radius"] + math.hypot(d["radius"], d["height"]))
+    if primitive.type == "sphere":
+        return 4.0 * math.pi * d["radius"] ** 2
+    return 0.0
+
+
 def sample_primitive(primitive: Primitive, spacing: float) -> NDArray[np.float64]:
     """Points on the surface of ``primitive`` at about ``spacing`` [m] apart, (n, 3) [m].
 
@@ -99,7 +116,10 @@ def reconstruct(primitives: list[Primitive], spacing: float,
     """
     pts, ids = [], []
     for p in primitives:
-        s = spacing
+        # Coarsen the spacing before sampling so that no object exceeds the budget (a
+        # 20 m wall at 2 mm would otherwise need 10^8 samples).
+        area = surface_area(p)
+        s = max(spacing, math.sqrt(area / max_points_per_object)) if area > 0 else spacing
         local = sample_primitive(p, s)
         while len(local) > max_points_per_object:
             s *= 1.5

@@ -1,0 +1,355 @@
+"""Sustained-load benchmark of the ``modeler`` node running as its own process.
+
+Run as::
+
+    python -m geomodel_ros.bench_load --minutes 10 --cloud paper          # 15 Hz
+    python -m geomodel_ros.bench_load --minutes 10 --cloud kinect         # 30 Hz
+
+The node is started as a separate process (``sys.executable -m geomodel_ros.node``), and
+this process publishes clouds to it faster than it can model them, for ``--minutes``:
+
+* ``paper``: the paper's Scene 3 (``render_scene("scene3")``, 624 x 1104 organized,
+  ~370k valid points) at 15 Hz with the default parameters;
+* ``kinect``: osd_learn scenes (640 x 480 Kinect frames, :func:`geomodel_ros.io.load_osd`
+  from :func:`geomodel_ros.benchmark.data_dir`), cycled, at 30 Hz with
+  ``config/kinect.yaml``.
+
+It subscribes to every output (like RViz) and reports:
+
+* frames published / received by the node / processed / dropped (newest frame wins) /
+  failed, from the node's ``/diagnostics``; lost in transport = published - received;
+* processed rate [Hz];
+* latency from the input's stamp (wall clock at publish) to the MarkerArray's arrival:
+  median, p95, max [ms];
+* the node process's RSS (``/proc/<pid>/status`` VmRSS) after warm-up, at the end and
+  its maximum [MiB];
+* crashes (the node process exiting during the run) and malformed outputs (a marker with
+  a non-finite pose or a non-positive scale, or a header other than the input's).
+
+Every process keeps DDS discovery on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``);
+a private ``ROS_DOMAIN_ID`` is used unless one is set.  Exit status: 0 when the node
+survived and every output was well-formed, 1 otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # before rclpy starts DDS
+os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+
+import numpy as np  # noqa: E402
+import rclpy  # noqa: E402
+from builtin_interfaces.msg import Time  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
+from sensor_msgs.msg import PointCloud2  # noqa: E402
+from std_msgs.msg import Header  # noqa: E402
+from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
+
+from msg_adapters.pointcloud2 import xyz_to_cloud  # noqa: E402
+
+__all__ = ["main"]
+
+REPO = Path(__file__).resolve().parent.parent
+FRAME = "camera_optical"
+TOPIC = "/bench_load/points"
+DEFAULT_RATE = {"paper": 15.0, "kinect": 30.0}
+_RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def _clouds(kind: str, count: int) -> list[PointCloud2]:
+    """Input messages (stamps are set at publish time)."""
+    header = Header(frame_id=FRAME)
+    if kind == "paper":
+        from .synth import render_scene
+
+        return [xyz_to_cloud(render_scene("scene3").organized, header)]
+    from .benchmark import data_dir
+    from .io import load_osd
+
+    folder = data_dir() / "osd_learn"
+    msgs = []
+    for k in range(count):
+        points, _ = load_osd(folder / f"learn{k}.pcd")
+        msgs.append(xyz_to_cloud(points.reshape(480, 640, 3), header))
+    return msgs
+
+
+def _rss_mib(pid: int) -> float:
+    """VmRSS of process ``pid`` [MiB] (NaN once it is gone)."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return math.nan
+
+
+def _malformed(markers: MarkerArray, stamp: Time) -> str | None:
+    """Why a MarkerArray is malformed, or None."""
+    if not markers.markers or markers.markers[0].action != Marker.DELETEALL:
+        return "does not start with DELETEALL"
+    for m in markers.markers:
+        if m.header.frame_id != FRAME or (m.header.stamp.sec, m.header.stamp.nanosec) != \
+                (stamp.sec, stamp.nanosec):
+            return f"marker {m.ns}/{m.id} has another header than its input"
+        if m.action == Marker.DELETEALL:
+            continue
+        p, q = m.pose.position, m.pose.orientation
+        if not all(math.isfinite(v) for v in (p.x, p.y, p.z, q.x, q.y, q.z, q.w)):
+            return f"marker {m.ns}/{m.id} has a non-finite pose"
+        if not all(math.isfinite(v) and v > 0 for v in (m.scale.x, m.scale.y, m.scale.z)):
+            return f"marker {m.ns}/{m.id} has a non-positive or non-finite scale"
+        if any(not all(math.isfinite(v) for v in (pt.x, pt.y, pt.z)) for pt in m.points):
+            return f"marker {m.ns}/{m.id} has non-finite points"
+    return None
+
+
+class _Recorder:
+    """Peer node: publishes the clouds, records markers and the node's diagnostics."""
+
+    def __init__(self, context: Context, reliable: bool) -> None:
+        self.node = Node("bench_load", context=context)
+        qos_in = _RELIABLE if reliable else qos_profile_sensor_data
+        self.pub = self.node.create_publisher(PointCloud2, TOPIC, qos_in)
+        self.lock = threading.Lock()
+        self.latencies: list[tuple[float, float]] = []  # (arrival, latency) [s]
+        self.malformed: list[str] = []
+        self.diagnostics: dict[str, str] = {}
+        self.node.create_subscription(MarkerArray, "/modeler/primitives", self._on_markers,
+                                      _RELIABLE)
+        for topic in ("/modeler/segments", "/modeler/reconstruction"):  # like RViz
+            self.node.create_subscription(PointCloud2, topic, lambda _: None, _RELIABLE)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
+
+    def _on_markers(self, msg: MarkerArray) -> None:
+        now = time.time()
+        if not msg.markers:
+            with self.lock:
+                self.malformed.append("empty MarkerArray")
+            return
+        stamp = msg.markers[0].header.stamp
+        why = _malformed(msg, stamp)
+        with self.lock:
+            self.latencies.append((now, now - (stamp.sec + 1e-9 * stamp.nanosec)))
+            if why:
+                self.malformed.append(why)
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.hardware_id.endswith("/modeler"):
+                with self.lock:
+                    self.diagnostics = {kv.key: kv.value for kv in status.values}
+
+
+def _wait(predicate, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def _stop(proc: subprocess.Popen) -> int:
+    """SIGINT (as Ctrl-C / ros2 launch do), then escalate; the exit status."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            return proc.wait(15.0)
+        except subprocess.TimeoutExpired:
+            proc.terminate()
+            try:
+                return proc.wait(5.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                return proc.wait()
+    return int(proc.returncode)
+
+
+def run(args: argparse.Namespace) -> dict:
+    rate = args.rate or DEFAULT_RATE[args.cloud]
+    clouds = _clouds(args.cloud, args.kinect_scenes)
+    valid = int(np.count_nonzero(np.isfinite(np.frombuffer(
+        clouds[0].data, dtype=np.float32).reshape(-1, clouds[0].point_step // 4)[:, 0])))
+    params = args.params or (str(REPO / "config" / "kinect.yaml")
+                             if args.cloud == "kinect" else None)
+    cmd = [sys.executable, "-m", "geomodel_ros.node", "--ros-args", "-r", f"points:={TOPIC}",
+           "-p", f"qos_reliability:={'reliable' if args.reliable else 'best_effort'}"]
+    if params:
+        cmd += ["--params-file", params]
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               PYTHONPATH=os.pathsep.join(filter(None, [str(REPO),
+                                                        os.environ.get("PYTHONPATH")])))
+    log = tempfile.NamedTemporaryFile("w+", prefix="bench_load_node_", suffix=".log",
+                                      delete=False)
+    print(f"{args.cloud}: {clouds[0].height} x {clouds[0].width} ({valid} valid points, "
+          f"{len(clouds[0].data) / 1e6:.1f} MB per message, {len(clouds)} distinct) at "
+          f"{rate:g} Hz for {args.minutes:g} min; node log {log.name}", flush=True)
+    proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
+
+    context = Context()
+    rclpy.init(args=[], context=context)
+    rec = _Recorder(context, args.reliable)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(rec.node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    report: dict = {"cloud": args.cloud, "rate_hz": rate, "minutes": args.minutes,
+                    "points": valid, "command": cmd}
+    crashed_at = None
+    try:
+        if not _wait(lambda: rec.pub.get_subscription_count() >= 1
+                     and rec.node.count_publishers("/modeler/primitives") >= 1
+                     or proc.poll() is not None, 60.0) or proc.poll() is not None:
+            raise RuntimeError(f"the node did not come up (exit status {proc.poll()}); "
+                               f"see {log.name}")
+        period = 1.0 / rate
+        start = time.monotonic()
+        end = start + 60.0 * args.minutes
+        published = 0
+        rss_warm, rss_max, next_rss = math.nan, 0.0, start
+        published_warm = 0
+        tick = threading.Event()
+        while (now := time.monotonic()) < end:
+            if proc.poll() is not None:
+                crashed_at = now - start
+                break
+            msg = clouds[published % len(clouds)]
+            t = time.time()
+            msg.header.stamp = Time(sec=int(t), nanosec=int((t % 1.0) * 1e9))
+            rec.pub.publish(msg)
+            published += 1
+            if now >= next_rss:
+                rss = _rss_mib(proc.pid)
+                rss_max = max(rss_max, rss)
+                next_rss = now + 1.0
+                if math.isnan(rss_warm) and now - start >= args.warmup:
+                    rss_warm, published_warm = rss, published
+            tick.wait(max(0.0, start + published * period - time.monotonic()))  # pacing
+        elapsed = time.monotonic() - start
+        rss_end = _rss_mib(proc.pid)
+        # the last diagnostics (1 Hz) after the input stopped
+        with rec.lock:
+            seen = dict(rec.diagnostics)
+        _wait(lambda: proc.poll() is not None or rec.diagnostics.get("frames_received") !=
+              seen.get("frames_received"), 5.0)
+        _wait(lambda: proc.poll() is not None or (
+            rec.diagnostics.get("frames_processed") is not None
+            and int(rec.diagnostics["frames_received"]) == int(rec.diagnostics["frames_processed"])
+            + int(rec.diagnostics["frames_dropped"]) + int(rec.diagnostics["frames_failed"])),
+            30.0)
+        _wait(lambda: proc.poll() is not None, 2.5)  # one more diagnostics period
+    finally:
+        exit_status = _stop(proc)
+        executor.shutdown(timeout_sec=5.0)
+        spinner.join(5.0)
+        rec.node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+    with rec.lock:
+        diag = dict(rec.diagnostics)
+        arrivals = list(rec.latencies)
+        malformed = list(rec.malformed)
+    lat_ms = 1000.0 * np.array([lat for _, lat in arrivals]) if arrivals else np.array([])
+    received = int(diag.get("frames_received", -1))
+    processed = int(diag.get("frames_processed", -1))
+    report.update({
+        "duration_s": elapsed,
+        "published": published,
+        "received": received,
+        "processed": processed,
+        "dropped": int(diag.get("frames_dropped", -1)),
+        "failed": int(diag.get("frames_failed", -1)),
+        "lost_in_transport": published - received if received >= 0 else None,
+        "marker_arrays": len(arrivals),
+        "processed_rate_hz": len(arrivals) / elapsed if elapsed > 0 else math.nan,
+        "latency_ms": {"median": float(np.median(lat_ms)) if lat_ms.size else math.nan,
+                       "p95": float(np.percentile(lat_ms, 95)) if lat_ms.size else math.nan,
+                       "max": float(lat_ms.max()) if lat_ms.size else math.nan},
+        "latency_ms_first_last_third": _thirds(lat_ms),
+        "rss_mib": {"after_warmup": rss_warm, "end": rss_end, "max": rss_max,
+                    "growth_pct": 100.0 * (rss_end / rss_warm - 1.0)
+                    if rss_warm > 0 else math.nan},
+        "published_during_warmup": published_warm,
+        "crashed": crashed_at is not None,
+        "crashed_after_s": crashed_at,
+        "node_exit_status": exit_status,
+        "malformed_outputs": len(malformed),
+        "malformed_examples": malformed[:5],
+        "node_log": log.name,
+    })
+    return report
+
+
+def _thirds(lat_ms: np.ndarray) -> list[float]:
+    k = len(lat_ms) // 3
+    if k == 0:
+        return [math.nan, math.nan]
+    return [float(np.median(lat_ms[:k])), float(np.median(lat_ms[-k:]))]
+
+
+def _print(r: dict) -> None:
+    lat, rss = r["latency_ms"], r["rss_mib"]
+    print(f"\n{r['cloud']} at {r['rate_hz']:g} Hz for {r['duration_s']:.0f} s "
+          f"({r['points']} valid points per frame)")
+    print(f"  frames: published {r['published']}, received {r['received']} (lost in transport "
+          f"{r['lost_in_transport']}), processed {r['processed']}, dropped {r['dropped']}, "
+          f"failed {r['failed']}")
+    print(f"  processed rate {r['processed_rate_hz']:.2f} Hz ({r['marker_arrays']} MarkerArrays)")
+    print(f"  latency stamp -> MarkerArray [ms]: median {lat['median']:.0f}, p95 "
+          f"{lat['p95']:.0f}, max {lat['max']:.0f}; median first/last third "
+          f"{r['latency_ms_first_last_third'][0]:.0f}/{r['latency_ms_first_last_third'][1]:.0f}")
+    print(f"  node RSS [MiB]: after warm-up {rss['after_warmup']:.0f}, end {rss['end']:.0f} "
+          f"({rss['growth_pct']:+.1f} %), max {rss['max']:.0f}")
+    print(f"  crashes: {'YES after %.0f s' % r['crashed_after_s'] if r['crashed'] else 'none'} "
+          f"(exit status on SIGINT {r['node_exit_status']}); malformed outputs "
+          f"{r['malformed_outputs']} {r['malformed_examples'] or ''}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m geomodel_ros.bench_load",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--minutes", type=float, default=10.0)
+    parser.add_argument("--cloud", choices=("paper", "kinect"), default="paper")
+    parser.add_argument("--rate", type=float, help="publish rate [Hz] (paper 15, kinect 30)")
+    parser.add_argument("--params", help="params file for the node (kinect: "
+                        "config/kinect.yaml by default)")
+    parser.add_argument("--reliable", action="store_true",
+                        help="reliable input QoS (default: best effort, like a camera)")
+    parser.add_argument("--warmup", type=float, default=15.0,
+                        help="seconds before the reference RSS is taken")
+    parser.add_argument("--kinect-scenes", type=int, default=8,
+                        help="osd_learn scenes cycled through (kinect)")
+    parser.add_argument("--json", help="write the report here")
+    args = parser.parse_args(argv)
+    if args.minutes <= 0 or (args.rate is not None and args.rate <= 0):
+        parser.error("--minutes and --rate must be > 0")
+    if not 1 <= args.kinect_scenes <= 45:
+        parser.error("--kinect-scenes must be in [1, 45]")
+    report = run(args)
+    _print(report)
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=2, default=float))
+    ok = not report["crashed"] and report["malformed_outputs"] == 0 and report["failed"] == 0
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
