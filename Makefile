@@ -12,7 +12,7 @@ setup:
 	@bash .ci/setup_env.sh
 
 demo: setup
-	$(PY) -m geomodel_ros.cli demo
+	$(PY) -m geomodel_ros.demo --out demo_out
 
 test: setup
 	$(PY) -m pytest -q test

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -20,6 +21,10 @@ from .params import PARAMETERS, ModelingParams, ParameterError, load_params_file
 __all__ = ["main"]
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
+#: Defaults of ``synth --bag`` (same values as geomodel_ros.bags, which needs ROS messages).
+DEFAULT_TOPIC = "/camera/depth/points"
+DEFAULT_FRAME_ID = "camera_depth_optical_frame"
+STORAGE_CHOICES = ("mcap", "sqlite3")
 
 
 class CliError(Exception):
@@ -101,9 +106,17 @@ def cmd_synth(args: argparse.Namespace) -> int:
     from .io import write_pcd
     from .synth import SCENE_NAMES, SENSOR_NOISE, render_scene
 
-    if args.name not in SCENE_NAMES:
-        raise CliError(f"unknown scene {args.name!r}; choose one of {', '.join(SCENE_NAMES)}")
-    scene = render_scene(args.name, noise=SENSOR_NOISE if args.noise else None, rng=args.seed)
+    if (args.out is None) == (args.bag is None):
+        raise CliError("give exactly one of --out FILE.pcd (one scene) and --bag DIR")
+    for name in args.names:
+        if name not in SCENE_NAMES:
+            raise CliError(f"unknown scene {name!r}; choose one of {', '.join(SCENE_NAMES)}")
+    if args.bag is not None:
+        return _synth_bag(args)
+    if len(args.names) != 1:
+        raise CliError(f"--out writes one scene, got {len(args.names)}; use --bag for several")
+    scene = render_scene(args.names[0], noise=SENSOR_NOISE if args.noise else None,
+                         rng=args.seed)
     out = Path(args.out)
     write_pcd(out, scene.organized, {"label": scene.label_image.astype(np.int32)})
     gt_path = out.with_suffix(".json")
@@ -113,6 +126,86 @@ def cmd_synth(args: argparse.Namespace) -> int:
         "objects": [o.to_dict() for o in scene.objects]}, indent=2))
     print(f"wrote {out} ({len(scene.points)} valid points, {len(scene.objects)} objects) "
           f"and {gt_path}")
+    return 0
+
+
+def _bags():
+    """:mod:`geomodel_ros.bags`, imported with DDS discovery kept on loopback."""
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    from . import bags
+
+    return bags
+
+
+def _bag_command(func):
+    """Report :class:`geomodel_ros.bags.BagError` as a one-line CLI error."""
+    def run(args: argparse.Namespace) -> int:
+        bags = _bags()
+        try:
+            return func(args, bags)
+        except bags.BagError as exc:
+            raise CliError(str(exc)) from None
+    run.__name__ = func.__name__
+    return run
+
+
+@_bag_command
+def _synth_bag(args: argparse.Namespace, bags) -> int:
+    truth = bags.write_synth_bag(args.bag, args.names, frames=args.frames, rate=args.rate,
+                                 noise=args.noise, seed=args.seed, topic=args.topic,
+                                 frame_id=args.frame_id, storage=args.storage)
+    print(f"wrote {args.bag} ({truth['frames']} frames of {', '.join(args.names)} on "
+          f"{args.topic}, {args.storage}) and {bags.ground_truth_path(args.bag)}")
+    return 0
+
+
+@_bag_command
+def cmd_bag(args: argparse.Namespace, bags) -> int:
+    params = _params(args)
+    show = sys.stderr.isatty() if args.progress is None else args.progress
+    state = {"open": False}
+
+    def progress(k: int, n: int) -> None:
+        sys.stderr.write(f"\r[{k}/{n}]")
+        sys.stderr.flush()
+        state["open"] = True
+
+    def end_line() -> None:
+        if state["open"]:
+            sys.stderr.write("\n")
+            state["open"] = False
+
+    def warn(text: str) -> None:
+        end_line()
+        print(f"geomodel: warning: {text}", file=sys.stderr)
+
+    try:
+        summary = bags.process_bag(args.input, args.output, params=params, topic=args.topic,
+                                   storage=args.storage, namespace=args.namespace,
+                                   segments=not args.no_segments,
+                                   reconstruction=not args.no_reconstruction,
+                                   progress=progress if show else None, warn=warn)
+    finally:
+        end_line()
+    skipped = f", {len(summary.skipped)} skipped" if summary.skipped else ""
+    print(f"{summary.processed}/{summary.frames} clouds of {summary.topic} modeled{skipped} "
+          f"in {summary.seconds:.1f} s -> {args.output} "
+          f"({', '.join(f'{t}: {n}' for t, n in summary.output_topics.items())})")
+    return 0
+
+
+@_bag_command
+def cmd_play(args: argparse.Namespace, bags) -> int:
+    def started(topics: dict[str, str]) -> None:
+        shown = ", ".join(t if t == p else f"{t} -> {p}" for t, p in topics.items())
+        print(f"playing {args.bag} ({shown}) at x{args.rate:g}"
+              + (", looping" if args.loop else "")
+              + (f"; waiting up to {args.wait:g} s for a subscriber" if args.wait else ""),
+              file=sys.stderr)
+
+    n = bags.play(args.bag, rate=args.rate, loop=args.loop, topics=args.topic,
+                  remap=args.remap, wait_timeout=args.wait, on_start=started)
+    print(f"published {n} messages", file=sys.stderr)
     return 0
 
 
@@ -248,12 +341,53 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--set", action="append", metavar="NAME=VALUE",
                        help="override one parameter (repeatable)")
 
-    p = sub.add_parser("synth", help="render a synthetic depth-camera scene to PCD + JSON")
-    p.add_argument("name")
-    p.add_argument("--out", required=True, help="output .pcd (ground truth goes to .json beside it)")
-    p.add_argument("--noise", action="store_true", help="add sensor noise (1 mm at 0.5 m, 2%% dropout)")
+    p = sub.add_parser("synth", help="render synthetic depth-camera scenes to PCD + JSON or "
+                       "to a rosbag2 of PointCloud2 frames + JSON")
+    p.add_argument("names", nargs="+", metavar="NAME", help="scene name (several with --bag)")
+    p.add_argument("--out", help="output .pcd (ground truth goes to .json beside it)")
+    p.add_argument("--bag", help="output rosbag2 directory (ground truth goes to BAG.json)")
+    p.add_argument("--frames", type=int, default=3, help="--bag: frames per scene (default 3)")
+    p.add_argument("--rate", type=float, default=10.0, help="--bag: frame rate [Hz] (default 10)")
+    p.add_argument("--topic", default=DEFAULT_TOPIC, help=f"--bag: topic (default {DEFAULT_TOPIC})")
+    p.add_argument("--frame-id", default=DEFAULT_FRAME_ID,
+                   help=f"--bag: header frame_id (default {DEFAULT_FRAME_ID})")
+    p.add_argument("--storage", choices=STORAGE_CHOICES, default="mcap",
+                   help="--bag: storage plugin (default mcap)")
+    p.add_argument("--noise", action="store_true", help="add sensor noise (1 mm at 0.5 m, 2%% "
+                   "dropout; drawn anew for every bag frame)")
     p.add_argument("--seed", type=int, default=1)
     p.set_defaults(func=cmd_synth)
+
+    p = sub.add_parser("bag", help="model every PointCloud2 of a rosbag2 offline, as the node "
+                       "would, into a new bag")
+    p.add_argument("input", help="input bag (rosbag2 directory, .mcap or .db3)")
+    p.add_argument("output", help="output bag directory (must not exist)")
+    p.add_argument("--topic", help="cloud topic (default: the bag's only PointCloud2 topic)")
+    p.add_argument("--storage", choices=STORAGE_CHOICES,
+                   help="storage of the output (default: the input's)")
+    p.add_argument("--namespace", default="/modeler",
+                   help="namespace of the output topics (default /modeler: /modeler/primitives, "
+                   "/modeler/segments, /modeler/reconstruction)")
+    p.add_argument("--no-segments", action="store_true", help="do not write <namespace>/segments")
+    p.add_argument("--no-reconstruction", action="store_true",
+                   help="do not write <namespace>/reconstruction")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="show a [k/N] counter on stderr (default: when stderr is a terminal)")
+    add_params(p)
+    p.set_defaults(func=cmd_bag)
+
+    p = sub.add_parser("play", help="publish a bag's PointCloud2 records at the recorded rate")
+    p.add_argument("bag", help="rosbag2 directory, .mcap or .db3")
+    p.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1)")
+    p.add_argument("--loop", action="store_true", help="start over at the end (Ctrl-C stops)")
+    p.add_argument("--topic", action="append", help="play only this topic (repeatable; "
+                   "default: every PointCloud2 topic)")
+    p.add_argument("--remap", action="append", metavar="OLD:=NEW", help="publish topic OLD as "
+                   "NEW (repeatable)")
+    p.add_argument("--wait", type=float, default=10.0, metavar="SECONDS",
+                   help="wait this long for a subscriber before starting (default 10; 0 = "
+                   "start at once)")
+    p.set_defaults(func=cmd_play)
 
     p = sub.add_parser("model", help="segment a cloud (or take its labels) and model its objects")
     p.add_argument("input", help="cloud file (.pcd, .ply, .npy)")
@@ -294,6 +428,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args))
+    except KeyboardInterrupt:
+        print("geomodel: interrupted", file=sys.stderr)
+        return 130
     except (CliError, ParameterError, CloudFileError, InputError) as exc:
         print(f"geomodel: error: {exc}", file=sys.stderr)
         return 2

@@ -23,10 +23,11 @@ Every output carries the input's header (``frame_id`` and ``stamp``).  Outputs a
 published reliable, keep last ``qos_depth`` (compatible with reliable and best-effort
 subscribers such as RViz and planners).
 
-The node is a thin wire: adapter (``msg_adapters``) -> core
-(:func:`geomodel_ros.pipeline.model_scene`) -> adapter -> publish.  Modeling runs in a
-worker thread fed by a one-slot mailbox: a frame that arrives while another waits
-replaces it (newest frame wins) and is counted as dropped.  A malformed message or a frame
+The node is a thin wire: :func:`msg_adapters.processing.process_cloud` (adapter -> core
+:func:`geomodel_ros.pipeline.model_scene` -> adapters, shared with the offline bag tool
+``geomodel bag``) -> publish.  Modeling runs in a worker thread fed by a one-slot
+mailbox: a frame that arrives while another waits replaces it (newest frame wins) and is
+counted as dropped.  A malformed message or a frame
 the core fails on is logged (throttled) and skipped; the node keeps running.
 
 Parameters: every entry of :data:`geomodel_ros.params.PARAMETERS` (changeable at run time,
@@ -56,12 +57,9 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
-from msg_adapters.markers import primitives_to_markers, reconstruction_cloud, segments_cloud
-from msg_adapters.pointcloud2 import PointCloud2Error, cloud_to_xyz
+from msg_adapters.processing import ModelingError, PointCloud2Error, process_cloud
 
-from . import pipeline
 from .params import PARAMETERS, ModelingParams, ParameterError, ParamSpec
-from .reconstruction import reconstruct
 
 __all__ = ["ModelerNode", "NODE_PARAMETERS", "NodeOptions", "FrameStats", "main"]
 
@@ -387,65 +385,34 @@ class ModelerNode(Node):
             self._stats.failed += 1
 
     def _process(self, msg: PointCloud2, received_at: float) -> None:
-        params, options = self._params, self._options
-        timing: dict[str, float] = {}
+        options = self._options
         t0 = time.perf_counter()
         try:
-            # Every row, NaNs included: labels stay aligned with the input's points (and
-            # pixels, for an organized cloud).
-            points = cloud_to_xyz(msg, keep_organized=True).reshape(-1, 3)
+            frame = process_cloud(msg, self._params, segments=options.publish_segments,
+                                  reconstruction=options.publish_reconstruction)
         except PointCloud2Error as exc:
             self._count_failure()
             self.get_logger().warning(
                 f"skipping malformed PointCloud2 (frame '{msg.header.frame_id}', stamp "
                 f"{_stamp(msg)}): {exc}", throttle_duration_sec=WARN_THROTTLE_S)
             return
-        organized = (int(msg.height), int(msg.width)) if msg.height > 1 else None
-        n_valid = int(np.count_nonzero(np.isfinite(points).all(axis=1)))
-        t1 = time.perf_counter()
-        timing["convert_s"] = t1 - t0
-
-        if n_valid:
-            try:
-                labels, result = pipeline.model_scene(points, params, organized_shape=organized)
-                labels = np.asarray(labels)
-                if labels.shape != (len(points),) or labels.dtype.kind not in "ui":
-                    raise ValueError(f"model_scene returned {labels.dtype} labels of shape "
-                                     f"{labels.shape} for {len(points)} points")
-                objects = list(result.objects)
-            except Exception as exc:  # noqa: BLE001 - a bad frame must not stop the node
-                self._count_failure()
-                self.get_logger().warning(
-                    f"modeling failed on frame '{msg.header.frame_id}' {_stamp(msg)} "
-                    f"({n_valid} points), frame skipped: {type(exc).__name__}: {exc}",
-                    throttle_duration_sec=WARN_THROTTLE_S)
-                self.get_logger().debug(traceback.format_exc())
-                return
-            core_timing = {f"core_{k}": float(v) for k, v in result.timing.items()}
-        else:  # nothing to model: publish empty outputs (this clears RViz)
-            labels, objects, core_timing = np.full(len(points), -1, dtype=np.int64), [], {}
-        t2 = time.perf_counter()
-        timing["model_s"] = t2 - t1
-
-        markers = primitives_to_markers(objects, msg.header)
-        t3 = time.perf_counter()
-        timing["markers_s"] = t3 - t2
-        segments = recon = None
-        if options.publish_segments:
-            segments = segments_cloud(points, labels, msg.header, organized_shape=organized)
-        t4 = time.perf_counter()
-        timing["segments_s"] = t4 - t3
-        if options.publish_reconstruction:
-            rpts, rids = reconstruct(objects, params.reconstruction_spacing)
-            recon = reconstruction_cloud(rpts, rids, msg.header)
+        except ModelingError as exc:
+            self._count_failure()
+            self.get_logger().warning(
+                f"modeling failed on frame '{msg.header.frame_id}' {_stamp(msg)} "
+                f"({exc.valid_points} points), frame skipped: {exc}",
+                throttle_duration_sec=WARN_THROTTLE_S)
+            self.get_logger().debug("".join(traceback.format_exception(exc.__cause__ or exc)))
+            return
         t5 = time.perf_counter()
-        timing["reconstruction_s"] = t5 - t4
+        timing = {k: v for k, v in frame.timing.items() if not k.startswith("core_")}
+        core_timing = {k: v for k, v in frame.timing.items() if k.startswith("core_")}
 
-        if segments is not None:
-            self._pub_segments.publish(segments)
-        if recon is not None:
-            self._pub_reconstruction.publish(recon)
-        self._pub_markers.publish(markers)
+        if frame.segments is not None:
+            self._pub_segments.publish(frame.segments)
+        if frame.reconstruction is not None:
+            self._pub_reconstruction.publish(frame.reconstruction)
+        self._pub_markers.publish(frame.markers)
         t6 = time.perf_counter()
         timing["publish_s"] = t6 - t5
         timing["total_s"] = t6 - t0
@@ -456,7 +423,8 @@ class ModelerNode(Node):
             self._stats.last_timing = timing
         stages = ", ".join(f"{k[:-2]} {1000 * v:.1f}" for k, v in {**timing, **core_timing}.items())
         self.get_logger().debug(
-            f"frame {_stamp(msg)}: {n_valid} points, {len(objects)} objects, "
+            f"frame {_stamp(msg)}: {frame.valid_points} points, "
+            f"{len(frame.result.objects)} objects, "
             f"latency {1000 * latency:.1f} ms ({stages} ms)")
 
     # ---------------------------------------------------------------------------------

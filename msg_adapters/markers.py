@@ -39,6 +39,7 @@ __all__ = [
     "LABEL_NAMESPACE",
     "PLANE_THICKNESS",
     "TYPE_COLOURS",
+    "markers_to_primitives",
     "object_colours",
     "primitives_to_markers",
     "reconstruction_cloud",
@@ -484,3 +485,48 @@ def reconstruction_cloud(points: ArrayLike, ids: ArrayLike, header: Header) -> P
         If the shapes disagree or the ids are not integers that fit in int32.
     """
     return _labelled_cloud(points, ids, header, "ids")
+
+
+def _quaternion_to_rotation(q) -> NDArray[np.float64]:
+    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
+    n = math.sqrt(x * x + y * y + z * z + w * w) or 1.0
+    x, y, z, w = x / n, y / n, z / n, w / n
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def markers_to_primitives(markers: MarkerArray) -> list[Primitive]:
+    """The primitives a :func:`primitives_to_markers` array describes (its inverse).
+
+    For subscribers of ``~/primitives`` (planners, recorders) that want typed objects back:
+    type from the namespace, pose from the marker pose, sizes from the scale (cones from
+    their mesh). Labels, DELETEALL and ``unknown`` placeholders give no primitive; point
+    counts, rmse and faces are not carried by markers (0 / empty).
+    """
+    out: list[Primitive] = []
+    for m in markers.markers:
+        if m.action != Marker.ADD or m.ns not in TYPE_COLOURS or m.ns == "unknown":
+            continue
+        c = np.array([m.pose.position.x, m.pose.position.y, m.pose.position.z])
+        r = _quaternion_to_rotation(m.pose.orientation)
+        s = m.scale
+        if m.ns == "plane" and m.type == Marker.CUBE:
+            dims = {"length": s.x, "width": s.y}
+        elif m.ns == "cuboid" and m.type == Marker.CUBE:
+            dims = {"length": s.x, "width": s.y, "height": s.z}
+        elif m.ns == "cylinder" and m.type == Marker.CYLINDER:
+            dims = {"radius": 0.5 * s.x, "height": s.z}
+        elif m.ns == "sphere" and m.type == Marker.SPHERE:
+            dims, r = {"radius": 0.5 * s.x}, np.eye(3)
+        elif m.ns == "cone" and m.type == Marker.TRIANGLE_LIST and m.points:
+            pts = np.array([[p.x, p.y, p.z] for p in m.points])
+            dims = {"radius": float(np.hypot(pts[:, 0], pts[:, 1]).max()),
+                    "height": float(np.ptp(pts[:, 2]))}
+        else:
+            continue
+        out.append(Primitive(int(m.id), m.ns, c, r, {k: float(v) for k, v in dims.items()},
+                             0, 0.0))
+    return out

@@ -369,3 +369,32 @@ def test_empty_labelled_cloud():
 def test_labelled_cloud_rejects_bad_input(pts, ids, match):
     with pytest.raises(ValueError, match=match):
         segments_cloud(pts, ids, HEADER)
+
+
+def test_markers_to_primitives_inverts_primitives_to_markers():
+    from msg_adapters.markers import markers_to_primitives
+    from std_msgs.msg import Header
+
+    rng = np.random.default_rng(5)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    rot = q * np.sign(np.linalg.det(q))
+    prims = [
+        Primitive(1, "plane", np.array([0.0, 0.1, 0.8]), rot, {"length": 0.4, "width": 0.3}, 10, 0.0),
+        Primitive(2, "cuboid", np.array([0.1, 0.0, 0.6]), rot, {"length": 0.05, "width": 0.06,
+                                                                "height": 0.07}, 10, 0.0),
+        Primitive(3, "cylinder", np.array([-0.1, 0.0, 0.6]), rot, {"radius": 0.02, "height": 0.08},
+                  10, 0.0),
+        Primitive(4, "cone", np.array([0.0, -0.1, 0.7]), rot, {"radius": 0.03, "height": 0.05},
+                  10, 0.0),
+        Primitive(5, "sphere", np.array([0.2, 0.2, 0.9]), np.eye(3), {"radius": 0.025}, 10, 0.0),
+        Primitive(6, "unknown", np.array([0.0, 0.0, 1.0]), np.eye(3), {}, 10, 0.0),
+    ]
+    back = markers_to_primitives(primitives_to_markers(prims, Header(frame_id="cam")))
+    assert [p.id for p in back] == [1, 2, 3, 4, 5]  # unknown has no shape to recover
+    for orig, got in zip(prims, back):
+        assert got.type == orig.type
+        np.testing.assert_allclose(got.center, orig.center, atol=1e-9)
+        for k, v in orig.dimensions.items():
+            assert got.dimensions[k] == pytest.approx(v, abs=1e-9)
+        if orig.type != "sphere":
+            np.testing.assert_allclose(got.rotation, orig.rotation, atol=1e-9)

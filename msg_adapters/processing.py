@@ -1,0 +1,148 @@
+"""One frame through the whole chain: PointCloud2 -> core -> MarkerArray and clouds.
+
+:func:`process_cloud` is the single definition of what the ``modeler`` node does with a
+frame; the node (:mod:`geomodel_ros.node`) and the offline bag tool
+(:mod:`geomodel_ros.bags`) both call it, so that a bag processed offline gives the same
+outputs as the node would publish for it.
+
+It uses messages (``sensor_msgs``, ``visualization_msgs``) but never ``rclpy`` itself: no
+``rclpy.init``, no node, no executor.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from sensor_msgs.msg import PointCloud2
+from visualization_msgs.msg import MarkerArray
+
+from geomodel_ros import pipeline
+from geomodel_ros.params import ModelingParams
+from geomodel_ros.primitives import ModelingResult
+from geomodel_ros.reconstruction import reconstruct
+
+from .markers import primitives_to_markers, reconstruction_cloud, segments_cloud
+from .pointcloud2 import PointCloud2Error, cloud_to_xyz
+
+__all__ = ["FrameResult", "ModelingError", "PointCloud2Error", "process_cloud"]
+
+
+class ModelingError(RuntimeError):
+    """The core failed on a (well-formed) frame.
+
+    The message names the original exception (``"RuntimeError: ..."``), which is also
+    chained as ``__cause__``; ``valid_points`` is the number of finite points of the frame.
+    """
+
+    def __init__(self, message: str, valid_points: int) -> None:
+        super().__init__(message)
+        self.valid_points = valid_points
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """Outputs of one frame (every message carries the input's ``frame_id`` and ``stamp``).
+
+    Attributes
+    ----------
+    markers : visualization_msgs.msg.MarkerArray
+        DELETEALL, then a shape and a label per object.
+    segments : sensor_msgs.msg.PointCloud2 or None
+        The input's points (organized layout kept) with ``object_id`` and ``rgb``; None when
+        not requested.
+    reconstruction : sensor_msgs.msg.PointCloud2 or None
+        Surface samples of the modeled objects; None when not requested.
+    result : ModelingResult
+        The core's objects and stage times (empty when the frame had no finite point).
+    labels : (N,) int64 array
+        Object id per input point in row-major order (-1 = none); N = height * width.
+    valid_points : int
+        Number of points with finite x, y, z.
+    timing : dict[str, float]
+        Stage times [s]: ``convert_s``, ``model_s``, ``markers_s``, ``segments_s``,
+        ``reconstruction_s``, plus the core's own stages as ``core_<name>``.
+    """
+
+    markers: MarkerArray
+    segments: PointCloud2 | None
+    reconstruction: PointCloud2 | None
+    result: ModelingResult
+    labels: np.ndarray
+    valid_points: int
+    timing: dict[str, float] = field(default_factory=dict)
+
+
+def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = True,
+                  reconstruction: bool = True) -> FrameResult:
+    """Model one point cloud and build the node's output messages.
+
+    Parameters
+    ----------
+    msg : sensor_msgs.msg.PointCloud2
+        The scene, any layout ``msg_adapters.pointcloud2`` reads (organized or not, NaN
+        rows for missing returns, padded, float64, big-endian); also messages deserialized
+        by ``rosbags``.  With ``params.reproject_along_rays`` it must be in the sensor's
+        frame [m].  Not modified.
+    params : ModelingParams
+        Modeling and segmentation parameters (deterministic for a given ``params.seed``).
+    segments, reconstruction : bool
+        Build :attr:`FrameResult.segments` / :attr:`FrameResult.reconstruction`.
+
+    Returns
+    -------
+    FrameResult
+        A cloud without any finite point gives no objects (markers: DELETEALL only, which
+        clears RViz) without calling the core.
+
+    Raises
+    ------
+    PointCloud2Error
+        If the message is malformed (inconsistent sizes, no float x/y/z, ...).
+    ModelingError
+        If the core fails on the frame.
+    """
+    timing: dict[str, float] = {}
+    t0 = time.perf_counter()
+    # Every row, NaNs included: labels stay aligned with the input's points (and pixels,
+    # for an organized cloud).
+    points = cloud_to_xyz(msg, keep_organized=True).reshape(-1, 3)
+    organized = (int(msg.height), int(msg.width)) if msg.height > 1 else None
+    n_valid = int(np.count_nonzero(np.isfinite(points).all(axis=1)))
+    t1 = time.perf_counter()
+    timing["convert_s"] = t1 - t0
+
+    if n_valid:
+        try:
+            # Looked up on the module at call time (tests wrap it).
+            labels, result = pipeline.model_scene(points, params, organized_shape=organized)
+            labels = np.asarray(labels)
+            if labels.shape != (len(points),) or labels.dtype.kind not in "ui":
+                raise ValueError(f"model_scene returned {labels.dtype} labels of shape "
+                                 f"{labels.shape} for {len(points)} points")
+        except Exception as exc:  # noqa: BLE001 - reported as one typed error
+            raise ModelingError(f"{type(exc).__name__}: {exc}", n_valid) from exc
+        timing.update({f"core_{k}": float(v) for k, v in result.timing.items()})
+    else:
+        labels = np.full(len(points), -1, dtype=np.int64)
+        result = ModelingResult(objects=[], timing={})
+    objects = list(result.objects)
+    t2 = time.perf_counter()
+    timing["model_s"] = t2 - t1
+
+    markers = primitives_to_markers(objects, msg.header)
+    t3 = time.perf_counter()
+    timing["markers_s"] = t3 - t2
+    segments_msg = recon_msg = None
+    if segments:
+        segments_msg = segments_cloud(points, labels, msg.header, organized_shape=organized)
+    t4 = time.perf_counter()
+    timing["segments_s"] = t4 - t3
+    if reconstruction:
+        rpts, rids = reconstruct(objects, params.reconstruction_spacing)
+        recon_msg = reconstruction_cloud(rpts, rids, msg.header)
+    timing["reconstruction_s"] = time.perf_counter() - t4
+    return FrameResult(markers=markers, segments=segments_msg, reconstruction=recon_msg,
+                       result=result, labels=labels.astype(np.int64, copy=False),
+                       valid_points=n_valid, timing=timing)
