@@ -477,6 +477,7 @@ def play(path: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False,
          topics: Sequence[str] | None = None,
          remap: Mapping[str, str] | Sequence[str] | None = None, context: Any = None,
          wait_timeout: float = 10.0, stop: threading.Event | None = None,
+         min_subscribers: int = 1,
          node_name: str = "geomodel_player",
          on_start: Callable[[dict[str, str]], None] | None = None) -> int:
     """Publish a bag's PointCloud2 records into DDS at the recorded rate.
@@ -497,6 +498,9 @@ def play(path: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False,
     context : rclpy.context.Context, optional
         An initialized context to publish in.  Without one, a private context is
         initialized (with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and shut down.
+    min_subscribers : int
+        Subscribers (on any played topic) to wait for before publishing (e.g. 2 when a
+        recorder listens besides the node).
     wait_timeout : float
         Wait up to this long [s] for at least one subscriber before the first record;
         ``0`` starts at once.
@@ -559,7 +563,8 @@ def play(path: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False,
         if on_start is not None:
             on_start({n: p.topic_name for n, p in pubs.items()})
         deadline = time.monotonic() + wait_timeout
-        while wait_timeout > 0 and not any(p.get_subscription_count() for p in pubs.values()):
+        while wait_timeout > 0 and max(p.get_subscription_count() for p in pubs.values()) \
+                < min_subscribers:
             if time.monotonic() > deadline:
                 raise BagError(
                     f"no subscriber on {', '.join(p.topic_name for p in pubs.values())} "

@@ -45,7 +45,7 @@ def _node_command(params_file: Path) -> list[str]:
     script = Path(sys.prefix) / "lib" / "geomodel_ros" / "modeler"
     exe = [str(script)] if script.exists() else [sys.executable, "-m", "geomodel_ros.node"]
     return exe + ["--ros-args", "--params-file", str(params_file), "-r", f"points:={TOPIC}",
-                  "-p", "qos_depth:=10"]
+                  "-p", "qos_reliability:=reliable", "-p", "qos_depth:=10"]
 
 
 class _Recorder:
@@ -73,7 +73,7 @@ class _Recorder:
 
     def _on_input(self, msg) -> None:
         with self.lock:
-            self.inputs.setdefault(self._key(msg.header.stamp), time.monotonic())
+            self.inputs[self._key(msg.header.stamp)] = time.monotonic()
 
     def _on_markers(self, msg) -> None:
         if msg.markers:
@@ -179,15 +179,21 @@ def run_demo(out_dir: str | Path = "demo_out", scenes: Sequence[str] = ("scene1"
         else:
             print("[demo] the node did not come up (see demo_out/node.log)", flush=True)
             return 1
-        print(f"[demo] replaying {truth['frames']} frames at {rate} Hz over DDS (loopback) ...",
-              flush=True)
-        play(bag, rate=rate, context=context, wait_timeout=60.0)
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline and node_proc.poll() is None:
+        # DDS can lose the first frames while a new publisher and the node's reader
+        # match; frames without a result are replayed (at most three times in all).
+        for attempt in range(3):
+            print(f"[demo] replaying {truth['frames']} frames at {rate} Hz over DDS "
+                  f"(loopback){' again' if attempt else ''} ...", flush=True)
+            play(bag, rate=rate, context=context, wait_timeout=60.0, min_subscribers=2)
+            deadline = time.monotonic() + min(timeout_s, 15.0 + 3.0 * truth["frames"])
+            while time.monotonic() < deadline and node_proc.poll() is None:
+                with recorder.lock:
+                    if len(recorder.markers) >= truth["frames"]:
+                        break
+                time.sleep(0.05)
             with recorder.lock:
-                if len(recorder.markers) >= truth["frames"]:
+                if len(recorder.markers) >= truth["frames"] or node_proc.poll() is not None:
                     break
-            time.sleep(0.05)
         with recorder.lock:
             markers = dict(recorder.markers)
             inputs = dict(recorder.inputs)
