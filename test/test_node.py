@@ -9,11 +9,9 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 
 import numpy as np
 import pytest
-import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
@@ -21,7 +19,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
@@ -31,25 +29,10 @@ from geomodel_ros.node import NODE_PARAMETERS, ModelerNode
 from geomodel_ros.params import PARAMETERS, ModelingParams, ParameterError
 from geomodel_ros.synth import render_scene
 from msg_adapters.pointcloud2 import cloud_to_fields, cloud_to_xyz_and_mask, xyz_to_cloud
-
-TIMEOUT = 30.0
-FRAME = "camera_optical"
-RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+from ros_helpers import FRAME, RELIABLE, TIMEOUT, scene_cloud, wait_until
 
 
-def wait_until(predicate, what: str, timeout: float = TIMEOUT) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.002)
 
-
-def scene_cloud(name: str, sec: int = 42, nanosec: int = 500) -> PointCloud2:
-    """Organized (H, W) cloud of a synthetic scene, NaN where the camera saw nothing."""
-    scene = render_scene(name)
-    header = Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=FRAME)
-    return xyz_to_cloud(scene.organized, header)
 
 
 class Collector:
@@ -98,14 +81,6 @@ class CoreProbe:
             self.fail_next -= 1
             raise RuntimeError("injected core failure")
         return self.inner(points, params, organized_shape=organized_shape)
-
-
-@pytest.fixture
-def context():
-    ctx = Context()
-    rclpy.init(args=[], context=ctx)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
 
 
 @pytest.fixture

@@ -21,13 +21,11 @@ import time
 
 import numpy as np
 import pytest
-import rclpy
 from builtin_interfaces.msg import Time
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
@@ -35,19 +33,11 @@ from visualization_msgs.msg import Marker, MarkerArray
 from geomodel_ros.node import ModelerNode
 from geomodel_ros.synth import render_scene
 from msg_adapters.pointcloud2 import xyz_to_cloud
-
-TIMEOUT = 30.0
-FRAME = "camera_optical"
-RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+from ros_helpers import FRAME, RELIABLE, TIMEOUT, wait_until
+from ros_helpers import scene_cloud as _scene_cloud
 
 
 # --------------------------------------------------------------------------- plumbing
-def wait_until(predicate, what: str, timeout: float = TIMEOUT) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.002)
 
 
 class MarkerLog:
@@ -121,14 +111,6 @@ class Harness:
 
 
 @pytest.fixture
-def context():
-    ctx = Context()
-    rclpy.init(args=[], context=ctx)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
-
-@pytest.fixture
 def harness(context):
     made: list[Harness] = []
 
@@ -145,13 +127,8 @@ def stamp(sec: int, nanosec: int = 0) -> Header:
     return Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=FRAME)
 
 
-_SCENES: dict[str, np.ndarray] = {}
-
-
 def scene_cloud(name: str, sec: int) -> PointCloud2:
-    if name not in _SCENES:
-        _SCENES[name] = render_scene(name).organized
-    return xyz_to_cloud(_SCENES[name], stamp(sec))
+    return _scene_cloud(name, sec, 0)
 
 
 def shape_namespaces(markers: MarkerArray) -> set[str]:
