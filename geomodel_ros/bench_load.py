@@ -47,6 +47,11 @@ from pathlib import Path
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # before rclpy starts DDS
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+# Several-MB clouds between processes: Fast DDS over shared memory with large segments
+# (inherited by the node process too); see config/fastdds_large_data.xml.
+os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", os.path.join(
+    os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "config",
+    "fastdds_large_data.xml"))
 
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
