@@ -355,10 +355,11 @@ class ModelerNode(Node):
             dropped = self._stats.dropped
             took = self._stats.last_timing.get("total_s", math.nan)
         if replaced:
+            took_s = "first frame still in progress" if math.isnan(took) else \
+                f"last frame took {took:.3f} s"
             self.get_logger().warning(
-                f"input is faster than processing (last frame took {took:.3f} s): only the "
-                f"newest frame is modeled, {dropped} dropped so far",
-                throttle_duration_sec=WARN_THROTTLE_S)
+                f"input is faster than processing ({took_s}): only the newest frame is "
+                f"modeled, {dropped} dropped so far", throttle_duration_sec=WARN_THROTTLE_S)
 
     # ---------------------------------------------------------------------------------
     # worker
