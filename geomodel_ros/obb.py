@@ -16,13 +16,15 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
-__all__ = ["ray_to_plane", "ray_to_cylinder", "min_area_rectangle", "orthonormalize_axes",
-           "interval", "edge_gap"]
+from .fastmath import row_norms
+
+__all__ = ["ray_to_plane", "ray_to_cylinder", "hull_candidates", "min_area_rectangle",
+           "orthonormalize_axes", "interval", "edge_gap"]
 
 
-def _shift_ok(points: NDArray[np.float64], s: NDArray[np.float64], max_shift: float
+def _shift_ok(s: NDArray[np.float64], dist: NDArray[np.float64], max_shift: float
               ) -> NDArray[np.bool_]:
-    return np.isfinite(s) & (np.abs(s - 1.0) * np.linalg.norm(points, axis=1) <= max_shift)
+    return np.isfinite(s) & (np.abs(s - 1.0) * dist <= max_shift)
 
 
 def ray_to_plane(points: NDArray[np.float64], normal: NDArray[np.float64], d: float,
@@ -34,11 +36,11 @@ def ray_to_plane(points: NDArray[np.float64], normal: NDArray[np.float64], d: fl
     are left where they are.
     """
     denom = points @ normal
+    dist = row_norms(points)
     with np.errstate(divide="ignore", invalid="ignore"):
         s = -d / denom
-        grazing = np.abs(denom) < min_cos * np.linalg.norm(points, axis=1)
-    ok = _shift_ok(points, s, max_shift) & ~grazing
-    return np.where(ok[:, None], points * np.where(ok, s, 1.0)[:, None], points)
+    ok = _shift_ok(s, dist, max_shift) & (np.abs(denom) >= min_cos * dist)
+    return points * np.where(ok, s, 1.0)[:, None]
 
 
 def ray_to_cylinder(points: NDArray[np.float64], point: NDArray[np.float64],
@@ -46,7 +48,7 @@ def ray_to_cylinder(points: NDArray[np.float64], point: NDArray[np.float64],
                     ) -> NDArray[np.float64]:
     """Move points along their rays from the origin onto a cylinder (nearest root), at
     most ``max_shift`` [m]."""
-    pp = points - np.outer(points @ axis, axis)
+    pp = points - (points @ axis)[:, None] * axis
     p0 = point - (point @ axis) * axis
     a = np.einsum("ij,ij->i", pp, pp)
     b = -2.0 * (pp @ p0)
@@ -57,8 +59,8 @@ def ray_to_cylinder(points: NDArray[np.float64], point: NDArray[np.float64],
     a_safe = np.where(a > 0, a, 1.0)
     s1, s2 = (-b - sq) / (2 * a_safe), (-b + sq) / (2 * a_safe)
     s = np.where(np.abs(s1 - 1) < np.abs(s2 - 1), s1, s2)
-    ok &= _shift_ok(points, s, max_shift)
-    return np.where(ok[:, None], points * np.where(ok, s, 1.0)[:, None], points)
+    ok &= _shift_ok(s, row_norms(points), max_shift)
+    return points * np.where(ok, s, 1.0)[:, None]
 
 
 def edge_gap(values: NDArray[np.float64], spacing: float) -> float:
@@ -103,6 +105,36 @@ def interval(values: NDArray[np.float64], spacing: float, closed_low: float | No
     return lo, hi
 
 
+def hull_candidates(xy: NDArray[np.float64], directions: int = 8) -> NDArray[np.float64]:
+    """Points of ``xy`` (n, 2) that may be convex-hull vertices (Akl-Toussaint filter).
+
+    The extreme points in ``directions`` evenly spaced directions span a convex polygon
+    inside the hull; points strictly inside it cannot be hull vertices and are dropped,
+    which leaves qhull a small fraction of a dense cloud.
+    """
+    if len(xy) < 64:
+        return xy
+    ang = np.arange(directions) * (2.0 * np.pi / directions)
+    dirs = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    poly = xy[np.argmax(dirs @ xy.T, axis=1)]  # counter-clockwise by construction
+    keep_vertex = np.r_[True, np.any(np.diff(poly, axis=0) != 0, axis=1)]
+    poly = poly[keep_vertex]
+    if len(poly) > 1 and np.all(poly[-1] == poly[0]):
+        poly = poly[:-1]
+    if len(poly) < 3:
+        return xy
+    edges = np.roll(poly, -1, axis=0) - poly
+    inward = np.stack([-edges[:, 1], edges[:, 0]], axis=1)
+    inward /= np.linalg.norm(inward, axis=1, keepdims=True)
+    # Strictly left of every edge = strictly inside; a small margin keeps round-off safe.
+    margin = 1e-9 * float(np.max(np.abs(xy[0]))) + 1e-12
+    offset = np.einsum("ij,ij->i", inward, poly) + margin
+    proj = inward @ xy.T  # (edges, n): reductions along contiguous rows are fast
+    proj -= offset[:, None]
+    inside = proj.min(axis=0) > 0
+    return xy[~inside]
+
+
 def min_area_rectangle(xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
     """Direction (2,) of the first side of the minimum-area enclosing rectangle of ``xy``.
 
@@ -110,7 +142,8 @@ def min_area_rectangle(xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], fl
     and the rectangle's area [m^2].
     """
     try:
-        hull = xy[ConvexHull(xy).vertices]
+        cand = hull_candidates(xy)
+        hull = cand[ConvexHull(cand).vertices]
     except (QhullError, ValueError):
         return np.array([1.0, 0.0]), 0.0
     edges = np.roll(hull, -1, axis=0) - hull

@@ -13,7 +13,7 @@ import math
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 
 from . import obb
 from .errors import InputError, as_points
+from .fastmath import centroid, rows_finite
 from .faces import WorkingCloud, build_working_cloud, faces_from_labels, split_faces
 from .model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
 from .params import ModelingParams
@@ -65,6 +66,10 @@ class _Object:
     params: ModelingParams
     rng: np.random.Generator
     supports: tuple[tuple[NDArray[np.float64], float], ...] = ()
+    center: NDArray[np.float64] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.center = centroid(self.points)
 
     def support_ends(self, axis: NDArray[np.float64], origin: NDArray[np.float64],
                      vmin: float, vmax: float) -> tuple[float | None, float | None]:
@@ -75,7 +80,7 @@ class _Object:
         ``axis`` crosses the object's axis line (through its centroid) within twice
         ``seg_plane_threshold`` of an end, that crossing is the end.
         """
-        ref = self.points.mean(axis=0)
+        ref = self.center
         lo = hi = None
         tol = 2.0 * self.params.seg_plane_threshold
         for n, d in self.supports:
@@ -107,7 +112,7 @@ class _Object:
 
 def _unknown(oid: int, points: NDArray[np.float64], reason: str,
              faces: tuple[FaceSummary, ...] = ()) -> Primitive:
-    center = points.mean(axis=0) if len(points) else np.zeros(3)
+    center = centroid(points)
     return Primitive(oid, "unknown", center, np.eye(3), {}, len(points), 0.0, faces, reason)
 
 
@@ -130,6 +135,19 @@ def _robust_sigma(d: NDArray[np.float64]) -> float:
 
 def _rms(d: NDArray[np.float64]) -> float:
     return float(np.sqrt(np.mean(d * d))) if d.size else 0.0
+
+
+def _nearest_surface(dists: list[NDArray[np.float64]]
+                     ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Index of the smallest of several per-point distance arrays, and that distance
+    (ties go to the first), without stacking them into an (N, k) array."""
+    best = dists[0].copy()
+    which = np.zeros(len(best), dtype=np.int64)
+    for i, d in enumerate(dists[1:], start=1):
+        closer = d < best
+        which[closer] = i
+        np.minimum(best, d, out=best)
+    return which, best
 
 
 def _toward_sensor(n: NDArray[np.float64], at: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -209,7 +227,7 @@ def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
     bad = _verify(ratio, p, "plane")
     if bad:
         return None, bad
-    n = _toward_sensor(model.normal, o.points.mean(axis=0))
+    n = _toward_sensor(model.normal, o.center)
     d = -model.d if n @ model.normal < 0 else model.d
     # Sizing uses the points on the model (flying pixels and strays do not stretch it).
     pts = o.points[np.abs(o.points @ n + d) <= OUTLIER_FACTOR * p.ransac_threshold]
@@ -217,7 +235,7 @@ def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
         pts = obb.ray_to_plane(pts, n, d, 4 * p.ransac_threshold)
     frame = _perp_frame(n)
     # Rectangle direction from the (re-projected) full-resolution outline.
-    direction, _ = obb.min_area_rectangle((pts - pts.mean(axis=0)) @ frame[:, :2])
+    direction, _ = obb.min_area_rectangle((pts - centroid(pts)) @ frame[:, :2])
     u = frame[:, :2] @ direction
     v = np.cross(n, u)
     lo_u, hi_u = obb.interval(pts @ u, o.spacing, correct=p.edge_correction)
@@ -257,10 +275,9 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     rot = obb.orthonormalize_axes(np.array(normals), np.array(weights), assign)
     # Every point is re-assigned to its nearest face plane (edge points may sit in the
     # wrong face) and, optionally, moved onto that plane along its viewing ray.
-    dist = np.stack([np.abs(m.distance(o.points)) for m in planes], axis=1)
-    nearest = np.argmin(dist, axis=1)
+    nearest, nearest_dist = _nearest_surface([np.abs(m.distance(o.points)) for m in planes])
     # Points far from every face (flying pixels, strays) take no part in the sizing.
-    nearest[dist[np.arange(len(nearest)), nearest] > OUTLIER_FACTOR * p.ransac_threshold] = -1
+    nearest[nearest_dist > OUTLIER_FACTOR * p.ransac_threshold] = -1
     q = o.points.copy()
     proj_faces = []
     for fi, model in enumerate(planes):
@@ -289,7 +306,7 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     ext = hi - lo
     prim = Primitive(o.oid, "cuboid", center, rot,
                      {"length": float(ext[0]), "width": float(ext[1]), "height": float(ext[2])},
-                     len(o.points), _rms(dist.min(axis=1)))
+                     len(o.points), _rms(nearest_dist))
     return prim, "cuboid verified"
 
 
@@ -351,9 +368,8 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
     # Each point goes to its nearest surface: the curved model or one of its caps.
     dists = [np.abs(model.distance(o.points))] + \
         [np.abs(o.points @ f.info.normal + f.info.offset) for f in caps]
-    stacked = np.stack(dists, axis=1)
-    nearest = np.argmin(stacked, axis=1)
-    nearest[stacked.min(axis=1) > OUTLIER_FACTOR * p.ransac_threshold] = -1
+    nearest, nearest_dist = _nearest_surface(dists)
+    nearest[nearest_dist > OUTLIER_FACTOR * p.ransac_threshold] = -1
     curved_pts = o.points[nearest == 0]
     if kind == "cylinder":
         if not p.min_radius <= model.radius <= p.max_radius:
@@ -431,7 +447,7 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
     if n < max(params.min_object_points, 4):
         return _unknown(object_id, points, f"{n} points < min_object_points")
     sub = points[:: max(1, n // 5000)]
-    sv = np.linalg.svd(sub - sub.mean(axis=0), compute_uv=False) if np.all(np.isfinite(sub)) \
+    sv = np.linalg.svd(sub - centroid(sub), compute_uv=False) if np.all(np.isfinite(sub)) \
         else np.zeros(3)
     if sv[0] <= 1e-9 or sv[1] <= 1e-6 * sv[0]:
         return _unknown(object_id, points, "degenerate point set (collinear or duplicate)")
@@ -541,7 +557,7 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
     lab = _check_labels(labels, len(pts), "labels")
     flab = None if face_labels is None else _check_labels(face_labels, len(pts), "face_labels")
     rng = np.random.default_rng(params.seed if rng is None else rng)
-    finite = np.all(np.isfinite(pts), axis=1) & (lab >= 0)
+    finite = rows_finite(pts) & (lab >= 0)
     idx_all = np.flatnonzero(finite)
     objects: list[Primitive] = []
     if idx_all.size:

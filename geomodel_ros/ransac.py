@@ -18,6 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from .fastmath import centroid, row_norms
+
 __all__ = [
     "PlaneModel", "SphereModel", "CylinderModel", "ConeModel", "FitResult",
     "fit_plane_svd", "ransac", "refine", "MODELS",
@@ -29,6 +31,16 @@ _EPS = 1e-12
 def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     return v / np.where(n > _EPS, n, 1.0)
+
+
+def _axial_parts(v: NDArray[np.float64], axis: NDArray[np.float64]
+                 ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Split offsets ``v`` (M, 3) from a point on ``axis``: (v, unit radial direction,
+    axial coordinate, radial distance)."""
+    t = v @ axis
+    radial = v - t[:, None] * axis
+    rho = row_norms(radial)
+    return v, radial / np.maximum(rho, _EPS)[:, None], t, rho
 
 
 def _perp_basis(a: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -113,7 +125,7 @@ class SphereModel:
         return dist, cos
 
     def distance(self, p: NDArray) -> NDArray:
-        return np.linalg.norm(p - self.center, axis=1) - self.radius
+        return row_norms(p - self.center) - self.radius
 
     @staticmethod
     def from_batch(h: dict, i: int) -> "SphereModel":
@@ -125,6 +137,12 @@ class SphereModel:
     @staticmethod
     def from_vector(x: NDArray, ref: "SphereModel") -> "SphereModel":
         return SphereModel(x[:3].copy(), float(x[3]))
+
+    @staticmethod
+    def jacobian(x: NDArray, ref: "SphereModel", p: NDArray) -> NDArray:
+        """d distance(p) / d x at ``from_vector(x, ref)``, shape (M, 4)."""
+        u = _unit(p - x[:3])
+        return np.column_stack([-u, -np.ones(len(p))])
 
 
 @dataclass(frozen=True)
@@ -173,8 +191,8 @@ class CylinderModel:
 
     def distance(self, p: NDArray) -> NDArray:
         v = p - self.point
-        radial = v - np.outer(v @ self.axis, self.axis)
-        return np.linalg.norm(radial, axis=1) - self.radius
+        radial = v - (v @ self.axis)[:, None] * self.axis
+        return row_norms(radial) - self.radius
 
     @staticmethod
     def from_batch(h: dict, i: int) -> "CylinderModel":
@@ -192,6 +210,17 @@ class CylinderModel:
         axis = _unit(ref.axis + x[0] * e1 + x[1] * e2)
         point = ref.point + x[2] * e1 + x[3] * e2
         return CylinderModel(point, axis, float(ref.radius + x[4]))
+
+    @staticmethod
+    def jacobian(x: NDArray, ref: "CylinderModel", p: NDArray) -> NDArray:
+        """d distance(p) / d x at ``from_vector(x, ref)``, shape (M, 5)."""
+        e1, e2 = ref._frame()
+        m = CylinderModel.from_vector(x, ref)
+        scale = float(np.linalg.norm(ref.axis + x[0] * e1 + x[1] * e2))
+        v, u, t, _ = _axial_parts(p - m.point, m.axis)
+        ue1, ue2 = u @ e1, u @ e2
+        return np.column_stack([-t * ue1 / scale, -t * ue2 / scale, -ue1, -ue2,
+                                -np.ones(len(p))])
 
 
 @dataclass(frozen=True)
@@ -237,7 +266,7 @@ class ConeModel:
     def distance(self, p: NDArray) -> NDArray:
         v = p - self.apex
         along = v @ self.axis
-        rn = np.linalg.norm(v - np.outer(along, self.axis), axis=1)
+        rn = row_norms(v - along[:, None] * self.axis)
         return rn * math.cos(self.half_angle) - along * math.sin(self.half_angle)
 
     @staticmethod
@@ -252,6 +281,22 @@ class ConeModel:
         e1, e2 = _perp_basis(ref.axis)
         axis = _unit(ref.axis + x[0] * e1 + x[1] * e2)
         return ConeModel(ref.apex + x[2:5], axis, float(ref.half_angle + x[5]))
+
+    @staticmethod
+    def jacobian(x: NDArray, ref: "ConeModel", p: NDArray) -> NDArray:
+        """d distance(p) / d x at ``from_vector(x, ref)``, shape (M, 6)."""
+        e1, e2 = _perp_basis(ref.axis)
+        m = ConeModel.from_vector(x, ref)
+        scale = float(np.linalg.norm(ref.axis + x[0] * e1 + x[1] * e2))
+        a = m.axis
+        v, u, t, rho = _axial_parts(p - m.apex, a)
+        c, s = math.cos(m.half_angle), math.sin(m.half_angle)
+        cols = []
+        for e in (e1, e2):  # axis tilts: d axis = (e - a (a . e)) / scale
+            ve = (v @ e - t * float(a @ e)) / scale
+            cols.append(-c * t * (u @ e) / scale - s * ve)
+        d_apex = -c * u + s * a[None, :]
+        return np.column_stack([*cols, d_apex, -rho * s - t * c])
 
 
 MODELS = {"plane": PlaneModel, "sphere": SphereModel, "cylinder": CylinderModel, "cone": ConeModel}
@@ -269,7 +314,7 @@ class FitResult:
 
 def fit_plane_svd(points: NDArray[np.float64]) -> PlaneModel:
     """Total-least-squares plane through ``points`` (n >= 3, (n, 3) [m])."""
-    c = points.mean(axis=0)
+    c = centroid(points)
     _, _, vt = np.linalg.svd(points - c, full_matrices=False)
     n = vt[2]
     return PlaneModel(n, float(-n @ c))
@@ -365,6 +410,9 @@ def refine(model, points: NDArray[np.float64], threshold: float, rounds: int = 2
         def fun(x, ref=ref, sub=sub):
             return cls.from_vector(x, ref).distance(sub)
 
-        sol = least_squares(fun, x0, method="lm", x_scale="jac", max_nfev=200)
+        def jac(x, ref=ref, sub=sub):
+            return cls.jacobian(x, ref, sub)
+
+        sol = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac", max_nfev=200)
         model = cls.from_vector(sol.x, ref)
     return model

@@ -256,3 +256,23 @@ def test_accept_callback_filters_hypotheses():
     fit = ransac(SphereModel, p, d, THRESHOLD, NORMAL_THRESHOLD, 200, 0.99,
                  np.random.default_rng(0), accept=lambda m: m.radius > 0.1)
     assert fit is None
+
+
+@pytest.mark.parametrize("model", [
+    SphereModel(np.array([0.01, -0.02, 0.5]), 0.03),
+    CylinderModel(np.array([0.0, 0.01, 0.45]), np.array([0.2, 0.9, -0.3]) / np.linalg.norm([0.2, 0.9, -0.3]), 0.04),
+    ConeModel(np.array([0.02, 0.0, 0.4]), np.array([-0.1, 0.3, 0.95]) / np.linalg.norm([-0.1, 0.3, 0.95]), 0.5),
+], ids=["sphere", "cylinder", "cone"])
+def test_analytic_jacobian_matches_finite_differences(model):
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(200, 3)) * 0.05 + np.array([0.0, 0.0, 0.45])
+    cls = type(model)
+    for x in (model.to_vector(), model.to_vector() + rng.normal(size=len(model.to_vector())) * 1e-2):
+        jac = cls.jacobian(x, model, pts)
+        num = np.empty_like(jac)
+        for i in range(len(x)):
+            h = np.zeros(len(x))
+            h[i] = 1e-7
+            num[:, i] = (cls.from_vector(x + h, model).distance(pts)
+                         - cls.from_vector(x - h, model).distance(pts)) / 2e-7
+        np.testing.assert_allclose(jac, num, atol=1e-6, rtol=1e-5)
