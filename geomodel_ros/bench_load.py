@@ -20,7 +20,8 @@ It subscribes to every output (like RViz) and reports:
   failed, from the node's ``/diagnostics``; lost in transport = published - received;
 * processed rate [Hz];
 * latency from the input's stamp (wall clock at publish) to the MarkerArray's arrival:
-  median, p95, max [ms];
+  median, p95, max [ms], and p95 over the single-frame processing time (the node's
+  per-frame work on the same clouds, measured in this process before the load starts);
 * the node process's RSS (``/proc/<pid>/status`` VmRSS) after warm-up, at the end and
   its maximum [MiB];
 * crashes (the node process exiting during the run) and malformed outputs (a marker with
@@ -92,6 +93,26 @@ def _clouds(kind: str, count: int) -> list[PointCloud2]:
         points, _ = load_osd(folder / f"learn{k}.pcd")
         msgs.append(xyz_to_cloud(points.reshape(480, 640, 3), header))
     return msgs
+
+
+def _single_frame_s(clouds: list[PointCloud2], params_file: str | None, repeats: int = 3
+                    ) -> float:
+    """Median time [s] the node's per-frame work (``process_cloud``: conversion, segmentation,
+    modeling, output messages) takes on these clouds, measured here, one frame at a time,
+    before the load starts."""
+    from msg_adapters.processing import process_cloud
+
+    from .params import ModelingParams, load_params_file
+
+    params = load_params_file(params_file) if params_file else ModelingParams()
+    process_cloud(clouds[0], params)  # warm-up (imports, caches)
+    times = []
+    for msg in clouds:
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            process_cloud(msg, params)
+            times.append(time.perf_counter() - t0)
+    return float(np.median(times))
 
 
 def _rss_mib(pid: int) -> float:
@@ -195,6 +216,7 @@ def run(args: argparse.Namespace) -> dict:
         clouds[0].data, dtype=np.float32).reshape(-1, clouds[0].point_step // 4)[:, 0])))
     params = args.params or (str(REPO / "config" / "kinect.yaml")
                              if args.cloud == "kinect" else None)
+    single_s = _single_frame_s(clouds, params)
     cmd = [sys.executable, "-m", "geomodel_ros.node", "--ros-args", "-r", f"points:={TOPIC}",
            "-p", f"qos_reliability:={'reliable' if args.reliable else 'best_effort'}"]
     if params:
@@ -217,7 +239,7 @@ def run(args: argparse.Namespace) -> dict:
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
     report: dict = {"cloud": args.cloud, "rate_hz": rate, "minutes": args.minutes,
-                    "points": valid, "command": cmd}
+                    "points": valid, "command": cmd, "single_frame_ms": 1000.0 * single_s}
     crashed_at = None
     try:
         if not _wait(lambda: rec.pub.get_subscription_count() >= 1
@@ -289,6 +311,8 @@ def run(args: argparse.Namespace) -> dict:
                        "p95": float(np.percentile(lat_ms, 95)) if lat_ms.size else math.nan,
                        "max": float(lat_ms.max()) if lat_ms.size else math.nan},
         "latency_ms_first_last_third": _thirds(lat_ms),
+        "latency_p95_over_single_frame": float(np.percentile(lat_ms, 95)) / (1000.0 * single_s)
+        if lat_ms.size else math.nan,
         "rss_mib": {"after_warmup": rss_warm, "end": rss_end, "max": rss_max,
                     "growth_pct": 100.0 * (rss_end / rss_warm - 1.0)
                     if rss_warm > 0 else math.nan},
@@ -321,6 +345,9 @@ def _print(r: dict) -> None:
     print(f"  latency stamp -> MarkerArray [ms]: median {lat['median']:.0f}, p95 "
           f"{lat['p95']:.0f}, max {lat['max']:.0f}; median first/last third "
           f"{r['latency_ms_first_last_third'][0]:.0f}/{r['latency_ms_first_last_third'][1]:.0f}")
+    print(f"  single-frame processing (before the load, median) {r['single_frame_ms']:.0f} ms; "
+          f"latency p95 / single frame = {r['latency_p95_over_single_frame']:.2f} "
+          f"(target <= 1.5)")
     print(f"  node RSS [MiB]: after warm-up {rss['after_warmup']:.0f}, end {rss['end']:.0f} "
           f"({rss['growth_pct']:+.1f} %), max {rss['max']:.0f}")
     print(f"  crashes: {'YES after %.0f s' % r['crashed_after_s'] if r['crashed'] else 'none'} "

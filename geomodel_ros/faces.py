@@ -14,13 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import coo_matrix
+from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .fastmath import col_max, col_min
+from .fastmath import centroid, col_max, col_min, knn
 
 __all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_working_cloud",
+           "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
            "split_faces", "faces_from_labels"]
 
 
@@ -68,10 +69,6 @@ def smallest_eigenpairs(cov: NDArray[np.float64]
                         ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Smallest eigenvalue and its unit eigenvector of many symmetric 3x3 matrices.
 
-    Closed form (trigonometric solution of the characteristic cubic, eigenvector from the
-    largest cross product of two rows of A - lambda I), vectorised; falls back to
-    :func:`numpy.linalg.eigh` for the rare near-degenerate matrices.
-
     Parameters
     ----------
     cov : (M, 3, 3) float64 array, symmetric positive semi-definite
@@ -81,35 +78,78 @@ def smallest_eigenpairs(cov: NDArray[np.float64]
     lam : (M,) float64, smallest eigenvalue
     vec : (M, 3) float64, unit eigenvectors
     """
-    a = cov
-    scale = np.maximum(np.abs(a).reshape(len(a), -1).max(axis=1), 1e-300)
-    a = a / scale[:, None, None]
-    q = np.trace(a, axis1=1, axis2=2) / 3.0
-    off = a[:, 0, 1] ** 2 + a[:, 0, 2] ** 2 + a[:, 1, 2] ** 2
-    diag = a[:, [0, 1, 2], [0, 1, 2]] - q[:, None]
-    p = np.sqrt((np.sum(diag * diag, axis=1) + 2.0 * off) / 6.0)
-    p_safe = np.where(p > 0, p, 1.0)
-    b = (a - q[:, None, None] * np.eye(3)) / p_safe[:, None, None]
-    r = np.clip(np.linalg.det(b) / 2.0, -1.0, 1.0)
-    phi = np.arccos(r) / 3.0
+    return smallest_eigenpairs_sym(cov[:, 0, 0], cov[:, 0, 1], cov[:, 0, 2], cov[:, 1, 1],
+                                   cov[:, 1, 2], cov[:, 2, 2])
+
+
+def smallest_eigenpairs_sym(xx: NDArray, xy: NDArray, xz: NDArray, yy: NDArray, yz: NDArray,
+                            zz: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`smallest_eigenpairs` of the matrices [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]
+    given as six (M,) arrays of their distinct entries.
+
+    Closed form (trigonometric solution of the characteristic cubic, eigenvector from the
+    largest cross product of two rows of A - lambda I), on flat arrays only; falls back to
+    :func:`numpy.linalg.eigh` for the rare near-degenerate matrices.
+    """
+    m = len(xx)
+    scale = np.abs(xx)
+    for v in (xy, xz, yy, yz, zz):
+        scale = np.maximum(scale, np.abs(v))
+    scale = np.maximum(scale, 1e-300)
+    a, b, c, d, e, f = (v / scale for v in (xx, xy, xz, yy, yz, zz))
+    q = (a + d + f) / 3.0
+    a0, d0, f0 = a - q, d - q, f - q
+    off = b * b + c * c + e * e
+    p = np.sqrt((a0 * a0 + d0 * d0 + f0 * f0 + 2.0 * off) / 6.0)
+    inv_p = 1.0 / np.where(p > 0, p, 1.0)
+    ba, bb, bc, bd, be, bf = a0 * inv_p, b * inv_p, c * inv_p, d0 * inv_p, e * inv_p, f0 * inv_p
+    det = ba * (bd * bf - be * be) - bb * (bb * bf - be * bc) + bc * (bb * be - bd * bc)
+    phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
     lam = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)   # smallest root
-    shifted = a - lam[:, None, None] * np.eye(3)
-    c01 = np.cross(shifted[:, 0], shifted[:, 1])
-    c02 = np.cross(shifted[:, 0], shifted[:, 2])
-    c12 = np.cross(shifted[:, 1], shifted[:, 2])
-    cands = np.stack([c01, c02, c12], axis=1)
-    norms = np.linalg.norm(cands, axis=2)
-    best = np.argmax(norms, axis=1)
-    idx = np.arange(len(a))
-    vec = cands[idx, best]
-    nrm = norms[idx, best]
+    # Rows of A - lam I: r0 = (a', b, c), r1 = (b, d', e), r2 = (c, e, f').
+    al, dl, fl = a - lam, d - lam, f - lam
+    c01 = np.stack([b * e - c * dl, c * b - al * e, al * dl - b * b])
+    c02 = np.stack([b * fl - c * e, c * c - al * fl, al * e - b * c])
+    c12 = np.stack([dl * fl - e * e, e * c - b * fl, b * e - dl * c])
+    n01, n02, n12 = (np.einsum("ij,ij->j", v, v) for v in (c01, c02, c12))
+    vec = np.where(n01 >= n02, c01, c02)
+    nrm = np.maximum(n01, n02)
+    vec = np.where(n12 > nrm, c12, vec)
+    nrm = np.sqrt(np.maximum(nrm, n12))
     bad = nrm < 1e-8
-    vec = vec / np.where(bad, 1.0, nrm)[:, None]
+    vec = (vec / np.where(bad, 1.0, nrm)).T.copy()
     if bad.any():
-        w, v = np.linalg.eigh(cov[bad])
-        vec[bad] = v[:, :, 0]
-        lam[bad] = w[:, 0] / scale[bad]
+        sel = np.flatnonzero(bad)
+        cov = np.empty((len(sel), 3, 3))
+        for (i, j), v in zip(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)),
+                             (xx, xy, xz, yy, yz, zz)):
+            cov[:, i, j] = cov[:, j, i] = v[sel]
+        w, vv = np.linalg.eigh(cov)
+        vec[sel] = vv[:, :, 0]
+        lam[sel] = w[:, 0] / scale[sel]
+    assert vec.shape == (m, 3)
     return np.maximum(lam, 0.0) * scale, vec
+
+
+def neighborhood_moments(points: NDArray[np.float64], neighbors: NDArray[np.int64]
+                         ) -> tuple[NDArray[np.float64], ...]:
+    """Covariance entries (xx, xy, xz, yy, yz, zz), each (M,), of every point's
+    neighbourhood ``points[neighbors[i]]`` (neighbors (M, k) int).
+
+    Sums over the neighbourhoods are one sparse-matrix product of the neighbour
+    incidence matrix with per-point monomials (coordinates taken relative to the cloud's
+    centroid, which keeps the moment differences well conditioned).
+    """
+    m, k = neighbors.shape
+    q = points - centroid(points)
+    x, y, z = q[:, 0], q[:, 1], q[:, 2]
+    mono = np.column_stack([x, y, z, x * x, x * y, x * z, y * y, y * z, z * z])
+    incidence = csr_matrix((np.full(m * k, 1.0 / k), neighbors.ravel(),
+                            np.arange(0, m * k + 1, k)), shape=(m, len(points)))
+    s = incidence @ mono
+    mx, my, mz = s[:, 0], s[:, 1], s[:, 2]
+    return (s[:, 3] - mx * mx, s[:, 4] - mx * my, s[:, 5] - mx * mz,
+            s[:, 6] - my * my, s[:, 7] - my * mz, s[:, 8] - mz * mz)
 
 
 def estimate_normals(points: NDArray[np.float64], k: int,
@@ -128,15 +168,14 @@ def estimate_normals(points: NDArray[np.float64], k: int,
     """
     m = len(points)
     k = int(min(k, m))
-    tree = tree if tree is not None else cKDTree(points)
-    _, neighbors = tree.query(points, k=k, workers=-1 if m > 5000 else 1)
-    neighbors = np.asarray(neighbors, dtype=np.int64).reshape(m, k)
-    nb = points[neighbors]
-    nb -= nb.mean(axis=1, keepdims=True)
-    cov = np.matmul(nb.transpose(0, 2, 1), nb)  # batched BLAS, far faster than einsum
-    cov /= k
-    lam, normals = smallest_eigenpairs(cov)
-    total = np.trace(cov, axis1=1, axis2=2)
+    if tree is not None:
+        _, neighbors = tree.query(points, k=k, workers=-1 if m > 5000 else 1)
+        neighbors = np.asarray(neighbors, dtype=np.int64).reshape(m, k)
+    else:
+        neighbors = knn(points, k)
+    xx, xy, xz, yy, yz, zz = neighborhood_moments(points, neighbors)
+    lam, normals = smallest_eigenpairs_sym(xx, xy, xz, yy, yz, zz)
+    total = xx + yy + zz
     variation = np.divide(lam, total, out=np.zeros(m), where=total > 0)
     vp = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64)
     flip = np.einsum("mi,mi->m", normals, points - vp) > 0

@@ -115,8 +115,7 @@ def _convex_objects(points: NDArray[np.float64], params: ModelingParams) -> NDAr
     Links longer than ``seg_max_edge_factor`` voxels (depth jumps) do not vote.
     """
     m = len(points)
-    tree = cKDTree(points)
-    normals, variation, nbrs = estimate_normals(points, params.normal_neighbors, tree=tree)
+    normals, variation, nbrs = estimate_normals(points, params.normal_neighbors)
     cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
                          np.arange(m))
     max_edge = params.seg_max_edge_factor * params.seg_voxel_size
@@ -378,8 +377,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     if m < 4:
         timing["segmentation_s"] = time.perf_counter() - t0
         return Segmentation(labels, [], timing)
-    tree = cKDTree(wp)
-    wn, variation, nbrs = estimate_normals(wp, params.normal_neighbors, tree=tree)
+    wn, variation, nbrs = estimate_normals(wp, params.normal_neighbors)
     t1 = time.perf_counter()
     timing["seg_normals_s"] = t1 - t0
 

@@ -82,3 +82,26 @@ def test_tiny_inputs_do_not_crash(n):
     pts = np.random.default_rng(n).random((n, 3))
     normals, variation, nbrs = estimate_normals(pts, 16)
     assert normals.shape == (n, 3) and np.all(np.isfinite(normals))
+
+
+def test_neighborhood_moments_match_direct_covariances():
+    from geomodel_ros.faces import neighborhood_moments
+    rng = np.random.default_rng(7)
+    # Far from the origin and nearly planar: the case where raw moments lose precision.
+    pts = rng.normal(size=(500, 3)) * [0.01, 0.01, 1e-5] + [0.3, -0.2, 0.9]
+    nbrs = rng.integers(0, 500, size=(500, 12))
+    got = np.stack(neighborhood_moments(pts, nbrs), axis=1)
+    x = pts[nbrs] - pts[nbrs].mean(axis=1, keepdims=True)
+    cov = np.einsum("mki,mkj->mij", x, x) / 12
+    want = cov[:, [0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]]
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-15)
+
+
+def test_estimate_normals_equal_eigh_of_the_neighbourhood_covariance():
+    rng = np.random.default_rng(8)
+    pts = rng.normal(size=(800, 3)) * [0.05, 0.03, 0.002] + [0.0, 0.1, 0.6]
+    normals, variation, nbrs = estimate_normals(pts, 10)
+    x = pts[nbrs] - pts[nbrs].mean(axis=1, keepdims=True)
+    w, v = np.linalg.eigh(np.einsum("mki,mkj->mij", x, x) / 10)
+    assert np.all(np.abs(np.einsum("mi,mi->m", normals, v[:, :, 0])) > 1 - 1e-9)
+    np.testing.assert_allclose(variation, w[:, 0] / w.sum(axis=1), rtol=1e-6, atol=1e-12)
