@@ -183,6 +183,14 @@ def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
     if all(planar):
         return _planar_decision(faces, adjacency, tol, coplanar_tol)
     if any(planar):
+        total = sum(f.size for f in faces)
+        curved = sum(f.size for f in faces if not f.planar)
+        if curved < SLIVER_SHARE * total:
+            # Curved slivers (rounded edges, noise) on a planar object: the planar faces
+            # decide.
+            d = _planar_decision(faces, adjacency, tol, coplanar_tol)
+            return GraphDecision(d.category, d.candidates, d.main_face, d.axis_of_face,
+                                 d.reason + " (curved slivers ignored)")
         return _mixed_decision(faces, tol)
     if curvature is None:
         return GraphDecision("curved", ("cylinder", "cone", "sphere"), -1, (), "all faces curved")

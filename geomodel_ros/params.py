@@ -137,6 +137,10 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Largest accepted cylinder, cone or sphere radius."),
     ParamSpec("min_cone_half_angle", 0.05, "rad", 0.0, 1.5,
               "Cone fits with a smaller half-angle are cylinders."),
+    ParamSpec("min_arc", 0.785, "rad", 0.0, 6.2832,
+              "Smallest arc a cylinder's or cone's points must span around its axis (a "
+              "shallow arc of a noisy surface fits any large radius; such objects are "
+              "unknown)."),
     # --- sizing and reconstruction --------------------------------------------------------
     ParamSpec("edge_correction", True, "", None, None,
               "Extend open extents by half the point spacing (the sampling gap at an edge)."),

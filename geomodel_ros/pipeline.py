@@ -126,6 +126,34 @@ def _perp_frame(z: NDArray[np.float64]) -> NDArray[np.float64]:
 #: Points farther than this many RANSAC thresholds from the fitted surfaces are outliers
 #: for sizing.
 OUTLIER_FACTOR = 3.0
+#: A model on whose surfaces (within OUTLIER_FACTOR thresholds) less than this share of
+#: its object's points lie does not describe that object (e.g. a huge cylinder through a
+#: small curved sliver of a box) and is rejected.
+MIN_COVERAGE = 0.5
+
+
+#: A cone's points must reach within this share of its height from the apex (a frustum
+#: such as a cup is not a cone).
+CONE_APEX_REACH = 0.5
+
+
+def _arc_span(pts: NDArray[np.float64], origin: NDArray[np.float64],
+              axis: NDArray[np.float64]) -> float:
+    """Angle [rad] that points span around an axis (2 pi minus the largest empty gap)."""
+    if len(pts) < 3:
+        return 0.0
+    frame = _perp_frame(axis)
+    v = pts - origin
+    ang = np.sort(np.arctan2(v @ frame[:, 1], v @ frame[:, 0]))
+    gaps = np.diff(np.r_[ang, ang[0] + 2.0 * math.pi])
+    return float(2.0 * math.pi - gaps.max())
+
+
+def _coverage(on_model: NDArray[np.bool_], what: str) -> str | None:
+    share = float(np.mean(on_model)) if on_model.size else 0.0
+    if share < MIN_COVERAGE:
+        return f"{what} rejected: only {share:.0%} of the object's points lie on it"
+    return None
 
 
 def _robust_sigma(d: NDArray[np.float64]) -> float:
@@ -230,7 +258,11 @@ def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
     n = _toward_sensor(model.normal, o.center)
     d = -model.d if n @ model.normal < 0 else model.d
     # Sizing uses the points on the model (flying pixels and strays do not stretch it).
-    pts = o.points[np.abs(o.points @ n + d) <= OUTLIER_FACTOR * p.ransac_threshold]
+    on = np.abs(o.points @ n + d) <= OUTLIER_FACTOR * p.ransac_threshold
+    bad = _coverage(on, "plane")
+    if bad:
+        return None, bad
+    pts = o.points[on]
     if p.reproject_along_rays:
         pts = obb.ray_to_plane(pts, n, d, 4 * p.ransac_threshold)
     frame = _perp_frame(n)
@@ -278,6 +310,9 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     nearest, nearest_dist = _nearest_surface([np.abs(m.distance(o.points)) for m in planes])
     # Points far from every face (flying pixels, strays) take no part in the sizing.
     nearest[nearest_dist > OUTLIER_FACTOR * p.ransac_threshold] = -1
+    bad = _coverage(nearest >= 0, "cuboid")
+    if bad:
+        return None, bad
     q = o.points.copy()
     proj_faces = []
     for fi, model in enumerate(planes):
@@ -370,7 +405,14 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
         [np.abs(o.points @ f.info.normal + f.info.offset) for f in caps]
     nearest, nearest_dist = _nearest_surface(dists)
     nearest[nearest_dist > OUTLIER_FACTOR * p.ransac_threshold] = -1
+    bad = _coverage(nearest >= 0, kind)
+    if bad:
+        return None, bad
     curved_pts = o.points[nearest == 0]
+    arc = _arc_span(curved_pts, model.point if kind == "cylinder" else model.apex, axis)
+    if arc < p.min_arc:
+        return None, (f"{kind} rejected: its points span only {math.degrees(arc):.0f} deg "
+                      f"around the axis")
     if kind == "cylinder":
         if not p.min_radius <= model.radius <= p.max_radius:
             return None, f"cylinder radius {model.radius:.4f} m out of range"
@@ -412,6 +454,9 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
     height = hi if hi > 0 else 0.0
     if height <= 0 or (lo < -0.2 * height):
         return None, "cone points lie on both sides of the apex"
+    if lo > CONE_APEX_REACH * height:
+        return None, (f"cone rejected: its points stop {lo * 1000:.0f} mm short of the apex "
+                      f"(a frustum)")
     radius = height * math.tan(model.half_angle)
     if not p.min_radius <= radius <= p.max_radius:
         return None, f"cone radius {radius:.4f} m out of range"

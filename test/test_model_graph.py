@@ -273,3 +273,17 @@ def test_all_curved_uses_curvature_in_decide_type():
     assert d == GraphDecision("curved", ("sphere",), -1, (), d.reason)
     d = decide(faces, curvature=None)
     assert d.candidates == ("cylinder", "cone", "sphere")
+
+
+def test_a_curved_sliver_on_a_box_does_not_make_it_mixed():
+    # Three perpendicular box faces and a small rounded edge (2 % of the points).
+    faces = [planar([0, 0, -1], [0, 0, 0.5], 400), planar([1, 0, 0], [0.05, 0, 0.52], 300),
+             planar([0, 1, 0], [0, 0.05, 0.52], 300),
+             curved(np.c_[np.cos(np.linspace(0, 1.5, 20)), np.zeros(20),
+                          -np.sin(np.linspace(0, 1.5, 20))])]
+    d = decide(faces)
+    assert d.candidates == ("cuboid",) and "curved slivers ignored" in d.reason
+    assert sorted(d.axis_of_face[:3]) == [0, 1, 2]
+    # A larger curved part keeps the mixed rules (the box-with-rounded-side is no cuboid).
+    big = faces[:3] + [curved(np.tile([[0.7, 0, -0.7]], (200, 1)))]
+    assert decide(big).category == "mixed"

@@ -362,3 +362,42 @@ def test_one_close_flying_pixel_keeps_the_cylinder():
     assert cyl.type == "cylinder"
     assert cyl.dimensions["radius"] == pytest.approx(0.040, abs=1.0 * MM)
     assert cyl.dimensions["height"] == pytest.approx(0.070, abs=1.0 * MM)
+
+
+def _camera_facing(points: np.ndarray, rng: np.random.Generator, sigma: float) -> np.ndarray:
+    """Keep the points a camera at the origin sees on a convex surface, add depth noise."""
+    return points * (1.0 + sigma * rng.standard_normal((len(points), 1)) / 0.8)
+
+
+def test_a_shallow_arc_is_not_a_cylinder_unless_min_arc_allows_it():
+    # 25 degrees of a 1 m-radius cylinder, 0.15 m tall, 0.8 m in front of the camera:
+    # curved well beyond the inlier threshold, but too shallow an arc to judge the axis
+    # from on real data (default min_arc 45 deg); a smaller min_arc accepts it.
+    rng = np.random.default_rng(4)
+    ang = rng.uniform(-math.radians(12.5), math.radians(12.5), 20000)
+    y = rng.uniform(-0.075, 0.075, 20000)
+    pts = np.column_stack([np.sin(ang), y, 1.8 - np.cos(ang)])
+    pts = _camera_facing(pts, rng, 0.0003)
+    labels = np.zeros(len(pts), dtype=np.int64)
+    params = load_params_file(CONFIG / "kinect.yaml")
+    obj = model_objects(pts, labels, params).objects[0]
+    assert obj.type == "unknown" and "around the axis" in obj.reason, obj.reason
+    loose = ModelingParams.from_mapping({"min_arc": math.radians(15)}, base=params)
+    obj = model_objects(pts, labels, loose).objects[0]
+    assert obj.type == "cylinder", obj.reason
+    assert obj.dimensions["radius"] == pytest.approx(1.0, rel=0.05)
+
+
+def test_a_frustum_is_not_modeled_as_a_cone():
+    # A cup-like truncated cone: the side from 60 % to 100 % of the full cone's height,
+    # seen from the side; the full cone's apex lies far above every point.
+    rng = np.random.default_rng(5)
+    half, height = math.radians(15), 0.25
+    t = np.sqrt(rng.uniform(0.6 ** 2, 1.0, 30000)) * height
+    phi = rng.uniform(-math.pi / 2, math.pi / 2, 30000)
+    r = t * math.tan(half)
+    local = np.column_stack([r * np.sin(phi), -t, -r * np.cos(phi)])  # apex at 0, axis -y
+    pts = local + [0.0, 0.1, 0.7]
+    pts = _camera_facing(pts, rng, 0.0002)
+    obj = model_objects(pts, np.zeros(len(pts), dtype=np.int64), ModelingParams()).objects[0]
+    assert obj.type != "cone", obj.reason
