@@ -91,7 +91,6 @@ def smallest_eigenpairs_sym(xx: NDArray, xy: NDArray, xz: NDArray, yy: NDArray, 
     largest cross product of two rows of A - lambda I), on flat arrays only; falls back to
     :func:`numpy.linalg.eigh` for the rare near-degenerate matrices.
     """
-    m = len(xx)
     scale = np.abs(xx)
     for v in (xy, xz, yy, yz, zz):
         scale = np.maximum(scale, np.abs(v))
@@ -127,7 +126,6 @@ def smallest_eigenpairs_sym(xx: NDArray, xy: NDArray, xz: NDArray, yy: NDArray, 
         w, vv = np.linalg.eigh(cov)
         vec[sel] = vv[:, :, 0]
         lam[sel] = w[:, 0] / scale[sel]
-    assert vec.shape == (m, 3)
     return np.maximum(lam, 0.0) * scale, vec
 
 
@@ -153,8 +151,7 @@ def neighborhood_moments(points: NDArray[np.float64], neighbors: NDArray[np.int6
 
 
 def estimate_normals(points: NDArray[np.float64], k: int,
-                     viewpoint: NDArray[np.float64] | None = None,
-                     tree: cKDTree | None = None
+                     viewpoint: NDArray[np.float64] | None = None
                      ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
     """PCA normals over the ``k`` nearest neighbours, oriented towards ``viewpoint``.
 
@@ -164,15 +161,13 @@ def estimate_normals(points: NDArray[np.float64], k: int,
     variation : (M,) float64 array
         Surface variation lambda_min / (lambda_1 + lambda_2 + lambda_3) in [0, 1/3].
     neighbors : (M, k) int64 array
-        Neighbour indices (the point itself first).
+        Neighbour indices, nearest first (the point itself among them).
     """
     m = len(points)
     k = int(min(k, m))
-    if tree is not None:
-        _, neighbors = tree.query(points, k=k, workers=-1 if m > 5000 else 1)
-        neighbors = np.asarray(neighbors, dtype=np.int64).reshape(m, k)
-    else:
-        neighbors = knn(points, k)
+    if k == 0:
+        return np.zeros((m, 3)), np.zeros(m), np.zeros((m, 0), dtype=np.int64)
+    neighbors = knn(points, k)
     xx, xy, xz, yy, yz, zz = neighborhood_moments(points, neighbors)
     lam, normals = smallest_eigenpairs_sym(xx, xy, xz, yy, yz, zz)
     total = xx + yy + zz
