@@ -22,8 +22,9 @@ It subscribes to every output (like RViz) and reports:
 * latency from the input's stamp (wall clock at publish) to the MarkerArray's arrival:
   median, p95, max [ms], and p95 over the single-frame processing time (the node's
   per-frame work on the same clouds, measured in this process before the load starts);
-* the node process's RSS (``/proc/<pid>/status`` VmRSS) after warm-up, at the end and
-  its maximum [MiB];
+* the node process's RSS (``/proc/<pid>/status`` VmRSS, sampled at 1 Hz) after warm-up
+  and at the end (medians of one-minute windows), its growth, and the maximum of each
+  half of the run [MiB];
 * crashes (the node process exiting during the run) and malformed outputs (a marker with
   a non-finite pose or a non-positive scale, or a header other than the input's).
 
@@ -251,7 +252,8 @@ def run(args: argparse.Namespace) -> dict:
         start = time.monotonic()
         end = start + 60.0 * args.minutes
         published = 0
-        rss_warm, rss_max, next_rss = math.nan, 0.0, start
+        rss_series: list[tuple[float, float]] = []  # (seconds since start, MiB), 1 Hz
+        next_rss = start
         published_warm = 0
         tick = threading.Event()
         while (now := time.monotonic()) < end:
@@ -264,14 +266,12 @@ def run(args: argparse.Namespace) -> dict:
             rec.pub.publish(msg)
             published += 1
             if now >= next_rss:
-                rss = _rss_mib(proc.pid)
-                rss_max = max(rss_max, rss)
+                rss_series.append((now - start, _rss_mib(proc.pid)))
                 next_rss = now + 1.0
-                if math.isnan(rss_warm) and now - start >= args.warmup:
-                    rss_warm, published_warm = rss, published
+                if not published_warm and now - start >= args.warmup:
+                    published_warm = published
             tick.wait(max(0.0, start + published * period - time.monotonic()))  # pacing
         elapsed = time.monotonic() - start
-        rss_end = _rss_mib(proc.pid)
         # the last diagnostics (1 Hz) after the input stopped
         with rec.lock:
             seen = dict(rec.diagnostics)
@@ -313,9 +313,7 @@ def run(args: argparse.Namespace) -> dict:
         "latency_ms_first_last_third": _thirds(lat_ms),
         "latency_p95_over_single_frame": float(np.percentile(lat_ms, 95)) / (1000.0 * single_s)
         if lat_ms.size else math.nan,
-        "rss_mib": {"after_warmup": rss_warm, "end": rss_end, "max": rss_max,
-                    "growth_pct": 100.0 * (rss_end / rss_warm - 1.0)
-                    if rss_warm > 0 else math.nan},
+        "rss_mib": _rss_summary(rss_series, args.warmup, elapsed),
         "published_during_warmup": published_warm,
         "crashed": crashed_at is not None,
         "crashed_after_s": crashed_at,
@@ -325,6 +323,28 @@ def run(args: argparse.Namespace) -> dict:
         "node_log": log.name,
     })
     return report
+
+
+def _rss_summary(series: list[tuple[float, float]], warmup: float, elapsed: float,
+                 window: float = 60.0) -> dict:
+    """RSS [MiB] after warm-up and at the end, each the median of a ``window`` of 1 Hz
+    samples (single samples swing by tens of MiB with the allocator's high-water marks),
+    their growth [%], and the maximum of each half of the run (a leak raises the second)."""
+    t = np.array([s for s, _ in series])
+    v = np.array([m for _, m in series])
+    ok = np.isfinite(v)
+    warm = v[ok & (t >= warmup) & (t < warmup + window)]
+    end = v[ok & (t >= elapsed - window)]
+    half = elapsed / 2.0
+    first, second = v[ok & (t >= warmup) & (t < half)], v[ok & (t >= half)]
+    warm_m = float(np.median(warm)) if warm.size else math.nan
+    end_m = float(np.median(end)) if end.size else math.nan
+    return {"after_warmup": warm_m, "end": end_m,
+            "growth_pct": 100.0 * (end_m / warm_m - 1.0) if warm_m > 0 else math.nan,
+            "max": float(v[ok].max()) if ok.any() else math.nan,
+            "max_first_half": float(first.max()) if first.size else math.nan,
+            "max_second_half": float(second.max()) if second.size else math.nan,
+            "window_s": window, "samples": int(ok.sum())}
 
 
 def _thirds(lat_ms: np.ndarray) -> list[float]:
@@ -348,8 +368,9 @@ def _print(r: dict) -> None:
     print(f"  single-frame processing (before the load, median) {r['single_frame_ms']:.0f} ms; "
           f"latency p95 / single frame = {r['latency_p95_over_single_frame']:.2f} "
           f"(target <= 1.5)")
-    print(f"  node RSS [MiB]: after warm-up {rss['after_warmup']:.0f}, end {rss['end']:.0f} "
-          f"({rss['growth_pct']:+.1f} %), max {rss['max']:.0f}")
+    print(f"  node RSS [MiB] (medians of {rss['window_s']:.0f} s windows): after warm-up "
+          f"{rss['after_warmup']:.0f}, end {rss['end']:.0f} ({rss['growth_pct']:+.1f} %); max "
+          f"first / second half {rss['max_first_half']:.0f} / {rss['max_second_half']:.0f}")
     print(f"  crashes: {'YES after %.0f s' % r['crashed_after_s'] if r['crashed'] else 'none'} "
           f"(exit status on SIGINT {r['node_exit_status']}); malformed outputs "
           f"{r['malformed_outputs']} {r['malformed_examples'] or ''}")
@@ -365,7 +386,7 @@ def main(argv: list[str] | None = None) -> int:
                         "config/kinect.yaml by default)")
     parser.add_argument("--reliable", action="store_true",
                         help="reliable input QoS (default: best effort, like a camera)")
-    parser.add_argument("--warmup", type=float, default=15.0,
+    parser.add_argument("--warmup", type=float, default=60.0,
                         help="seconds before the reference RSS is taken")
     parser.add_argument("--kinect-scenes", type=int, default=8,
                         help="osd_learn scenes cycled through (kinect)")
