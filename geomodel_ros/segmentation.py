@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 
 from .errors import as_points
 from .faces import WorkingCloud, estimate_normals, split_faces, voxelize
+from .fastmath import row_norms, rows_finite
 from .params import ModelingParams
 from .ransac import PlaneModel, fit_plane_svd, ransac, refine
 
@@ -125,7 +126,7 @@ def _convex_objects(points: NDArray[np.float64], params: ModelingParams) -> NDAr
     i = np.repeat(np.arange(m), k)
     j = nbrs.ravel()
     d = points[i] - points[j]
-    dist = np.linalg.norm(d, axis=1)
+    dist = row_norms(d)
     ok = (i != j) & (dist <= max_edge)
     i, j, d, dist = i[ok], j[ok], d[ok], dist[ok]
     convexity = np.einsum("ij,ij->i", normals[i] - normals[j], d) / np.maximum(dist, 1e-12)
@@ -366,7 +367,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     rng = np.random.default_rng(params.seed if rng is None else rng)
     n = len(pts)
     labels = np.full(n, -1, dtype=np.int64)
-    finite = np.flatnonzero(np.all(np.isfinite(pts), axis=1))
+    finite = np.flatnonzero(rows_finite(pts))
     timing: dict[str, float] = {}
     if len(finite) < 3:
         timing["segmentation_s"] = time.perf_counter() - t0
