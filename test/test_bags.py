@@ -16,8 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
-from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -356,14 +354,6 @@ def test_progress_counter(clean_bag, tmp_path, capsys):
 # ---------------------------------------------------------------------------------------
 # replay into a live node
 # ---------------------------------------------------------------------------------------
-
-@pytest.fixture
-def context():
-    ctx = Context()
-    rclpy.init(args=[], context=ctx)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
 
 class Spinning:
     """Nodes spun by an executor thread."""
