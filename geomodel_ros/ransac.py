@@ -35,12 +35,15 @@ def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def _axial_parts(v: NDArray[np.float64], axis: NDArray[np.float64]
                  ) -> tuple[NDArray, NDArray, NDArray]:
-    """Split offsets ``v`` (M, 3) from a point on ``axis``: (unit radial direction,
-    axial coordinate, radial distance)."""
+    """Split offsets ``v`` (M, 3) from a point on the unit ``axis``: (radial part (M, 3),
+    axial coordinate (M,), radial distance (M,))."""
     t = v @ axis
     radial = v - t[:, None] * axis
-    rho = row_norms(radial)
-    return radial / np.maximum(rho, _EPS)[:, None], t, rho
+    return radial, t, row_norms(radial)
+
+
+def _radial_units(radial: NDArray[np.float64], rho: NDArray[np.float64]) -> NDArray:
+    return radial / np.maximum(rho, _EPS)[:, None]
 
 
 def _perp_basis(a: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -190,9 +193,7 @@ class CylinderModel:
         return dist, cos
 
     def distance(self, p: NDArray) -> NDArray:
-        v = p - self.point
-        radial = v - (v @ self.axis)[:, None] * self.axis
-        return row_norms(radial) - self.radius
+        return _axial_parts(p - self.point, self.axis)[2] - self.radius
 
     @staticmethod
     def from_batch(h: dict, i: int) -> "CylinderModel":
@@ -217,7 +218,8 @@ class CylinderModel:
         e1, e2 = ref._frame()
         m = CylinderModel.from_vector(x, ref)
         scale = float(np.linalg.norm(ref.axis + x[0] * e1 + x[1] * e2))
-        u, t, _ = _axial_parts(p - m.point, m.axis)
+        radial, t, rho = _axial_parts(p - m.point, m.axis)
+        u = _radial_units(radial, rho)
         ue1, ue2 = u @ e1, u @ e2
         return np.column_stack([-t * ue1 / scale, -t * ue2 / scale, -ue1, -ue2,
                                 -np.ones(len(p))])
@@ -264,9 +266,7 @@ class ConeModel:
         return dist, cos
 
     def distance(self, p: NDArray) -> NDArray:
-        v = p - self.apex
-        along = v @ self.axis
-        rn = row_norms(v - along[:, None] * self.axis)
+        _, along, rn = _axial_parts(p - self.apex, self.axis)
         return rn * math.cos(self.half_angle) - along * math.sin(self.half_angle)
 
     @staticmethod
@@ -290,7 +290,8 @@ class ConeModel:
         scale = float(np.linalg.norm(ref.axis + x[0] * e1 + x[1] * e2))
         a = m.axis
         v = p - m.apex
-        u, t, rho = _axial_parts(v, a)
+        radial, t, rho = _axial_parts(v, a)
+        u = _radial_units(radial, rho)
         c, s = math.cos(m.half_angle), math.sin(m.half_angle)
         cols = []
         for e in (e1, e2):  # axis tilts: d axis = (e - a (a . e)) / scale
