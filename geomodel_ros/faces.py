@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
@@ -23,6 +23,11 @@ from .fastmath import centroid, col_max, col_min, knn
 __all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
            "split_faces", "faces_from_labels"]
+
+
+#: Voxel boxes of up to this many cells are counted in a dense table (sorting is used
+#: for sparser boxes).
+DENSE_CELLS = 1 << 22
 
 
 def voxelize(points: NDArray[np.float64], voxel_size: float,
@@ -45,18 +50,37 @@ def voxelize(points: NDArray[np.float64], voxel_size: float,
     counts : (M,) int64 array
         Points per voxel.
     """
-    keys = np.floor(points / voxel_size).astype(np.int64)
-    if len(keys) == 0:
+    if len(points) == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    keys -= col_min(keys)
-    span = col_max(keys) + 1
-    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    # Integer cell coordinates column by column (numpy broadcasts slowly over a
+    # short last axis), shifted to start at 0, then one flat key per point.
+    scaled = points * (1.0 / voxel_size)
+    cols = []
+    for a in range(3):
+        c = np.floor(scaled[:, a]).astype(np.int64)
+        c -= c.min()
+        cols.append(c)
+    span = [int(c.max()) + 1 for c in cols]
+    flat = cols[0] * (span[1] * span[2])
+    flat += cols[1] * span[2]
+    flat += cols[2]
     if groups is not None:
         g = np.asarray(groups, dtype=np.int64)
         g = g - g.min()
-        flat = flat + (int(span.prod())) * g
-    _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
+        flat += (span[0] * span[1] * span[2]) * g
+    cells = int(flat.max()) + 1
+    if cells <= max(DENSE_CELLS, 8 * len(flat)):
+        # Counting instead of sorting: a dense table over the occupied box (same result
+        # as np.unique, voxels in ascending key order, in linear time).
+        dense = np.bincount(flat, minlength=cells)
+        occupied = np.flatnonzero(dense > 0)
+        counts = dense[occupied]
+        lookup = np.empty(cells, dtype=np.int64)
+        lookup[occupied] = np.arange(occupied.size)
+        inverse = lookup[flat]
+    else:
+        _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
+        inverse = inverse.ravel()
     m = counts.size
     centroids = np.empty((m, 3))
     for axis in range(3):
@@ -228,6 +252,26 @@ class FaceSet:
         return int(self.adjacency.shape[0])
 
 
+def _pair_dot(v: NDArray[np.float64], neighbors: NDArray[np.int64]) -> NDArray[np.float64]:
+    """(M, k) dot products of every row of ``v`` (M, 3) with its neighbours' rows
+    (column by column: one gather per coordinate instead of two (M*k, 3) gathers)."""
+    out = np.zeros(neighbors.shape)
+    for a in range(v.shape[1]):
+        col = np.ascontiguousarray(v[:, a])
+        out += col[neighbors] * col[:, None]
+    return out
+
+
+def _pair_sqdist(p: NDArray[np.float64], neighbors: NDArray[np.int64]) -> NDArray[np.float64]:
+    """(M, k) squared distances of every point of ``p`` (M, 3) to its neighbours."""
+    out = np.zeros(neighbors.shape)
+    for a in range(p.shape[1]):
+        col = np.ascontiguousarray(p[:, a])
+        d = col[neighbors] - col[:, None]
+        out += d * d
+    return out
+
+
 def _adjacency(labels: NDArray[np.int64], neighbors: NDArray[np.int64], n_faces: int,
                min_links: int = 2) -> NDArray[np.bool_]:
     a = np.repeat(labels, neighbors.shape[1])
@@ -270,15 +314,17 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
     if m == 0:
         return FaceSet(np.zeros(0, dtype=np.int64), np.zeros((0, 0), dtype=bool))
     smooth = cloud.variation <= edge_variation
-    i = np.repeat(np.arange(m), k)
-    j = cloud.neighbors.ravel()
-    cos = np.abs(np.einsum("mi,mi->m", cloud.normals[i], cloud.normals[j]))
-    keep = smooth[i] & smooth[j] & (cos >= np.cos(angle_threshold)) & (i != j)
+    nb = cloud.neighbors
+    cos = _pair_dot(cloud.normals, nb)
+    np.abs(cos, out=cos)
+    keep = (cos >= np.cos(angle_threshold)) & smooth[nb] & smooth[:, None] \
+        & (nb != np.arange(m)[:, None])
     if max_edge is not None:
-        keep &= np.einsum("ij,ij->i", cloud.points[i] - cloud.points[j],
-                          cloud.points[i] - cloud.points[j]) <= max_edge * max_edge
-    graph = coo_matrix((np.ones(int(keep.sum()), dtype=np.int8), (i[keep], j[keep])),
-                       shape=(m, m))
+        keep &= _pair_sqdist(cloud.points, nb) <= max_edge * max_edge
+    # Links are grouped by their first point: the graph is built in CSR form directly.
+    indptr = np.zeros(m + 1, dtype=np.int64)
+    np.cumsum(keep.sum(axis=1), out=indptr[1:])
+    graph = csr_matrix((np.ones(int(indptr[-1])), nb[keep], indptr), shape=(m, m))
     _, comp = connected_components(graph, directed=False)
     comp = np.where(smooth, comp, -1).astype(np.int64)
     labels = _relabel_small(comp, cloud.points, min_face_points)
