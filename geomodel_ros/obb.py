@@ -18,7 +18,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from .fastmath import row_norms
 
-__all__ = ["ray_to_plane", "ray_to_cylinder", "hull_candidates", "min_area_rectangle",
+__all__ = ["ray_to_plane", "ray_scale_to_plane", "ray_to_cylinder", "hull_candidates", "min_area_rectangle",
            "orthonormalize_axes", "interval", "edge_gap"]
 
 
@@ -35,12 +35,19 @@ def ray_to_plane(points: NDArray[np.float64], normal: NDArray[np.float64], d: fl
     whose ray meets the plane more obliquely than ``arccos(min_cos)`` (ill-conditioned)
     are left where they are.
     """
-    denom = points @ normal
-    dist = row_norms(points)
+    scale = ray_scale_to_plane(points @ normal, row_norms(points), d, max_shift, min_cos)
+    return points * scale[:, None]
+
+
+def ray_scale_to_plane(height: NDArray[np.float64], dist: NDArray[np.float64], d: float,
+                       max_shift: float, min_cos: float = 0.2) -> NDArray[np.float64]:
+    """Factors that move points onto the plane n . x + d = 0 along their rays
+    (:func:`ray_to_plane`), from the points' ``height`` n . x and distance |x| from the
+    origin; 1 where a point stays."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = -d / denom
-    ok = _shift_ok(s, dist, max_shift) & (np.abs(denom) >= min_cos * dist)
-    return points * np.where(ok, s, 1.0)[:, None]
+        s = -d / height
+    ok = _shift_ok(s, dist, max_shift) & (np.abs(height) >= min_cos * dist)
+    return np.where(ok, s, 1.0)
 
 
 def ray_to_cylinder(points: NDArray[np.float64], point: NDArray[np.float64],

@@ -255,21 +255,29 @@ def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
         return None, bad
     n = _toward_sensor(model.normal, o.center)
     d = -model.d if n @ model.normal < 0 else model.d
-    # Sizing uses the points on the model (flying pixels and strays do not stretch it).
-    on = np.abs(o.points @ n + d) <= OUTLIER_FACTOR * p.ransac_threshold
+    # Sizing uses the points on the model (flying pixels and strays do not stretch it),
+    # in the plane's frame (x, y in the plane, h along the normal: one product).
+    frame = _perp_frame(n)
+    x, y, h = frame.T @ o.points.T
+    on = np.abs(h + d) <= OUTLIER_FACTOR * p.ransac_threshold
     bad = _coverage(on, "plane")
     if bad:
         return None, bad
-    pts = o.points[on]
+    x, y, h = x[on], y[on], h[on]
     if p.reproject_along_rays:
-        pts = obb.ray_to_plane(pts, n, d, 4 * p.ransac_threshold)
-    frame = _perp_frame(n)
+        # Moving a point along its ray scales all its coordinates alike.
+        scale = obb.ray_scale_to_plane(h, np.sqrt(x * x + y * y + h * h), d,
+                                       4 * p.ransac_threshold)
+        x *= scale
+        y *= scale
     # Rectangle direction from the (re-projected) full-resolution outline.
-    direction, _ = obb.min_area_rectangle((pts - centroid(pts)) @ frame[:, :2])
+    direction, _ = obb.min_area_rectangle(np.column_stack([x - x.mean(), y - y.mean()]))
     u = frame[:, :2] @ direction
-    v = np.cross(n, u)
-    lo_u, hi_u = obb.interval(pts @ u, o.spacing, correct=p.edge_correction)
-    lo_v, hi_v = obb.interval(pts @ v, o.spacing, correct=p.edge_correction)
+    v = np.cross(n, u)  # = frame[:, :2] @ (-direction[1], direction[0])
+    lo_u, hi_u = obb.interval(x * direction[0] + y * direction[1], o.spacing,
+                              correct=p.edge_correction)
+    lo_v, hi_v = obb.interval(y * direction[0] - x * direction[1], o.spacing,
+                              correct=p.edge_correction)
     if hi_v - lo_v > hi_u - lo_u:  # x along the longer side
         u, v = v, -u
         (lo_u, hi_u), (lo_v, hi_v) = (lo_v, hi_v), (-hi_u, -lo_u)
@@ -548,8 +556,29 @@ def _finite(p: Primitive) -> bool:
     return bool(np.all(np.isfinite(vals))) and all(v > 0 for v in p.dimensions.values())
 
 
+def _group_by_label(idx: NDArray[np.int64], lab: NDArray[np.int64]
+                    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64],
+                               NDArray[np.int64]]:
+    """``idx`` grouped by their labels ``lab`` (>= 0): (order, ids, starts, ends) with
+    ``order[starts[k]:ends[k]]`` the indices labelled ``ids[k]``, in input order."""
+    top = int(lab.max())
+    if top < 2 ** 15:
+        # Few small labels (the usual case): counting, and numpy's radix sort for int16.
+        counts = np.bincount(lab, minlength=top + 1)
+        ids = np.flatnonzero(counts)
+        ends = np.cumsum(counts)[ids]
+        starts = ends - counts[ids]
+        order = idx[np.argsort(lab.astype(np.int16), kind="stable")]
+    else:
+        srt = np.argsort(lab, kind="stable")
+        order = idx[srt]
+        ids, starts = np.unique(lab[srt], return_index=True)
+        ends = np.r_[starts[1:], len(order)]
+    return order, ids, starts, ends
+
+
 def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
-                     max_points: int = 4000) -> float:
+                     max_points: int = 2000, queries: int = 500) -> float:
     """Approximate median point spacing [m] of a surface sampled by ``points`` (n, 3).
 
     Large sets are estimated from a random subset: on a surface the nearest-neighbour
@@ -560,7 +589,7 @@ def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
     if n < 2:
         return 0.0
     sub = points if n <= max_points else points[rng.choice(n, max_points, replace=False)]
-    d, _ = cKDTree(sub).query(sub[: min(len(sub), 1000)], k=2)
+    d, _ = cKDTree(sub).query(sub[: min(len(sub), queries)], k=2)
     return float(np.median(d[:, 1]) * math.sqrt(len(sub) / n))
 
 
@@ -604,10 +633,7 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
     idx_all = np.flatnonzero(finite)
     objects: list[Primitive] = []
     if idx_all.size:
-        sub_lab = lab[idx_all]
-        order = idx_all[np.argsort(sub_lab, kind="stable")]
-        ids, starts = np.unique(lab[order], return_index=True)
-        ends = np.r_[starts[1:], len(order)]
+        order, ids, starts, ends = _group_by_label(idx_all, lab[idx_all])
         # One independent generator per object: results do not depend on the order in
         # which the worker threads finish (numpy and scipy release the GIL in the heavy
         # parts, so objects are modeled in parallel).
