@@ -22,7 +22,7 @@ from .fastmath import centroid, col_max, col_min, knn
 
 __all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
-           "split_faces", "faces_from_labels"]
+           "split_faces", "faces_from_labels", "working_voxel_size"]
 
 
 #: Voxel boxes of up to this many cells are counted in a dense table (sorting is used
@@ -224,9 +224,32 @@ class WorkingCloud:
     point_to_working: NDArray[np.int64]
 
 
+def working_voxel_size(points: NDArray[np.float64], voxel_size: float, max_points: int) -> float:
+    """Voxel edge [m] at which ``points`` (N, 3), a sampled surface, fill about
+    ``max_points`` voxels at most: ``voxel_size`` or, for large objects, coarser.
+
+    The occupied voxels of a regular subset estimate the count; on a surface it falls
+    with the square of the voxel edge.
+    """
+    n = len(points)
+    if n <= max_points:
+        return voxel_size
+    sub = points[:: max(1, n // (4 * max_points))]
+    occupied = len(voxelize(sub, voxel_size)[2])
+    if occupied <= max_points:
+        return voxel_size
+    return voxel_size * float(np.sqrt(occupied / max_points))
+
+
 def build_working_cloud(points: NDArray[np.float64], voxel_size: float, k: int,
-                        groups: NDArray[np.int64] | None = None) -> WorkingCloud:
-    """Voxelize ``points`` (N, 3) [m] and estimate normals on the result."""
+                        groups: NDArray[np.int64] | None = None,
+                        max_points: int | None = None) -> WorkingCloud:
+    """Voxelize ``points`` (N, 3) [m] and estimate normals on the result.
+
+    With ``max_points`` the voxels grow for large objects (:func:`working_voxel_size`).
+    """
+    if max_points is not None:
+        voxel_size = working_voxel_size(points, voxel_size, max_points)
     centroids, inverse, counts = voxelize(points, voxel_size, groups)
     normals, variation, neighbors = estimate_normals(centroids, k)
     return WorkingCloud(centroids, normals, variation, neighbors, counts, inverse)

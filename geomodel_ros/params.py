@@ -92,6 +92,9 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     # --- working resolution and faces ---------------------------------------------------
     ParamSpec("voxel_size", 0.003, "m", 0.0002, 0.2,
               "Voxel edge of the working cloud used for normals, faces and curvature."),
+    ParamSpec("max_working_points", 5000, "count", 100, 10000000,
+              "Working clouds of large objects (desks, walls) are voxelized coarser so that "
+              "they hold about this many points (sizes still come from all points)."),
     ParamSpec("normal_neighbors", 16, "count", 5, 100,
               "Neighbours (on the working cloud) used to estimate normals and surface variation."),
     ParamSpec("face_angle_threshold", 0.2, "rad", 0.01, 1.0,

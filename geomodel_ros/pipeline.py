@@ -187,7 +187,8 @@ def _toward_sensor(n: NDArray[np.float64], at: NDArray[np.float64]) -> NDArray[n
 def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
                  face_labels: NDArray[np.int64] | None
                  ) -> tuple[WorkingCloud, list[_Face], NDArray[np.bool_]]:
-    wc = build_working_cloud(obj_pts, params.voxel_size, params.normal_neighbors, face_labels)
+    wc = build_working_cloud(obj_pts, params.voxel_size, params.normal_neighbors, face_labels,
+                             params.max_working_points)
     if face_labels is not None:
         fs = faces_from_labels(wc, face_labels)
     else:

@@ -33,29 +33,50 @@ def _unit(v: NDArray[np.float64]) -> NDArray[np.float64]:
     return v / np.where(n > _EPS, n, 1.0)
 
 
-def _axial_parts(v: NDArray[np.float64], axis: NDArray[np.float64]
-                 ) -> tuple[NDArray, NDArray, NDArray]:
-    """Split offsets ``v`` (M, 3) from a point on the unit ``axis``: (radial part (M, 3),
+# Single models work on points transposed to (3, M): numpy is several times faster on
+# long rows than on the short last axis of (M, 3), and least-squares refinement
+# evaluates distances and Jacobians many times.
+
+def _col_norms(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.sqrt(np.einsum("im,im->m", v, v))
+
+
+def _axial_parts_t(v: NDArray[np.float64], axis: NDArray[np.float64]
+                   ) -> tuple[NDArray, NDArray, NDArray]:
+    """Split offsets ``v`` (3, M) from a point on the unit ``axis``: (radial part (3, M),
     axial coordinate (M,), radial distance (M,))."""
-    t = v @ axis
-    radial = v - t[:, None] * axis
-    return radial, t, row_norms(radial)
+    t = axis @ v
+    radial = v - axis[:, None] * t
+    return radial, t, _col_norms(radial)
 
 
-def _radial_units(radial: NDArray[np.float64], rho: NDArray[np.float64]) -> NDArray:
-    return radial / np.maximum(rho, _EPS)[:, None]
+def _radial_units_t(radial: NDArray[np.float64], rho: NDArray[np.float64]) -> NDArray:
+    return radial / np.maximum(rho, _EPS)
+
+
+def _unit3(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    n = math.sqrt(float(v[0]) ** 2 + float(v[1]) ** 2 + float(v[2]) ** 2)
+    return v / n if n > _EPS else v
+
+
+def _cross3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
+    b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
+_X, _Y = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
 
 
 def _perp_basis(a: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = _unit(np.cross(a, helper))
-    return e1, np.cross(a, e1)
+    e1 = _unit3(_cross3(a, _X if abs(a[0]) < 0.9 else _Y))
+    return e1, _cross3(a, e1)
 
 
 # ----------------------------------------------------------------------------------------
-# Models. Each has: sample_size, hypotheses(P, N) -> batch, residuals(batch, p, n) ->
-# (distance (B, M), |cos| between point normal and surface normal (B, M)), and single-model
-# helpers used by refinement.
+# Models. Each has: sample_size, hypotheses(P, N) -> batch, residuals(batch, pt, nt) ->
+# (distance (B, M), |cos| between point normal and surface normal (B, M)) for points and
+# normals given transposed (3, M), and single-model helpers used by refinement.
 # ----------------------------------------------------------------------------------------
 
 
@@ -76,9 +97,9 @@ class PlaneModel:
         return {"n": nrm[ok], "d": -np.einsum("bi,bi->b", nrm, p[:, 0])[ok]}
 
     @staticmethod
-    def residuals(h: dict, p: NDArray, n: NDArray) -> tuple[NDArray, NDArray]:
-        dist = h["n"] @ p.T + h["d"][:, None]
-        cos = np.abs(h["n"] @ n.T)
+    def residuals(h: dict, pt: NDArray, nt: NDArray) -> tuple[NDArray, NDArray]:
+        dist = h["n"] @ pt + h["d"][:, None]
+        cos = np.abs(h["n"] @ nt)
         return dist, cos
 
     def distance(self, p: NDArray) -> NDArray:
@@ -120,15 +141,19 @@ class SphereModel:
         return {"c": center[ok], "r": r[ok]}
 
     @staticmethod
-    def residuals(h: dict, p: NDArray, n: NDArray) -> tuple[NDArray, NDArray]:
-        diff = p[None, :, :] - h["c"][:, None, :]
-        norm = np.linalg.norm(diff, axis=2)
+    def residuals(h: dict, pt: NDArray, nt: NDArray) -> tuple[NDArray, NDArray]:
+        diff = pt[None, :, :] - h["c"][:, :, None]
+        norm = np.sqrt(np.einsum("bim,bim->bm", diff, diff))
         dist = norm - h["r"][:, None]
-        cos = np.abs(np.einsum("bmi,mi->bm", diff, n)) / np.maximum(norm, _EPS)
+        cos = np.abs(np.einsum("bim,im->bm", diff, nt)) / np.maximum(norm, _EPS)
         return dist, cos
 
     def distance(self, p: NDArray) -> NDArray:
-        return row_norms(p - self.center) - self.radius
+        return self.distance_t(p.T)
+
+    def distance_t(self, pt: NDArray) -> NDArray:
+        """:meth:`distance` of points given as (3, M)."""
+        return _col_norms(pt - self.center[:, None]) - self.radius
 
     @staticmethod
     def from_batch(h: dict, i: int) -> "SphereModel":
@@ -144,8 +169,17 @@ class SphereModel:
     @staticmethod
     def jacobian(x: NDArray, ref: "SphereModel", p: NDArray) -> NDArray:
         """d distance(p) / d x at ``from_vector(x, ref)``, shape (M, 4)."""
-        u = _unit(p - x[:3])
-        return np.column_stack([-u, -np.ones(len(p))])
+        return SphereModel.jacobian_t(x, ref, p.T)
+
+    @staticmethod
+    def jacobian_t(x: NDArray, ref: "SphereModel", pt: NDArray) -> NDArray:
+        """:meth:`jacobian` of points given as (3, M)."""
+        v = pt - x[:3, None]
+        u = v / np.maximum(_col_norms(v), _EPS)
+        jt = np.empty((4, pt.shape[1]))
+        np.negative(u, out=jt[:3])
+        jt[3] = -1.0
+        return jt.T
 
 
 @dataclass(frozen=True)
@@ -183,17 +217,21 @@ class CylinderModel:
         return {"p": center[ok], "a": axis[ok], "r": r[ok]}
 
     @staticmethod
-    def residuals(h: dict, p: NDArray, n: NDArray) -> tuple[NDArray, NDArray]:
-        v = p[None, :, :] - h["p"][:, None, :]
-        along = np.einsum("bmi,bi->bm", v, h["a"])
-        radial = v - along[:, :, None] * h["a"][:, None, :]
-        rn = np.linalg.norm(radial, axis=2)
+    def residuals(h: dict, pt: NDArray, nt: NDArray) -> tuple[NDArray, NDArray]:
+        v = pt[None, :, :] - h["p"][:, :, None]
+        along = np.einsum("bim,bi->bm", v, h["a"])
+        radial = v - along[:, None, :] * h["a"][:, :, None]
+        rn = np.sqrt(np.einsum("bim,bim->bm", radial, radial))
         dist = rn - h["r"][:, None]
-        cos = np.abs(np.einsum("bmi,mi->bm", radial, n)) / np.maximum(rn, _EPS)
+        cos = np.abs(np.einsum("bim,im->bm", radial, nt)) / np.maximum(rn, _EPS)
         return dist, cos
 
     def distance(self, p: NDArray) -> NDArray:
-        return _axial_parts(p - self.point, self.axis)[2] - self.radius
+        return self.distance_t(p.T)
+
+    def distance_t(self, pt: NDArray) -> NDArray:
+        """:meth:`distance` of points given as (3, M)."""
+        return _axial_parts_t(pt - self.point[:, None], self.axis)[2] - self.radius
 
     @staticmethod
     def from_batch(h: dict, i: int) -> "CylinderModel":
@@ -208,21 +246,31 @@ class CylinderModel:
     @staticmethod
     def from_vector(x: NDArray, ref: "CylinderModel") -> "CylinderModel":
         e1, e2 = ref._frame()
-        axis = _unit(ref.axis + x[0] * e1 + x[1] * e2)
+        axis = _unit3(ref.axis + x[0] * e1 + x[1] * e2)
         point = ref.point + x[2] * e1 + x[3] * e2
         return CylinderModel(point, axis, float(ref.radius + x[4]))
 
     @staticmethod
     def jacobian(x: NDArray, ref: "CylinderModel", p: NDArray) -> NDArray:
         """d distance(p) / d x at ``from_vector(x, ref)``, shape (M, 5)."""
+        return CylinderModel.jacobian_t(x, ref, p.T)
+
+    @staticmethod
+    def jacobian_t(x: NDArray, ref: "CylinderModel", pt: NDArray) -> NDArray:
+        """:meth:`jacobian` of points given as (3, M)."""
         e1, e2 = ref._frame()
         m = CylinderModel.from_vector(x, ref)
         scale = float(np.linalg.norm(ref.axis + x[0] * e1 + x[1] * e2))
-        radial, t, rho = _axial_parts(p - m.point, m.axis)
-        u = _radial_units(radial, rho)
-        ue1, ue2 = u @ e1, u @ e2
-        return np.column_stack([-t * ue1 / scale, -t * ue2 / scale, -ue1, -ue2,
-                                -np.ones(len(p))])
+        radial, t, rho = _axial_parts_t(pt - m.point[:, None], m.axis)
+        u = _radial_units_t(radial, rho)
+        jt = np.empty((5, pt.shape[1]))
+        np.negative(e1 @ u, out=jt[2])
+        np.negative(e2 @ u, out=jt[3])
+        np.multiply(jt[2], t, out=jt[0])
+        np.multiply(jt[3], t, out=jt[1])
+        jt[:2] /= scale
+        jt[4] = -1.0
+        return jt.T
 
 
 @dataclass(frozen=True)
@@ -253,20 +301,24 @@ class ConeModel:
         return {"apex": apex[ok], "a": axis[ok], "t": ang[ok]}
 
     @staticmethod
-    def residuals(h: dict, p: NDArray, n: NDArray) -> tuple[NDArray, NDArray]:
-        v = p[None, :, :] - h["apex"][:, None, :]
-        along = np.einsum("bmi,bi->bm", v, h["a"])
-        radial = v - along[:, :, None] * h["a"][:, None, :]
-        rn = np.linalg.norm(radial, axis=2)
+    def residuals(h: dict, pt: NDArray, nt: NDArray) -> tuple[NDArray, NDArray]:
+        v = pt[None, :, :] - h["apex"][:, :, None]
+        along = np.einsum("bim,bi->bm", v, h["a"])
+        radial = v - along[:, None, :] * h["a"][:, :, None]
+        rn = np.sqrt(np.einsum("bim,bim->bm", radial, radial))
         ct, st = np.cos(h["t"])[:, None], np.sin(h["t"])[:, None]
         dist = rn * ct - along * st
-        ru = radial / np.maximum(rn, _EPS)[:, :, None]
-        surf_n = ru * ct[:, :, None] - h["a"][:, None, :] * st[:, :, None]
-        cos = np.abs(np.einsum("bmi,mi->bm", surf_n, n))
+        # Surface normal = ct * radial unit - st * axis; its cosine with the point normal:
+        cos = np.abs(ct * np.einsum("bim,im->bm", radial, nt) / np.maximum(rn, _EPS)
+                     - st * (h["a"] @ nt))
         return dist, cos
 
     def distance(self, p: NDArray) -> NDArray:
-        _, along, rn = _axial_parts(p - self.apex, self.axis)
+        return self.distance_t(p.T)
+
+    def distance_t(self, pt: NDArray) -> NDArray:
+        """:meth:`distance` of points given as (3, M)."""
+        _, along, rn = _axial_parts_t(pt - self.apex[:, None], self.axis)
         return rn * math.cos(self.half_angle) - along * math.sin(self.half_angle)
 
     @staticmethod
@@ -279,26 +331,33 @@ class ConeModel:
     @staticmethod
     def from_vector(x: NDArray, ref: "ConeModel") -> "ConeModel":
         e1, e2 = _perp_basis(ref.axis)
-        axis = _unit(ref.axis + x[0] * e1 + x[1] * e2)
+        axis = _unit3(ref.axis + x[0] * e1 + x[1] * e2)
         return ConeModel(ref.apex + x[2:5], axis, float(ref.half_angle + x[5]))
 
     @staticmethod
     def jacobian(x: NDArray, ref: "ConeModel", p: NDArray) -> NDArray:
         """d distance(p) / d x at ``from_vector(x, ref)``, shape (M, 6)."""
+        return ConeModel.jacobian_t(x, ref, p.T)
+
+    @staticmethod
+    def jacobian_t(x: NDArray, ref: "ConeModel", pt: NDArray) -> NDArray:
+        """:meth:`jacobian` of points given as (3, M)."""
         e1, e2 = _perp_basis(ref.axis)
         m = ConeModel.from_vector(x, ref)
         scale = float(np.linalg.norm(ref.axis + x[0] * e1 + x[1] * e2))
         a = m.axis
-        v = p - m.apex
-        radial, t, rho = _axial_parts(v, a)
-        u = _radial_units(radial, rho)
+        v = pt - m.apex[:, None]
+        radial, t, rho = _axial_parts_t(v, a)
+        u = _radial_units_t(radial, rho)
         c, s = math.cos(m.half_angle), math.sin(m.half_angle)
-        cols = []
-        for e in (e1, e2):  # axis tilts: d axis = (e - a (a . e)) / scale
-            ve = (v @ e - t * float(a @ e)) / scale
-            cols.append(-c * t * (u @ e) / scale - s * ve)
-        d_apex = -c * u + s * a[None, :]
-        return np.column_stack([*cols, d_apex, -rho * s - t * c])
+        jt = np.empty((6, pt.shape[1]))
+        for row, e in enumerate((e1, e2)):  # axis tilts: d axis = (e - a (a . e)) / scale
+            ve = (e @ v - t * float(a @ e)) / scale
+            jt[row] = -c * t * (e @ u) / scale - s * ve
+        np.multiply(u, -c, out=jt[2:5])
+        jt[2:5] += s * a[:, None]
+        jt[5] = -rho * s - t * c
+        return jt.T
 
 
 MODELS = {"plane": PlaneModel, "sphere": SphereModel, "cylinder": CylinderModel, "cone": ConeModel}
@@ -351,6 +410,7 @@ def ransac(model_cls, points: NDArray[np.float64], normals: NDArray[np.float64],
     if m < k + 1:
         return None
     cos_thr = math.cos(normal_threshold)
+    pt, nt = np.ascontiguousarray(points.T), np.ascontiguousarray(normals.T)
     best_count, best = -1, None
     needed, drawn = max_iterations, 0
     while drawn < min(needed, max_iterations):
@@ -367,7 +427,7 @@ def ransac(model_cls, points: NDArray[np.float64], normals: NDArray[np.float64],
             if not keep.any():
                 continue
             h = {key: val[keep] for key, val in h.items()}
-        dist, cos = model_cls.residuals(h, points, normals)
+        dist, cos = model_cls.residuals(h, pt, nt)
         inl = (np.abs(dist) <= threshold) & (cos >= cos_thr)
         counts = inl.sum(axis=1)
         i = int(np.argmax(counts))
@@ -412,15 +472,15 @@ def refine(model, points: NDArray[np.float64], threshold: float, rounds: int = 2
         inl = np.abs(model.distance(points)) <= threshold
         if inl.sum() < cls.sample_size + 3:
             break
-        sub = points[inl]
+        sub = np.ascontiguousarray(points[inl].T)  # (3, M): faster rows
         ref = model
         x0 = ref.to_vector() if cls is not SphereModel else model.to_vector()
 
         def fun(x, ref=ref, sub=sub):
-            return cls.from_vector(x, ref).distance(sub)
+            return cls.from_vector(x, ref).distance_t(sub)
 
         def jac(x, ref=ref, sub=sub):
-            return cls.jacobian(x, ref, sub)
+            return cls.jacobian_t(x, ref, sub)
 
         sol = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac", max_nfev=MAX_EVALUATIONS)
         model = cls.from_vector(sol.x, ref)
