@@ -10,6 +10,7 @@ neighbourhood graph.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,9 +26,10 @@ __all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_wor
            "split_faces", "faces_from_labels", "working_voxel_size"]
 
 
-#: Voxel boxes of up to this many cells are counted in a dense table (sorting is used
-#: for sparser boxes).
+#: Voxel boxes of up to this many cells, or of up to DENSE_CELLS_PER_POINT cells per
+#: point, are counted in a dense table (sorting is used for sparser boxes).
 DENSE_CELLS = 1 << 22
+DENSE_CELLS_PER_POINT = 8
 
 
 def voxelize(points: NDArray[np.float64], voxel_size: float,
@@ -69,7 +71,7 @@ def voxelize(points: NDArray[np.float64], voxel_size: float,
         g = g - g.min()
         flat += (span[0] * span[1] * span[2]) * g
     cells = int(flat.max()) + 1
-    if cells <= max(DENSE_CELLS, 8 * len(flat)):
+    if cells <= max(DENSE_CELLS, DENSE_CELLS_PER_POINT * len(flat)):
         # Counting instead of sorting: a dense table over the occupied box (same result
         # as np.unique, voxels in ascending key order, in linear time).
         dense = np.bincount(flat, minlength=cells)
@@ -236,9 +238,19 @@ def working_voxel_size(points: NDArray[np.float64], voxel_size: float, max_point
         return voxel_size
     sub = points[:: max(1, n // (4 * max_points))]
     occupied = len(voxelize(sub, voxel_size)[2])
-    if occupied <= max_points:
+    # A subset misses sparsely hit voxels: with points spread evenly (Poisson), s points
+    # in V voxels occupy V (1 - exp(-s / V)) of them; solve for V (it cannot exceed n).
+    s, total = len(sub), float(occupied)
+    for _ in range(50):
+        hit = -math.expm1(-s / total)
+        nxt = min(occupied / max(hit, 1e-12), float(n))
+        if nxt - total <= 1e-3 * total:
+            total = nxt
+            break
+        total = nxt
+    if total <= max_points:
         return voxel_size
-    return voxel_size * float(np.sqrt(occupied / max_points))
+    return voxel_size * math.sqrt(total / max_points)
 
 
 def build_working_cloud(points: NDArray[np.float64], voxel_size: float, k: int,

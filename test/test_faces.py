@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from geomodel_ros.faces import (build_working_cloud, estimate_normals, smallest_eigenpairs,
-                                split_faces, voxelize)
+                                split_faces, voxelize, working_voxel_size)
 
 
 def test_smallest_eigenpairs_match_eigh():
@@ -105,3 +105,36 @@ def test_estimate_normals_equal_eigh_of_the_neighbourhood_covariance():
     w, v = np.linalg.eigh(np.einsum("mki,mkj->mij", x, x) / 10)
     assert np.all(np.abs(np.einsum("mi,mi->m", normals, v[:, :, 0])) > 1 - 1e-9)
     np.testing.assert_allclose(variation, w[:, 0] / w.sum(axis=1), rtol=1e-6, atol=1e-12)
+
+
+def test_voxelize_dense_table_and_sorting_paths_agree(monkeypatch):
+    import geomodel_ros.faces as faces
+
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(-0.1, 0.1, size=(5000, 3))
+    groups = rng.integers(0, 3, size=5000)
+    dense = voxelize(pts, 0.01, groups)
+    monkeypatch.setattr(faces, "DENSE_CELLS", 0)
+    monkeypatch.setattr(faces, "DENSE_CELLS_PER_POINT", 0)
+    sorted_ = voxelize(pts, 0.01, groups)
+    for a, b in zip(dense, sorted_):
+        np.testing.assert_array_equal(a, b)
+    # Every input point lies in its voxel, voxels of different groups are apart, and
+    # the counts add up.
+    assert dense[2].sum() == len(pts)
+    np.testing.assert_array_equal(np.floor(dense[0][dense[1]] / 0.01), np.floor(pts / 0.01))
+    assert len(dense[2]) == len(np.unique(np.column_stack([np.floor(pts / 0.01), groups]),
+                                          axis=0))
+
+
+def test_large_objects_get_a_coarser_working_cloud_small_ones_keep_the_voxel():
+    rng = np.random.default_rng(5)
+    plane = np.column_stack([rng.uniform(0, 0.4, 200_000), rng.uniform(0, 0.4, 200_000),
+                             np.full(200_000, 0.5)])
+    coarse = working_voxel_size(plane, 0.003, 5000)
+    assert coarse > 0.003
+    wc = build_working_cloud(plane, 0.003, 16, max_points=5000)
+    assert 3500 <= len(wc.points) <= 6500
+    small = plane[:3000]
+    assert working_voxel_size(small, 0.003, 5000) == 0.003
+    assert working_voxel_size(plane, 0.003, 10_000_000) == 0.003
