@@ -23,7 +23,7 @@ from .fastmath import centroid, col_max, col_min, knn
 
 __all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
-           "split_faces", "faces_from_labels", "working_voxel_size"]
+           "split_faces", "faces_from_labels", "working_voxel_size", "pair_sqdist"]
 
 
 #: Voxel boxes of up to this many cells, or of up to DENSE_CELLS_PER_POINT cells per
@@ -297,12 +297,15 @@ def _pair_dot(v: NDArray[np.float64], neighbors: NDArray[np.int64]) -> NDArray[n
     return out
 
 
-def _pair_sqdist(p: NDArray[np.float64], neighbors: NDArray[np.int64]) -> NDArray[np.float64]:
-    """(M, k) squared distances of every point of ``p`` (M, 3) to its neighbours."""
-    out = np.zeros(neighbors.shape)
+def pair_sqdist(p: NDArray[np.float64], neighbors: NDArray[np.int64],
+                rows: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+    """Squared distances of points of ``p`` (M, 3) to their neighbours ``neighbors``
+    (M, k): (M, k), or (len(rows), k) for the points ``rows`` only."""
+    nb = neighbors if rows is None else neighbors[rows]
+    out = np.zeros(nb.shape)
     for a in range(p.shape[1]):
         col = np.ascontiguousarray(p[:, a])
-        d = col[neighbors] - col[:, None]
+        d = col[nb] - (col if rows is None else col[rows])[:, None]
         out += d * d
     return out
 
@@ -355,7 +358,7 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
     keep = (cos >= np.cos(angle_threshold)) & smooth[nb] & smooth[:, None] \
         & (nb != np.arange(m)[:, None])
     if max_edge is not None:
-        keep &= _pair_sqdist(cloud.points, nb) <= max_edge * max_edge
+        keep &= pair_sqdist(cloud.points, nb) <= max_edge * max_edge
     # Links are grouped by their first point: the graph is built in CSR form directly.
     indptr = np.zeros(m + 1, dtype=np.int64)
     np.cumsum(keep.sum(axis=1), out=indptr[1:])

@@ -384,7 +384,8 @@ def fit_plane_svd(points: NDArray[np.float64]) -> PlaneModel:
 def ransac(model_cls, points: NDArray[np.float64], normals: NDArray[np.float64],
            threshold: float, normal_threshold: float, max_iterations: int,
            confidence: float, rng: np.random.Generator, batch: int = 64,
-           accept: Callable[[object], bool] | None = None) -> FitResult | None:
+           accept: Callable[[object], bool] | None = None,
+           max_score_points: int | None = None) -> FitResult | None:
     """Find the model with the most inliers.
 
     Parameters
@@ -400,6 +401,9 @@ def ransac(model_cls, points: NDArray[np.float64], normals: NDArray[np.float64],
     rng : numpy Generator
     accept : callable, optional
         Hypotheses for which it returns False are skipped (e.g. radius bounds).
+    max_score_points : int, optional
+        Hypotheses are scored on a random subset of this many points (large clouds);
+        the returned inliers are those of all points.
 
     Returns
     -------
@@ -410,7 +414,9 @@ def ransac(model_cls, points: NDArray[np.float64], normals: NDArray[np.float64],
     if m < k + 1:
         return None
     cos_thr = math.cos(normal_threshold)
-    pt, nt = np.ascontiguousarray(points.T), np.ascontiguousarray(normals.T)
+    scored = np.arange(m) if max_score_points is None or m <= max_score_points else \
+        np.sort(rng.choice(m, max_score_points, replace=False))
+    pt, nt = np.ascontiguousarray(points[scored].T), np.ascontiguousarray(normals[scored].T)
     best_count, best = -1, None
     needed, drawn = max_iterations, 0
     while drawn < min(needed, max_iterations):
@@ -434,7 +440,7 @@ def ransac(model_cls, points: NDArray[np.float64], normals: NDArray[np.float64],
         if counts[i] > best_count:
             best_count = int(counts[i])
             best = model_cls.from_batch(h, i)
-            w = best_count / m
+            w = best_count / len(scored)
             if w >= 1.0:
                 needed = drawn
             elif w > 0:

@@ -18,12 +18,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .errors import as_points
-from .faces import WorkingCloud, estimate_normals, split_faces, voxelize
+from .faces import WorkingCloud, estimate_normals, pair_sqdist, split_faces, voxelize
 from .fastmath import row_norms, rows_finite
 from .params import ModelingParams
 from .ransac import PlaneModel, fit_plane_svd, ransac, refine
@@ -58,19 +58,29 @@ class Segmentation:
         return ids[ids >= 0]
 
 
-def _components(points: NDArray[np.float64], sel: NDArray[np.int64], radius: float
-                ) -> tuple[int, NDArray[np.int64]]:
-    """Connected components of ``points[sel]`` linking points closer than ``radius``."""
-    tree = cKDTree(points[sel])
-    pairs = tree.query_pairs(radius, output_type="ndarray")
+def _components(points: NDArray[np.float64], sel: NDArray[np.int64], radius: float,
+                neighbors: NDArray[np.int64]) -> tuple[int, NDArray[np.int64]]:
+    """Connected components of ``points[sel]``, linking each point to those of its
+    ``neighbors`` (M, k) that are in ``sel`` and closer than ``radius``."""
     m = len(sel)
-    graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])),
-                       shape=(m, m))
+    local = np.full(len(points), -1, dtype=np.int64)
+    local[sel] = np.arange(m)
+    nb = local[neighbors[sel]]
+    keep = (nb >= 0) & (pair_sqdist(points, neighbors, sel) <= radius * radius)
+    indptr = np.zeros(m + 1, dtype=np.int64)
+    np.cumsum(keep.sum(axis=1), out=indptr[1:])
+    graph = csr_matrix((np.ones(int(indptr[-1])), nb[keep], indptr), shape=(m, m))
     return connected_components(graph, directed=False)
 
 
+#: Support-plane hypotheses are scored on this many random working points (a plane
+#: that holds a share w of them holds about that share of the whole cloud).
+SUPPORT_SCORE_POINTS = 5000
+
+
 def _support_planes(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: NDArray[np.int64],
-                    params: ModelingParams, rng: np.random.Generator) -> list[NDArray[np.int64]]:
+                    nbrs: NDArray[np.int64], params: ModelingParams, rng: np.random.Generator
+                    ) -> list[NDArray[np.int64]]:
     """Working-point indices of each support plane, largest first."""
     v = params.seg_voxel_size
     cell_area = v * v
@@ -82,7 +92,7 @@ def _support_planes(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
             break
         fit = ransac(PlaneModel, wp[idx], wn[idx], params.seg_plane_threshold,
                      params.seg_plane_normal_angle, params.ransac_max_iterations,
-                     params.ransac_confidence, rng)
+                     params.ransac_confidence, rng, max_score_points=SUPPORT_SCORE_POINTS)
         if fit is None:
             break
         model = fit_plane_svd(wp[idx[fit.inliers]]) if fit.inliers.sum() >= 3 else fit.model
@@ -94,7 +104,7 @@ def _support_planes(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
             break
         # Keep the connected pieces of the inliers that are large themselves (a desk split
         # by the objects standing on it stays one support; far coplanar bits do not join).
-        n_comp, comp = _components(wp, inl, 2.5 * v)
+        n_comp, comp = _components(wp, inl, 2.5 * v, nbrs)
         sizes = np.bincount(comp, minlength=n_comp)
         big = sizes * cell_area >= 0.1 * params.seg_min_support_area
         keep = inl[big[comp]]
@@ -383,7 +393,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     timing["seg_normals_s"] = t1 - t0
 
     wlabel = np.full(m, -1, dtype=np.int64)
-    supports = _support_planes(wp, wn, counts, params, rng)
+    supports = _support_planes(wp, wn, counts, nbrs, params, rng)
     for sid, sel in enumerate(supports):
         wlabel[sel] = sid
     t2 = time.perf_counter()
