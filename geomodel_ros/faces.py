@@ -226,6 +226,12 @@ class WorkingCloud:
     point_to_working: NDArray[np.int64]
 
 
+#: Objects with more than this many times ``max_points`` points get their working voxel
+#: from a subset (:func:`working_voxel_size`); smaller ones are voxelized at the given
+#: size first and only again if they fill too many voxels.
+SUBSET_ESTIMATE_FACTOR = 8
+
+
 def working_voxel_size(points: NDArray[np.float64], voxel_size: float, max_points: int) -> float:
     """Voxel edge [m] at which ``points`` (N, 3), a sampled surface, fill about
     ``max_points`` voxels at most: ``voxel_size`` or, for large objects, coarser.
@@ -260,9 +266,14 @@ def build_working_cloud(points: NDArray[np.float64], voxel_size: float, k: int,
 
     With ``max_points`` the voxels grow for large objects (:func:`working_voxel_size`).
     """
-    if max_points is not None:
+    if max_points is not None and len(points) > SUBSET_ESTIMATE_FACTOR * max_points:
+        # Large object: choose the voxel from a subset, voxelize once.
         voxel_size = working_voxel_size(points, voxel_size, max_points)
     centroids, inverse, counts = voxelize(points, voxel_size, groups)
+    if max_points is not None and len(counts) > max_points:
+        # Mid-sized object that fills more voxels than expected: once more, coarser.
+        voxel_size *= math.sqrt(len(counts) / max_points)
+        centroids, inverse, counts = voxelize(points, voxel_size, groups)
     normals, variation, neighbors = estimate_normals(centroids, k)
     return WorkingCloud(centroids, normals, variation, neighbors, counts, inverse)
 

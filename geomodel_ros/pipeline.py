@@ -98,7 +98,7 @@ class _Object:
         """Full-resolution points of ``idx``, at most ``refine_max_points`` of them."""
         cap = self.params.refine_max_points
         if len(idx) > cap:
-            idx = self.rng.choice(idx, size=cap, replace=False)
+            idx = idx[self.rng.choice(len(idx), size=cap, replace=False, shuffle=False)]
         return self.points[idx]
 
     def face_points(self, which: list[int]) -> NDArray[np.int64]:

@@ -376,8 +376,11 @@ class FitResult:
 def fit_plane_svd(points: NDArray[np.float64]) -> PlaneModel:
     """Total-least-squares plane through ``points`` (n >= 3, (n, 3) [m])."""
     c = centroid(points)
-    _, _, vt = np.linalg.svd(points - c, full_matrices=False)
-    n = vt[2]
+    q = points - c
+    # Eigenvector of the smallest eigenvalue of the 3x3 scatter matrix (the last right
+    # singular vector of q, without forming q's (n, 3) left singular vectors).
+    _, vecs = np.linalg.eigh(q.T @ q)
+    n = vecs[:, 0]
     return PlaneModel(n, float(-n @ c))
 
 
