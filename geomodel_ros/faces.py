@@ -54,15 +54,13 @@ def voxelize(points: NDArray[np.float64], voxel_size: float,
     """
     if len(points) == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    # Integer cell coordinates column by column (numpy broadcasts slowly over a
-    # short last axis), shifted to start at 0, then one flat key per point.
-    scaled = points * (1.0 / voxel_size)
-    cols = []
-    for a in range(3):
-        c = np.floor(scaled[:, a]).astype(np.int64)
-        c -= c.min()
-        cols.append(c)
-    span = [int(c.max()) + 1 for c in cols]
+    # Integer cell coordinates on the transposed (3, N) points (numpy is slow along the
+    # short last axis of (N, 3)), shifted to start at 0, then one flat key per point.
+    pt = np.ascontiguousarray(points.T)
+    scaled = pt * (1.0 / voxel_size)
+    cols = np.floor(scaled, out=scaled).astype(np.int64)
+    cols -= cols.min(axis=1, keepdims=True)
+    span = [int(v) + 1 for v in cols.max(axis=1)]
     flat = cols[0] * (span[1] * span[2])
     flat += cols[1] * span[2]
     flat += cols[2]
@@ -72,21 +70,23 @@ def voxelize(points: NDArray[np.float64], voxel_size: float,
         flat += (span[0] * span[1] * span[2]) * g
     cells = int(flat.max()) + 1
     if cells <= max(DENSE_CELLS, DENSE_CELLS_PER_POINT * len(flat)):
-        # Counting instead of sorting: a dense table over the occupied box (same result
-        # as np.unique, voxels in ascending key order, in linear time).
-        dense = np.bincount(flat, minlength=cells)
-        occupied = np.flatnonzero(dense > 0)
-        counts = dense[occupied]
-        lookup = np.empty(cells, dtype=np.int64)
-        lookup[occupied] = np.arange(occupied.size)
-        inverse = lookup[flat]
+        # A dense table over the occupied box instead of sorting (same result as
+        # np.unique, voxels in ascending key order, in linear time); small dtypes keep
+        # the table's memory, which is touched sparsely, low.
+        occupied_mask = np.zeros(cells, dtype=bool)
+        occupied_mask[flat] = True
+        occupied = np.flatnonzero(occupied_mask)
+        lookup = np.empty(cells, dtype=np.int32 if occupied.size < 2 ** 31 else np.int64)
+        lookup[occupied] = np.arange(occupied.size, dtype=lookup.dtype)
+        inverse = lookup[flat].astype(np.int64)
+        counts = np.bincount(inverse, minlength=occupied.size)
     else:
         _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
         inverse = inverse.ravel()
     m = counts.size
     centroids = np.empty((m, 3))
     for axis in range(3):
-        centroids[:, axis] = np.bincount(inverse, weights=points[:, axis], minlength=m)
+        centroids[:, axis] = np.bincount(inverse, weights=pt[axis], minlength=m)
     centroids /= counts[:, None]
     return centroids, inverse, counts
 
@@ -270,8 +270,8 @@ def build_working_cloud(points: NDArray[np.float64], voxel_size: float, k: int,
         # Large object: choose the voxel from a subset, voxelize once.
         voxel_size = working_voxel_size(points, voxel_size, max_points)
     centroids, inverse, counts = voxelize(points, voxel_size, groups)
-    if max_points is not None and len(counts) > max_points:
-        # Mid-sized object that fills more voxels than expected: once more, coarser.
+    if max_points is not None and len(counts) > 1.5 * max_points:
+        # An object that fills far more voxels than expected: once more, coarser.
         voxel_size *= math.sqrt(len(counts) / max_points)
         centroids, inverse, counts = voxelize(points, voxel_size, groups)
     normals, variation, neighbors = estimate_normals(centroids, k)
