@@ -177,8 +177,8 @@ def neighborhood_moments(points: NDArray[np.float64], neighbors: NDArray[np.int6
 
 
 def estimate_normals(points: NDArray[np.float64], k: int,
-                     viewpoint: NDArray[np.float64] | None = None
-                     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+                     viewpoint: NDArray[np.float64] | None = None,
+                     return_sqdist: bool = False) -> tuple[NDArray, ...]:
     """PCA normals over the ``k`` nearest neighbours, oriented towards ``viewpoint``.
 
     Returns
@@ -188,12 +188,15 @@ def estimate_normals(points: NDArray[np.float64], k: int,
         Surface variation lambda_min / (lambda_1 + lambda_2 + lambda_3) in [0, 1/3].
     neighbors : (M, k) int64 array
         Neighbour indices, nearest first (the point itself among them).
+    sqdist : (M, k) float64 array, only with ``return_sqdist``
+        Squared distances [m^2] to the neighbours.
     """
     m = len(points)
     k = int(min(k, m))
     if k == 0:
-        return np.zeros((m, 3)), np.zeros(m), np.zeros((m, 0), dtype=np.int64)
-    neighbors = knn(points, k)
+        empty = (np.zeros((m, 3)), np.zeros(m), np.zeros((m, 0), dtype=np.int64))
+        return (*empty, np.zeros((m, 0))) if return_sqdist else empty
+    neighbors, sqdist = knn(points, k, return_sqdist=True)
     xx, xy, xz, yy, yz, zz = neighborhood_moments(points, neighbors)
     lam, normals = smallest_eigenpairs_sym(xx, xy, xz, yy, yz, zz)
     total = xx + yy + zz
@@ -201,6 +204,8 @@ def estimate_normals(points: NDArray[np.float64], k: int,
     vp = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64)
     flip = np.einsum("mi,mi->m", normals, points - vp) > 0
     normals[flip] *= -1
+    if return_sqdist:
+        return normals, variation, neighbors, sqdist
     return normals, variation, neighbors
 
 
@@ -216,6 +221,7 @@ class WorkingCloud:
     neighbors : (M, k) int64
     counts : (M,) int64, input points per working point
     point_to_working : (N,) int64, working point of each input point
+    sqdist : (M, k) float64 or None, squared distances to the neighbours [m^2]
     """
 
     points: NDArray[np.float64]
@@ -224,6 +230,7 @@ class WorkingCloud:
     neighbors: NDArray[np.int64]
     counts: NDArray[np.int64]
     point_to_working: NDArray[np.int64]
+    sqdist: NDArray[np.float64] | None = None
 
 
 #: Objects with more than this many times ``max_points`` points get their working voxel
@@ -369,7 +376,8 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
     keep = (cos >= np.cos(angle_threshold)) & smooth[nb] & smooth[:, None] \
         & (nb != np.arange(m)[:, None])
     if max_edge is not None:
-        keep &= pair_sqdist(cloud.points, nb) <= max_edge * max_edge
+        d2 = cloud.sqdist if cloud.sqdist is not None else pair_sqdist(cloud.points, nb)
+        keep &= d2 <= max_edge * max_edge
     # Links are grouped by their first point: the graph is built in CSR form directly.
     indptr = np.zeros(m + 1, dtype=np.int64)
     np.cumsum(keep.sum(axis=1), out=indptr[1:])

@@ -43,9 +43,10 @@ def rows_finite(p: NDArray[np.float64]) -> NDArray[np.bool_]:
     return ok
 
 
-def knn(points: NDArray[np.float64], k: int) -> NDArray[np.int64]:
+def knn(points: NDArray[np.float64], k: int, return_sqdist: bool = False):
     """Indices (M, k) of the ``k`` nearest neighbours of every point of ``points`` (M, 3)
-    among themselves, nearest first (the point itself, distance 0, among them).
+    among themselves, nearest first (the point itself, distance 0, among them); with
+    ``return_sqdist`` also their squared distances (M, k) [m^2].
 
     open3d's multithreaded nearest-neighbour search (faster than building and querying
     a :class:`scipy.spatial.cKDTree` on working clouds of 10^4-10^5 points).
@@ -55,10 +56,14 @@ def knn(points: NDArray[np.float64], k: int) -> NDArray[np.int64]:
     m = len(points)
     k = int(min(k, m))
     if m == 0 or k == 0:
-        return np.zeros((m, k), dtype=np.int64)
+        empty = np.zeros((m, k), dtype=np.int64)
+        return (empty, np.zeros((m, k))) if return_sqdist else empty
     data = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float64))
     search = o3d.core.nns.NearestNeighborSearch(data)
     if not search.knn_index():
         raise RuntimeError("open3d could not build a nearest-neighbour index")
-    idx, _ = search.knn_search(data, k)
-    return idx.numpy().astype(np.int64, copy=False).reshape(m, k)
+    idx, sqdist = search.knn_search(data, k)
+    idx = idx.numpy().astype(np.int64, copy=False).reshape(m, k)
+    if return_sqdist:
+        return idx, sqdist.numpy().astype(np.float64, copy=False).reshape(m, k)
+    return idx

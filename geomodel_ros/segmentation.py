@@ -23,7 +23,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .errors import as_points
-from .faces import WorkingCloud, estimate_normals, pair_sqdist, split_faces, voxelize
+from .faces import WorkingCloud, estimate_normals, split_faces, voxelize
 from .fastmath import row_norms, rows_finite
 from .params import ModelingParams
 from .ransac import PlaneModel, fit_plane_svd, ransac, refine
@@ -58,15 +58,16 @@ class Segmentation:
         return ids[ids >= 0]
 
 
-def _components(points: NDArray[np.float64], sel: NDArray[np.int64], radius: float,
-                neighbors: NDArray[np.int64]) -> tuple[int, NDArray[np.int64]]:
-    """Connected components of ``points[sel]``, linking each point to those of its
-    ``neighbors`` (M, k) that are in ``sel`` and closer than ``radius``."""
+def _components(n: int, sel: NDArray[np.int64], radius: float, neighbors: NDArray[np.int64],
+                sqdist: NDArray[np.float64]) -> tuple[int, NDArray[np.int64]]:
+    """Connected components of the points ``sel`` (of ``n``), linking each point to those
+    of its ``neighbors`` (n, k) (squared distances ``sqdist``) that are in ``sel`` and
+    closer than ``radius``."""
     m = len(sel)
-    local = np.full(len(points), -1, dtype=np.int64)
+    local = np.full(n, -1, dtype=np.int64)
     local[sel] = np.arange(m)
     nb = local[neighbors[sel]]
-    keep = (nb >= 0) & (pair_sqdist(points, neighbors, sel) <= radius * radius)
+    keep = (nb >= 0) & (sqdist[sel] <= radius * radius)
     indptr = np.zeros(m + 1, dtype=np.int64)
     np.cumsum(keep.sum(axis=1), out=indptr[1:])
     graph = csr_matrix((np.ones(int(indptr[-1])), nb[keep], indptr), shape=(m, m))
@@ -79,7 +80,8 @@ SUPPORT_SCORE_POINTS = 5000
 
 
 def _support_planes(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: NDArray[np.int64],
-                    nbrs: NDArray[np.int64], params: ModelingParams, rng: np.random.Generator
+                    nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
+                    params: ModelingParams, rng: np.random.Generator
                     ) -> list[NDArray[np.int64]]:
     """Working-point indices of each support plane, largest first."""
     v = params.seg_voxel_size
@@ -104,7 +106,7 @@ def _support_planes(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
             break
         # Keep the connected pieces of the inliers that are large themselves (a desk split
         # by the objects standing on it stays one support; far coplanar bits do not join).
-        n_comp, comp = _components(wp, inl, 2.5 * v, nbrs)
+        n_comp, comp = _components(len(wp), inl, 2.5 * v, nbrs, sqdist)
         sizes = np.bincount(comp, minlength=n_comp)
         big = sizes * cell_area >= 0.1 * params.seg_min_support_area
         keep = inl[big[comp]]
@@ -126,19 +128,20 @@ def _convex_objects(points: NDArray[np.float64], params: ModelingParams) -> NDAr
     Links longer than ``seg_max_edge_factor`` voxels (depth jumps) do not vote.
     """
     m = len(points)
-    normals, variation, nbrs = estimate_normals(points, params.normal_neighbors)
+    normals, variation, nbrs, sqdist = estimate_normals(points, params.normal_neighbors,
+                                                        return_sqdist=True)
     cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
-                         np.arange(m))
+                         np.arange(m), sqdist)
     max_edge = params.seg_max_edge_factor * params.seg_voxel_size
     patches = split_faces(cloud, params.face_angle_threshold, params.edge_variation_threshold,
                           params.min_face_points, max_edge).labels
     k = nbrs.shape[1]
     i = np.repeat(np.arange(m), k)
     j = nbrs.ravel()
+    ok = (i != j) & (sqdist.ravel() <= max_edge * max_edge)
+    i, j = i[ok], j[ok]
     d = points[i] - points[j]
     dist = row_norms(d)
-    ok = (i != j) & (dist <= max_edge)
-    i, j, d, dist = i[ok], j[ok], d[ok], dist[ok]
     convexity = np.einsum("ij,ij->i", normals[i] - normals[j], d) / np.maximum(dist, 1e-12)
     pi, pj = patches[i], patches[j]
     cross = pi != pj
@@ -212,11 +215,16 @@ def _join_occluded_parts(points: NDArray[np.float64], normals: NDArray[np.float6
         return comp
     v = params.seg_voxel_size
     link = params.seg_max_edge_factor * v
-    depth = np.linalg.norm(points, axis=1)
-    rays = points / np.maximum(depth, 1e-12)[:, None]
-    ray_tree = cKDTree(rays)
+    depth = row_norms(points)
+    ray_tree: list[cKDTree] = []  # built on first use: most scenes never need it
     members = {int(i): np.flatnonzero(valid & (comp == i)) for i in ids}
-    trees = {i: cKDTree(points[m]) for i, m in members.items()}
+    tree_cache: dict[int, cKDTree] = {}
+
+    def tree(seg: int) -> cKDTree:
+        if seg not in tree_cache:
+            tree_cache[seg] = cKDTree(points[members[seg]])
+        return tree_cache[seg]
+
     centers = {i: points[m].mean(axis=0) for i, m in members.items()}
     radius = {i: float(np.linalg.norm(points[m] - centers[i], axis=1).max())
               for i, m in members.items()}
@@ -237,7 +245,9 @@ def _join_occluded_parts(points: NDArray[np.float64], normals: NDArray[np.float6
             if reach > params.seg_max_occlusion_gap or find(a) == find(b):
                 continue
             small, big = (a, b) if len(members[a]) <= len(members[b]) else (b, a)
-            d, j = trees[big].query(points[members[small]], k=1)
+            # Only gaps up to seg_max_occlusion_gap matter: farther pairs come back inf.
+            d, j = tree(big).query(points[members[small]], k=1,
+                                   distance_upper_bound=params.seg_max_occlusion_gap)
             k = int(np.argmin(d))
             gap = float(d[k])
             if gap <= link or gap > params.seg_max_occlusion_gap:
@@ -248,7 +258,7 @@ def _join_occluded_parts(points: NDArray[np.float64], normals: NDArray[np.float6
 
             def local_normal(seg: int, at: int) -> NDArray[np.float64]:
                 # Mean normal around the end point (boundary normals are unreliable).
-                near = members[seg][trees[seg].query_ball_point(points[at], 3.0 * link)]
+                near = members[seg][tree(seg).query_ball_point(points[at], 3.0 * link)]
                 nrm = normals[near]
                 nrm = nrm * np.sign(nrm @ normals[at])[:, None]
                 mean = nrm.sum(axis=0)
@@ -261,7 +271,9 @@ def _join_occluded_parts(points: NDArray[np.float64], normals: NDArray[np.float6
             samples = points[pa] + t[:, None] * (points[pb] - points[pa])
             s_depth = np.linalg.norm(samples, axis=1)
             tol = 1.5 * v / s_depth
-            dist, hit = ray_tree.query(samples / s_depth[:, None], k=1)
+            if not ray_tree:
+                ray_tree.append(cKDTree(points / np.maximum(depth, 1e-12)[:, None]))
+            dist, hit = ray_tree[0].query(samples / s_depth[:, None], k=1)
             hit = np.minimum(hit, len(points) - 1)
             seen = dist <= tol  # a measured point on this ray (else a hole: no evidence)
             nearer = depth[hit] < s_depth - 2.0 * v
@@ -388,12 +400,13 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     if m < 4:
         timing["segmentation_s"] = time.perf_counter() - t0
         return Segmentation(labels, [], timing)
-    wn, variation, nbrs = estimate_normals(wp, params.normal_neighbors)
+    wn, variation, nbrs, sqdist = estimate_normals(wp, params.normal_neighbors,
+                                                   return_sqdist=True)
     t1 = time.perf_counter()
     timing["seg_normals_s"] = t1 - t0
 
     wlabel = np.full(m, -1, dtype=np.int64)
-    supports = _support_planes(wp, wn, counts, nbrs, params, rng)
+    supports = _support_planes(wp, wn, counts, nbrs, sqdist, params, rng)
     for sid, sel in enumerate(supports):
         wlabel[sel] = sid
     t2 = time.perf_counter()
