@@ -135,6 +135,18 @@ MIN_COVERAGE = 0.5
 CONE_APEX_REACH = 0.5
 
 
+#: A cylinder or cone longer than BULK_FACTOR times the extent of the bulk of its
+#: object's points along its axis (2nd-98th percentile) plus BULK_MARGIN [m] is rejected.
+BULK_FACTOR = 1.5
+BULK_MARGIN = 0.02
+
+
+def _bulk_extent(points: NDArray[np.float64], axis: NDArray[np.float64]) -> float:
+    """Extent [m] of the bulk (2nd to 98th percentile) of ``points`` along ``axis``."""
+    lo, hi = np.percentile(points @ axis, [2.0, 98.0])
+    return float(hi - lo)
+
+
 def _arc_span(pts: NDArray[np.float64], origin: NDArray[np.float64],
               axis: NDArray[np.float64]) -> float:
     """Angle [rad] that points span around an axis (2 pi minus the largest empty gap)."""
@@ -448,6 +460,12 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
     s_lo, s_hi = o.support_ends(axis, origin, tmin, tmax)
     lo, hi = obb.interval(t_all, o.spacing, min(closed_lo) if closed_lo else s_lo,
                           max(closed_hi) if closed_hi else s_hi, correct=p.edge_correction)
+    bulk = _bulk_extent(o.points, axis)
+    if hi - lo > BULK_FACTOR * bulk + BULK_MARGIN:
+        # Stray points that happen to lie on the model's surface far from the object
+        # (flying pixels, another surface) stretched it.
+        return None, (f"{kind} rejected: {(hi - lo) * 1000:.0f} mm long, the object's "
+                      f"points span {bulk * 1000:.0f} mm along its axis")
     if kind == "cylinder":
         if hi - lo <= 0:
             return None, "cylinder has no height"

@@ -417,3 +417,23 @@ def test_points_are_grouped_by_label_in_input_order(top):
     for k, oid in enumerate(ids):
         group = order[starts[k]:ends[k]]
         np.testing.assert_array_equal(group, idx[lab == oid])
+
+
+def test_strays_on_the_extended_surface_do_not_stretch_a_cylinder():
+    # A can (r 40 mm, 80 mm tall, seen from the side) plus 1 % of its points scattered on
+    # the same infinite cylinder 0.2-0.5 m along the axis (flying pixels, another
+    # surface): no 0.5 m cylinder may come out of it.
+    rng = np.random.default_rng(6)
+    n = 20000
+    phi = rng.uniform(-math.pi / 2, math.pi / 2, n)
+    y = rng.uniform(-0.04, 0.04, n)
+    y[: n // 100] = rng.uniform(0.2, 0.5, n // 100)
+    pts = np.column_stack([0.04 * np.sin(phi), y, 0.7 - 0.04 * np.cos(phi)])
+    pts = _camera_facing(pts, rng, 0.0002)
+    obj = model_objects(pts, np.zeros(n, dtype=np.int64), ModelingParams()).objects[0]
+    assert obj.type == "unknown" or obj.dimensions.get("height", 0.0) < 0.12, obj.reason
+    # Without the strays the same can is a cylinder of the right size.
+    clean = pts[n // 100:]
+    obj = model_objects(clean, np.zeros(len(clean), dtype=np.int64), ModelingParams()).objects[0]
+    assert obj.type == "cylinder", obj.reason
+    assert obj.dimensions["height"] == pytest.approx(0.08, abs=2 * MM)
