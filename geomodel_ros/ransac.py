@@ -417,9 +417,11 @@ def ransac(model_cls, points: NDArray[np.float64], normals: NDArray[np.float64],
     if m < k + 1:
         return None
     cos_thr = math.cos(normal_threshold)
-    scored = np.arange(m) if max_score_points is None or m <= max_score_points else \
-        np.sort(rng.choice(m, max_score_points, replace=False))
-    pt, nt = np.ascontiguousarray(points[scored].T), np.ascontiguousarray(normals[scored].T)
+    sp, sn = points, normals
+    if max_score_points is not None and m > max_score_points:
+        scored = np.sort(rng.choice(m, max_score_points, replace=False))
+        sp, sn = points[scored], normals[scored]
+    pt, nt = np.ascontiguousarray(sp.T), np.ascontiguousarray(sn.T)
     best_count, best = -1, None
     needed, drawn = max_iterations, 0
     while drawn < min(needed, max_iterations):
@@ -443,7 +445,7 @@ def ransac(model_cls, points: NDArray[np.float64], normals: NDArray[np.float64],
         if counts[i] > best_count:
             best_count = int(counts[i])
             best = model_cls.from_batch(h, i)
-            w = best_count / len(scored)
+            w = best_count / len(sp)
             if w >= 1.0:
                 needed = drawn
             elif w > 0:
