@@ -19,11 +19,11 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .fastmath import centroid, col_max, col_min, knn
+from .fastmath import centroid, knn
 
 __all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
-           "split_faces", "faces_from_labels", "working_voxel_size", "pair_sqdist"]
+           "split_faces", "faces_from_labels", "working_voxel_size", "link_graph"]
 
 
 #: Voxel boxes of up to this many cells, or of up to DENSE_CELLS_PER_POINT cells per
@@ -315,17 +315,24 @@ def _pair_dot(v: NDArray[np.float64], neighbors: NDArray[np.int64]) -> NDArray[n
     return out
 
 
-def pair_sqdist(p: NDArray[np.float64], neighbors: NDArray[np.int64],
-                rows: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
-    """Squared distances of points of ``p`` (M, 3) to their neighbours ``neighbors``
-    (M, k): (M, k), or (len(rows), k) for the points ``rows`` only."""
-    nb = neighbors if rows is None else neighbors[rows]
-    out = np.zeros(nb.shape)
+def _pair_sqdist(p: NDArray[np.float64], neighbors: NDArray[np.int64]) -> NDArray[np.float64]:
+    """(M, k) squared distances of every point of ``p`` (M, 3) to its neighbours."""
+    out = np.zeros(neighbors.shape)
     for a in range(p.shape[1]):
         col = np.ascontiguousarray(p[:, a])
-        d = col[nb] - (col if rows is None else col[rows])[:, None]
+        d = col[neighbors] - col[:, None]
         out += d * d
     return out
+
+
+def link_graph(neighbors: NDArray[np.int64], keep: NDArray[np.bool_], n: int) -> csr_matrix:
+    """(M, n) sparse graph of the links ``i -> neighbors[i, j]`` where ``keep[i, j]``
+    (both (M, k)); links are grouped by their first point, so it is built in CSR form
+    directly."""
+    indptr = np.zeros(len(neighbors) + 1, dtype=np.int64)
+    np.cumsum(keep.sum(axis=1), out=indptr[1:])
+    return csr_matrix((np.ones(int(indptr[-1])), neighbors[keep], indptr),
+                      shape=(len(neighbors), n))
 
 
 def _adjacency(labels: NDArray[np.int64], neighbors: NDArray[np.int64], n_faces: int,
@@ -376,13 +383,9 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
     keep = (cos >= np.cos(angle_threshold)) & smooth[nb] & smooth[:, None] \
         & (nb != np.arange(m)[:, None])
     if max_edge is not None:
-        d2 = cloud.sqdist if cloud.sqdist is not None else pair_sqdist(cloud.points, nb)
+        d2 = cloud.sqdist if cloud.sqdist is not None else _pair_sqdist(cloud.points, nb)
         keep &= d2 <= max_edge * max_edge
-    # Links are grouped by their first point: the graph is built in CSR form directly.
-    indptr = np.zeros(m + 1, dtype=np.int64)
-    np.cumsum(keep.sum(axis=1), out=indptr[1:])
-    graph = csr_matrix((np.ones(int(indptr[-1])), nb[keep], indptr), shape=(m, m))
-    _, comp = connected_components(graph, directed=False)
+    _, comp = connected_components(link_graph(nb, keep, m), directed=False)
     comp = np.where(smooth, comp, -1).astype(np.int64)
     labels = _relabel_small(comp, cloud.points, min_face_points)
     n_faces = int(labels.max()) + 1 if labels.size else 0

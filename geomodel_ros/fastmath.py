@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["row_norms", "centroid", "col_min", "col_max", "rows_finite", "knn"]
+__all__ = ["row_norms", "centroid", "rows_finite", "knn"]
 
 
 def row_norms(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -23,16 +23,6 @@ def centroid(p: NDArray[np.float64]) -> NDArray[np.float64]:
     """Mean of the rows of ``p`` (N, 3); zeros for an empty array."""
     n = len(p)
     return np.ones(n) @ p / n if n else np.zeros(p.shape[1] if p.ndim == 2 else 3)
-
-
-def col_min(p: NDArray) -> NDArray:
-    """Column-wise minimum of ``p`` (N, D), N >= 1."""
-    return np.array([p[:, i].min() for i in range(p.shape[1])], dtype=p.dtype)
-
-
-def col_max(p: NDArray) -> NDArray:
-    """Column-wise maximum of ``p`` (N, D), N >= 1."""
-    return np.array([p[:, i].max() for i in range(p.shape[1])], dtype=p.dtype)
 
 
 def rows_finite(p: NDArray[np.float64]) -> NDArray[np.bool_]:

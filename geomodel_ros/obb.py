@@ -18,8 +18,8 @@ from scipy.spatial import ConvexHull, QhullError
 
 from .fastmath import row_norms
 
-__all__ = ["ray_to_plane", "ray_scale_to_plane", "ray_to_cylinder", "hull_candidates", "min_area_rectangle",
-           "orthonormalize_axes", "interval", "edge_gap"]
+__all__ = ["ray_to_plane", "ray_scale_to_plane", "ray_to_cylinder", "hull_candidates",
+           "min_area_rectangle", "orthonormalize_axes", "interval", "edge_gap"]
 
 
 def _shift_ok(s: NDArray[np.float64], dist: NDArray[np.float64], max_shift: float

@@ -18,12 +18,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .errors import as_points
-from .faces import WorkingCloud, estimate_normals, split_faces, voxelize
+from .faces import WorkingCloud, estimate_normals, link_graph, split_faces, voxelize
 from .fastmath import row_norms, rows_finite
 from .params import ModelingParams
 from .ransac import PlaneModel, fit_plane_svd, ransac, refine
@@ -68,10 +67,7 @@ def _components(n: int, sel: NDArray[np.int64], radius: float, neighbors: NDArra
     local[sel] = np.arange(m)
     nb = local[neighbors[sel]]
     keep = (nb >= 0) & (sqdist[sel] <= radius * radius)
-    indptr = np.zeros(m + 1, dtype=np.int64)
-    np.cumsum(keep.sum(axis=1), out=indptr[1:])
-    graph = csr_matrix((np.ones(int(indptr[-1])), nb[keep], indptr), shape=(m, m))
-    return connected_components(graph, directed=False)
+    return connected_components(link_graph(nb, keep, m), directed=False)
 
 
 #: Support-plane hypotheses are scored on this many random working points (a plane
