@@ -42,6 +42,7 @@ from visualization_msgs.msg import MarkerArray  # noqa: E402
 from msg_adapters.pointcloud2 import xyz_to_cloud  # noqa: E402
 
 from . import pipeline  # noqa: E402
+from .fastmath import retain_freed_memory  # noqa: E402
 from .node import ModelerNode  # noqa: E402
 from .params import ModelingParams  # noqa: E402
 from .synth import SCENE_NAMES, render_scene  # noqa: E402
@@ -148,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.frames < 1:
         parser.error("--frames must be >= 1")
+    retain_freed_memory()  # as the node's main does
 
     scene = render_scene(args.scene)
     header = Header(stamp=Time(sec=1, nanosec=0), frame_id="camera_optical")

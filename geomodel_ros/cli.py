@@ -16,6 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .fastmath import retain_freed_memory
 from .params import PARAMETERS, ModelingParams, ParameterError, load_params_file
 
 __all__ = ["main"]
@@ -426,6 +427,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    retain_freed_memory()
     try:
         return int(args.func(args))
     except KeyboardInterrupt:

@@ -59,6 +59,7 @@ from visualization_msgs.msg import MarkerArray
 
 from msg_adapters.processing import ModelingError, PointCloud2Error, process_cloud
 
+from .fastmath import retain_freed_memory
 from .params import PARAMETERS, ModelingParams, ParameterError, ParamSpec
 
 __all__ = ["ModelerNode", "NODE_PARAMETERS", "NodeOptions", "FrameStats", "main"]
@@ -478,6 +479,7 @@ class ModelerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run geomodel_ros modeler``; returns the exit status."""
+    retain_freed_memory()
     rclpy.init(args=args)
     node: ModelerNode | None = None
     try:

@@ -123,7 +123,8 @@ def hull_candidates(xy: NDArray[np.float64], directions: int = 8) -> NDArray[np.
         return xy
     ang = np.arange(directions) * (2.0 * np.pi / directions)
     dirs = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-    poly = xy[np.argmax(dirs @ xy.T, axis=1)]  # counter-clockwise by construction
+    xt = np.ascontiguousarray(xy.T)  # (2, n): products and reductions along long rows
+    poly = xy[np.argmax(dirs @ xt, axis=1)]  # counter-clockwise by construction
     keep_vertex = np.r_[True, np.any(np.diff(poly, axis=0) != 0, axis=1)]
     poly = poly[keep_vertex]
     if len(poly) > 1 and np.all(poly[-1] == poly[0]):
@@ -136,10 +137,10 @@ def hull_candidates(xy: NDArray[np.float64], directions: int = 8) -> NDArray[np.
     # Strictly left of every edge = strictly inside; a small margin keeps round-off safe.
     margin = 1e-9 * float(np.max(np.abs(xy[0]))) + 1e-12
     offset = np.einsum("ij,ij->i", inward, poly) + margin
-    proj = inward @ xy.T  # (edges, n): reductions along contiguous rows are fast
+    proj = inward @ xt  # (edges, n)
     proj -= offset[:, None]
     inside = proj.min(axis=0) > 0
-    return xy[~inside]
+    return np.compress(~inside, xy, axis=0)  # several times faster than xy[~inside]
 
 
 def min_area_rectangle(xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:

@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 from . import obb
 from .errors import InputError, as_points
 from .faces import WorkingCloud, build_working_cloud, faces_from_labels, split_faces
-from .fastmath import centroid, rows_finite
+from .fastmath import centroid, rows_finite, take_rows
 from .model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
 from .params import ModelingParams
 from .primitives import FaceSummary, ModelingResult, Primitive
@@ -99,7 +99,7 @@ class _Object:
         cap = self.params.refine_max_points
         if len(idx) > cap:
             idx = idx[self.rng.choice(len(idx), size=cap, replace=False, shuffle=False)]
-        return self.points[idx]
+        return take_rows(self.points, idx)
 
     def face_points(self, which: list[int]) -> NDArray[np.int64]:
         return np.concatenate([self.faces[i].points for i in which]) if which else \
@@ -337,10 +337,10 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     for fi, model in enumerate(planes):
         sel = nearest == fi
         if p.reproject_along_rays:
-            q[sel] = obb.ray_to_plane(o.points[sel], model.normal, model.d,
-                                           4 * p.ransac_threshold)
-        proj_faces.append(q[sel] @ rot)
-    proj = q[nearest >= 0] @ rot
+            q[sel] = obb.ray_to_plane(take_rows(o.points, sel), model.normal, model.d,
+                                      4 * p.ransac_threshold)
+        proj_faces.append(take_rows(q, sel) @ rot)
+    proj = take_rows(q, nearest >= 0) @ rot
     lo, hi = np.empty(3), np.empty(3)
     for a in range(3):
         vals = proj[:, a]
@@ -427,7 +427,7 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
     bad = _coverage(nearest >= 0, kind)
     if bad:
         return None, bad
-    curved_pts = o.points[nearest == 0]
+    curved_pts = take_rows(o.points, nearest == 0)
     arc = _arc_span(curved_pts, model.point if kind == "cylinder" else model.apex, axis)
     if arc < p.min_arc:
         return None, (f"{kind} rejected: its points span only {math.degrees(arc):.0f} deg "
@@ -445,7 +445,7 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
         origin = model.apex
     t_parts, closed = [(curved_pts - origin) @ axis], []
     for ci, f in enumerate(caps, start=1):
-        q = o.points[nearest == ci]
+        q = take_rows(o.points, nearest == ci)
         if len(q) == 0:
             continue
         if p.reproject_along_rays:
@@ -660,7 +660,7 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
 
         def one(k: int) -> Primitive:
             sel = order[starts[k]:ends[k]]
-            opts = pts[sel]
+            opts = take_rows(pts, sel)
             orng = streams[k]
             oid = int(ids[k])
             planes = tuple(v for key, v in (supports or {}).items() if key != oid)

@@ -4,8 +4,8 @@ Every model has a minimal-sample solver that uses point normals where they help
 (plane: 3 points; sphere: 2 points + normals; cylinder: 2 points + normals; cone:
 3 points + normals), a batched residual (hypotheses are scored many at a time), adaptive
 early termination, and a least-squares refinement on the inliers
-(:func:`scipy.optimize.least_squares`, geometric distances so the radius is not biased
-by noise).
+(MINPACK's Levenberg-Marquardt through :func:`scipy.optimize.leastsq`, geometric
+distances so the radius is not biased by noise).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
+from scipy.optimize import leastsq
 
 from .fastmath import centroid
 
@@ -169,17 +169,17 @@ class SphereModel:
     @staticmethod
     def jacobian(x: NDArray, ref: "SphereModel", p: NDArray) -> NDArray:
         """d distance(p) / d x at ``from_vector(x, ref)``, shape (M, 4)."""
-        return SphereModel.jacobian_t(x, ref, p.T)
+        return SphereModel.jacobian_t(x, ref, p.T).T
 
     @staticmethod
     def jacobian_t(x: NDArray, ref: "SphereModel", pt: NDArray) -> NDArray:
-        """:meth:`jacobian` of points given as (3, M)."""
+        """Transposed :meth:`jacobian`, shape (P, M), of points given as (3, M)."""
         v = pt - x[:3, None]
         u = v / np.maximum(_col_norms(v), _EPS)
         jt = np.empty((4, pt.shape[1]))
         np.negative(u, out=jt[:3])
         jt[3] = -1.0
-        return jt.T
+        return jt
 
 
 @dataclass(frozen=True)
@@ -253,11 +253,11 @@ class CylinderModel:
     @staticmethod
     def jacobian(x: NDArray, ref: "CylinderModel", p: NDArray) -> NDArray:
         """d distance(p) / d x at ``from_vector(x, ref)``, shape (M, 5)."""
-        return CylinderModel.jacobian_t(x, ref, p.T)
+        return CylinderModel.jacobian_t(x, ref, p.T).T
 
     @staticmethod
     def jacobian_t(x: NDArray, ref: "CylinderModel", pt: NDArray) -> NDArray:
-        """:meth:`jacobian` of points given as (3, M)."""
+        """Transposed :meth:`jacobian`, shape (P, M), of points given as (3, M)."""
         e1, e2 = ref._frame()
         m = CylinderModel.from_vector(x, ref)
         scale = float(np.linalg.norm(ref.axis + x[0] * e1 + x[1] * e2))
@@ -270,7 +270,7 @@ class CylinderModel:
         np.multiply(jt[3], t, out=jt[1])
         jt[:2] /= scale
         jt[4] = -1.0
-        return jt.T
+        return jt
 
 
 @dataclass(frozen=True)
@@ -337,11 +337,11 @@ class ConeModel:
     @staticmethod
     def jacobian(x: NDArray, ref: "ConeModel", p: NDArray) -> NDArray:
         """d distance(p) / d x at ``from_vector(x, ref)``, shape (M, 6)."""
-        return ConeModel.jacobian_t(x, ref, p.T)
+        return ConeModel.jacobian_t(x, ref, p.T).T
 
     @staticmethod
     def jacobian_t(x: NDArray, ref: "ConeModel", pt: NDArray) -> NDArray:
-        """:meth:`jacobian` of points given as (3, M)."""
+        """Transposed :meth:`jacobian`, shape (P, M), of points given as (3, M)."""
         e1, e2 = _perp_basis(ref.axis)
         m = ConeModel.from_vector(x, ref)
         scale = float(np.linalg.norm(ref.axis + x[0] * e1 + x[1] * e2))
@@ -357,7 +357,7 @@ class ConeModel:
         np.multiply(u, -c, out=jt[2:5])
         jt[2:5] += s * a[:, None]
         jt[5] = -rho * s - t * c
-        return jt.T
+        return jt
 
 
 MODELS = {"plane": PlaneModel, "sphere": SphereModel, "cylinder": CylinderModel, "cone": ConeModel}
@@ -486,14 +486,29 @@ def refine(model, points: NDArray[np.float64], threshold: float, rounds: int = 2
             break
         sub = np.ascontiguousarray(points[inl].T)  # (3, M): faster rows
         ref = model
-        x0 = ref.to_vector() if cls is not SphereModel else model.to_vector()
+        x0 = ref.to_vector()
+        # leastsq evaluates the function and the Jacobian once at x0 to check their
+        # shapes before MINPACK evaluates them there again: keep the last of each.
+        last: dict[str, tuple[NDArray, NDArray]] = {}
 
-        def fun(x, ref=ref, sub=sub):
-            return cls.from_vector(x, ref).distance_t(sub)
+        def cached(name, compute, x, ref=ref, sub=sub, last=last):
+            hit = last.get(name)
+            if hit is not None and np.array_equal(hit[0], x):
+                return hit[1]
+            value = compute(x, ref, sub)
+            last[name] = (x.copy(), value)
+            return value
 
-        def jac(x, ref=ref, sub=sub):
-            return cls.jacobian_t(x, ref, sub)
+        def fun(x):
+            return cached("f", lambda v, r, s: cls.from_vector(v, r).distance_t(s), x)
 
-        sol = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac", max_nfev=MAX_EVALUATIONS)
-        model = cls.from_vector(sol.x, ref)
+        def jac(x):
+            return cached("j", cls.jacobian_t, x)
+
+        # Levenberg-Marquardt (MINPACK lmder) with the Jacobian as (P, M) rows
+        # (col_deriv) and variables scaled by its column norms; tolerances as in
+        # scipy.optimize.least_squares, at most MAX_EVALUATIONS function evaluations.
+        x, *_ = leastsq(fun, x0, Dfun=jac, full_output=True, col_deriv=True, ftol=1e-8,
+                        xtol=1e-8, gtol=1e-8, maxfev=MAX_EVALUATIONS)
+        model = cls.from_vector(x, ref)
     return model

@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from .errors import as_points
 from .faces import WorkingCloud, estimate_normals, link_graph, split_faces, voxelize
-from .fastmath import row_norms, rows_finite
+from .fastmath import row_norms, rows_finite, take_rows
 from .params import ModelingParams
 from .ransac import PlaneModel, fit_plane_svd, ransac, refine
 
@@ -136,9 +136,9 @@ def _convex_objects(points: NDArray[np.float64], params: ModelingParams) -> NDAr
     j = nbrs.ravel()
     ok = (i != j) & (sqdist.ravel() <= max_edge * max_edge)
     i, j = i[ok], j[ok]
-    d = points[i] - points[j]
+    d = take_rows(points, i) - take_rows(points, j)
     dist = row_norms(d)
-    convexity = np.einsum("ij,ij->i", normals[i] - normals[j], d) / np.maximum(dist, 1e-12)
+    convexity = np.einsum("ij,ij->i", take_rows(normals, i) - take_rows(normals, j), d) / np.maximum(dist, 1e-12)
     pi, pj = patches[i], patches[j]
     cross = pi != pj
     n_p = int(patches.max()) + 1
@@ -390,7 +390,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     if len(finite) < 3:
         timing["segmentation_s"] = time.perf_counter() - t0
         return Segmentation(labels, [], timing)
-    p = pts[finite]
+    p = take_rows(pts, finite)
     wp, inverse, counts = voxelize(p, params.seg_voxel_size)
     m = len(wp)
     if m < 4:
@@ -441,8 +441,9 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
         own = np.flatnonzero(labels[finite] == sid)
         if len(own) > 20000:
             own = rng.choice(own, 20000, replace=False)
-        model = refine(fit_plane_svd(p[own]), p[own], params.seg_plane_threshold / 4.0, rounds=3)
-        center = p[own].mean(axis=0)
+        own_pts = take_rows(p, own)
+        model = refine(fit_plane_svd(own_pts), own_pts, params.seg_plane_threshold / 4.0, rounds=3)
+        center = own_pts.mean(axis=0)
         nrm = model.normal if model.normal @ center < 0 else -model.normal
         d = model.d if nrm @ model.normal > 0 else -model.d
         planes[sid] = (nrm, d)
