@@ -19,11 +19,13 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .fastmath import centroid, knn
+from .fastmath import centroid, knn, robust_sigma
+from .ransac import fit_plane_svd
 
 __all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
-           "split_faces", "faces_from_labels", "working_voxel_size", "link_graph"]
+           "split_faces", "faces_from_labels", "working_voxel_size", "link_graph",
+           "split_plane_unions"]
 
 
 #: Voxel boxes of up to this many cells, or of up to DENSE_CELLS_PER_POINT cells per
@@ -390,6 +392,100 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
     labels = _relabel_small(comp, cloud.points, min_face_points)
     n_faces = int(labels.max()) + 1 if labels.size else 0
     return FaceSet(labels, _adjacency(labels, cloud.neighbors, n_faces))
+
+
+#: Normals within this angle [rad] of a plane's normal count as lying on it when a
+#: non-planar face is taken apart into planes (:func:`split_plane_unions`).
+UNION_NORMAL_ANGLE = math.radians(15.0)
+#: Share of a face's points the planes must hold between them to replace it.
+UNION_COVERAGE = 0.8
+#: Candidate plane directions tried per face (a regular subset of its normals).
+UNION_CANDIDATES = 64
+
+
+def _plane_parts(points: NDArray[np.float64], normals: NDArray[np.float64], threshold: float,
+                 perpendicular_tolerance: float, min_points: int
+                 ) -> list[NDArray[np.int64]] | None:
+    """Indices of two or three mutually perpendicular planes that hold most of a face,
+    or None.
+
+    The plane of each step is the direction most normals agree with (within
+    UNION_NORMAL_ANGLE), refitted to those points; its members are the points within
+    ``threshold`` [m] of it whose normals agree. A round surface (cylinder, cone,
+    sphere) has no two perpendicular planes that hold UNION_COVERAGE of it: its normals
+    turn steadily, so each direction holds only a narrow strip.
+    """
+    m = len(points)
+    cos_n = math.cos(UNION_NORMAL_ANGLE)
+    rest = np.arange(m)
+    parts: list[NDArray[np.int64]] = []
+    axes: list[NDArray[np.float64]] = []
+    for _ in range(3):
+        if len(rest) < min_points:
+            break
+        nr = normals[rest]
+        cand = nr[:: max(1, len(rest) // UNION_CANDIDATES)]
+        agree = np.abs(cand @ nr.T) >= cos_n
+        best = int(np.argmax(agree.sum(axis=1)))
+        sel = rest[agree[best]]
+        if len(sel) < min_points:
+            break
+        plane = fit_plane_svd(points[sel])
+        on = (np.abs(points[rest] @ plane.normal + plane.d) <= threshold) \
+            & (np.abs(nr @ plane.normal) >= cos_n)
+        if on.sum() < min_points:
+            break
+        if any(abs(float(plane.normal @ a)) > math.sin(perpendicular_tolerance) for a in axes):
+            break
+        parts.append(rest[on])
+        axes.append(plane.normal)
+        rest = rest[~on]
+    if len(parts) < 2 or sum(len(p) for p in parts) < UNION_COVERAGE * m:
+        return None
+    return parts
+
+
+def split_plane_unions(cloud: WorkingCloud, faces: FaceSet, threshold: float,
+                       perpendicular_tolerance: float, min_face_points: int) -> FaceSet:
+    """Take apart faces that are two or three perpendicular planes grown together.
+
+    On real sensor data the normals turn gradually across a box's edge (depth noise,
+    the normal neighbourhood straddles the edge), so region growing can run round it
+    and join two or three sides of a box into one face that no plane fits. Every face
+    no plane fits to within ``threshold`` [m] (robust spread) is tried: when two or
+    three mutually perpendicular planes (within ``perpendicular_tolerance`` [rad] of
+    90 degrees) hold most of its points, each becomes a face of its own and the rest of
+    its points (the rounded edge) join the nearest one.
+    """
+    labels = faces.labels.copy()
+    top = faces.count
+    changed = False
+    for f in range(faces.count):
+        w = np.flatnonzero(labels == f)
+        if len(w) < 2 * min_face_points:
+            continue
+        pts = cloud.points[w]
+        plane = fit_plane_svd(pts)
+        if robust_sigma(pts @ plane.normal + plane.d) <= threshold:
+            continue
+        parts = _plane_parts(pts, cloud.normals[w], threshold, perpendicular_tolerance,
+                             min_face_points)
+        if parts is None:
+            continue
+        local = np.full(len(w), -1, dtype=np.int64)
+        for i, part in enumerate(parts):
+            local[part] = i
+        loose = local < 0
+        if loose.any():
+            # The points between the planes (the rounded edge) join the nearest plane.
+            _, j = cKDTree(pts[~loose]).query(pts[loose], k=1)
+            local[loose] = local[~loose][j]
+        labels[w] = np.where(local == 0, f, top + local - 1)
+        top += len(parts) - 1
+        changed = True
+    if not changed:
+        return faces
+    return FaceSet(labels, _adjacency(labels, cloud.neighbors, top))
 
 
 def faces_from_labels(cloud: WorkingCloud, point_face_labels: NDArray[np.int64]) -> FaceSet:

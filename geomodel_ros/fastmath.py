@@ -14,7 +14,8 @@ import ctypes.util
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["row_norms", "centroid", "rows_finite", "take_rows", "knn", "retain_freed_memory"]
+__all__ = ["row_norms", "centroid", "rows_finite", "take_rows", "robust_sigma", "knn",
+           "retain_freed_memory"]
 
 
 def row_norms(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -34,6 +35,11 @@ def rows_finite(p: NDArray[np.float64]) -> NDArray[np.bool_]:
     for i in range(1, p.shape[1]):
         ok &= np.isfinite(p[:, i])
     return ok
+
+
+def robust_sigma(d: NDArray[np.float64]) -> float:
+    """Standard deviation estimated from the median absolute deviation (outlier-proof)."""
+    return float(1.4826 * np.median(np.abs(d - np.median(d)))) if d.size else 0.0
 
 
 def take_rows(a: NDArray, which: NDArray) -> NDArray:

@@ -21,8 +21,9 @@ from scipy.spatial import cKDTree
 
 from . import obb
 from .errors import InputError, as_points
-from .faces import WorkingCloud, build_working_cloud, faces_from_labels, split_faces
-from .fastmath import centroid, rows_finite, take_rows
+from .faces import (WorkingCloud, build_working_cloud, faces_from_labels, split_faces,
+                    split_plane_unions)
+from .fastmath import centroid, robust_sigma, rows_finite, take_rows
 from .model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
 from .params import ModelingParams
 from .primitives import FaceSummary, ModelingResult, Primitive
@@ -147,6 +148,34 @@ def _bulk_extent(points: NDArray[np.float64], axis: NDArray[np.float64]) -> floa
     return float(hi - lo)
 
 
+#: Sizing ignores projections farther than STRAY_PAD times the bulk's extent plus
+#: STRAY_MARGIN [m] beyond the bulk (1st-99th percentile) of an object's points. A side
+#: must hold more than about 2 % of the points not to be cut (a box seen almost face on
+#: whose sides hold less may come out too thin along the view).
+STRAY_PAD = 0.25
+STRAY_MARGIN = 0.01
+
+
+def _without_strays(vals: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``vals`` (a projection of an object's points on one axis) without the strays
+    beyond its bulk (STRAY_PAD, STRAY_MARGIN). On depth images these are
+    flying pixels along the viewing rays past an edge, which lie close to the extension
+    of a side face seen at a grazing angle and would stretch the box."""
+    lo, hi = np.percentile(vals[:: max(1, len(vals) // 5000)], [1.0, 99.0])
+    pad = STRAY_PAD * (hi - lo) + STRAY_MARGIN
+    keep = (vals >= lo - pad) & (vals <= hi + pad)
+    return vals if keep.all() else vals[keep]
+
+
+def _bulk_reach(points: NDArray[np.float64], origin: NDArray[np.float64],
+                axis: NDArray[np.float64]) -> float:
+    """Distance [m] from the axis line (``origin``, unit ``axis``) within which the bulk
+    (98th percentile) of ``points`` lie."""
+    v = points[:: max(1, len(points) // 5000)] - origin
+    radial = v - np.outer(v @ axis, axis)
+    return float(np.percentile(np.sqrt(np.einsum("ij,ij->i", radial, radial)), 98.0))
+
+
 def _arc_span(pts: NDArray[np.float64], origin: NDArray[np.float64],
               axis: NDArray[np.float64]) -> float:
     """Angle [rad] that points span around an axis (2 pi minus the largest empty gap)."""
@@ -164,11 +193,6 @@ def _coverage(on_model: NDArray[np.bool_], what: str) -> str | None:
     if share < MIN_COVERAGE:
         return f"{what} rejected: only {share:.0%} of the object's points lie on it"
     return None
-
-
-def _robust_sigma(d: NDArray[np.float64]) -> float:
-    """Standard deviation estimated from the median absolute deviation (outlier-proof)."""
-    return float(1.4826 * np.median(np.abs(d - np.median(d)))) if d.size else 0.0
 
 
 def _rms(d: NDArray[np.float64]) -> float:
@@ -206,6 +230,8 @@ def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
     else:
         fs = split_faces(wc, params.face_angle_threshold, params.edge_variation_threshold,
                          params.min_face_points)
+        fs = split_plane_unions(wc, fs, params.ransac_threshold, params.angle_tolerance,
+                                params.min_face_points)
     point_face = fs.labels[wc.point_to_working]
     order = np.argsort(point_face, kind="stable")
     bounds = np.searchsorted(point_face[order], np.arange(fs.count + 1))
@@ -222,7 +248,7 @@ def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
                             params.cf_radius_fraction, wc.counts[widx])
         plane = fit_plane_svd(wc.points[widx]) if len(widx) >= 3 else PlaneModel(np.array([0, 0, 1.0]), 0.0)
         # Robust spread (MAD) so that a few flying pixels do not make a flat face curved.
-        plane_rmse = _robust_sigma(plane.distance(wc.points[widx]))
+        plane_rmse = robust_sigma(plane.distance(wc.points[widx]))
         # RANSAC-style verification of the CF decision (paper 3.2: a fit that fails rejects
         # the type): a "planar" face no plane fits is curved, a "curved" face that a plane
         # fits to well within the inlier threshold is planar.
@@ -343,7 +369,7 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     proj = take_rows(q, nearest >= 0) @ rot
     lo, hi = np.empty(3), np.empty(3)
     for a in range(3):
-        vals = proj[:, a]
+        vals = _without_strays(np.ascontiguousarray(proj[:, a]))
         vmin, vmax = float(vals.min()), float(vals.max())
         closed_lo, closed_hi = [], []
         for fi, pf in enumerate(proj_faces):
@@ -485,6 +511,11 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
     radius = height * math.tan(model.half_angle)
     if not p.min_radius <= radius <= p.max_radius:
         return None, f"cone radius {radius:.4f} m out of range"
+    reach = _bulk_reach(o.points, origin, axis)
+    if radius > BULK_FACTOR * reach + BULK_MARGIN:
+        # A nearly flat cone whose points cover only the region round its apex.
+        return None, (f"cone rejected: radius {radius * 1000:.0f} mm, the object's points "
+                      f"reach {reach * 1000:.0f} mm from its axis")
     center = origin + axis * height / 2
     return Primitive(o.oid, "cone", center, _perp_frame(-axis),
                      {"radius": float(radius), "height": float(height)}, n_all, rmse), "cone verified"
@@ -553,6 +584,72 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
         decision = GraphDecision("curved", cands, -1, (), why)
         reasons.append(f"curved faces alone: {why}")
     obj = _Object(object_id, points, wc, faces, adjacency, spacing, params, rng, supports)
+    prim = _fit_candidates(obj, decision, reasons)
+    if prim is None:
+        # Second chance for flat faces that came out curved (a box side bent by sensor
+        # noise or depth distortion beyond the plane test): with them taken as planes
+        # the object may be a plane or cuboid after all.
+        flat = [i for i, f in enumerate(faces) if not f.info.planar and _normals_flat(f.info)]
+        if flat:
+            faces2 = [_as_planar(wc, f) if i in flat else f for i, f in enumerate(faces)]
+            decision2 = decide_type([f.info for f in faces2], adjacency, params.angle_tolerance,
+                                    3 * params.ransac_threshold, None,
+                                    params.sphere_curvature_ratio,
+                                    params.developable_curvature_ratio,
+                                    params.cone_curvature_variation)
+            decision2 = GraphDecision(decision2.category,
+                                      tuple(k for k in decision2.candidates
+                                            if k in ("plane", "cuboid")),
+                                      decision2.main_face, decision2.axis_of_face,
+                                      decision2.reason)
+            if decision2.candidates:
+                reasons.append(f"faces {flat} taken as planar (their normals turn less than "
+                               f"{math.degrees(FLAT_FACE_ANGLE):.0f} deg): {decision2.reason}")
+                obj2 = _Object(object_id, points, wc, faces2, adjacency, spacing, params, rng,
+                               supports)
+                prim = _fit_candidates(obj2, decision2, reasons)
+                if prim is not None:
+                    summaries = tuple(f.summary for f in faces2)
+    if prim is not None:
+        return Primitive(prim.id, prim.type, prim.center, prim.rotation, prim.dimensions,
+                         prim.point_count, prim.rmse, summaries, "; ".join(reasons))
+    return _unknown(object_id, points, "; ".join(reasons), summaries)
+
+
+#: A curved face whose point normals stay within this angle [rad] of their mean (90th
+#: percentile) may be taken as planar when no model fits it as curved. A round surface's
+#: normals turn with its arc (at least ``min_arc`` for an accepted fit).
+FLAT_FACE_ANGLE = math.radians(20.0)
+
+
+def _normals_flat(info: FaceInfo) -> bool:
+    n = info.point_normals
+    if len(n) < 3:
+        return False
+    mean = centroid(n)
+    norm = float(np.linalg.norm(mean))
+    if norm <= 1e-9:
+        return False
+    cos = np.abs(n @ (mean / norm))
+    return float(np.percentile(cos, 10.0)) >= math.cos(FLAT_FACE_ANGLE)
+
+
+def _as_planar(wc: WorkingCloud, face: _Face) -> _Face:
+    """``face`` re-described as a plane (least squares on its working points)."""
+    info = face.info
+    plane = fit_plane_svd(wc.points[face.working])
+    normal = _toward_sensor(plane.normal, info.center)
+    info2 = FaceInfo(True, normal, float(-normal @ info.center), info.size,
+                     info.point_normals, info.center)
+    s = face.summary
+    return _Face(info2, FaceSummary("planar", s.cf, s.point_count, normal), face.working,
+                 face.points)
+
+
+def _fit_candidates(obj: _Object, decision: GraphDecision, reasons: list[str]
+                    ) -> Primitive | None:
+    """The first of the decision's candidate types that fits and verifies (reasons of
+    every attempt appended to ``reasons``), or None."""
     for kind in decision.candidates:
         try:
             if kind == "plane":
@@ -565,9 +662,8 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
             prim, why = None, f"{kind}: numerical failure ({exc})"
         reasons.append(why)
         if prim is not None and _finite(prim):
-            return Primitive(prim.id, prim.type, prim.center, prim.rotation, prim.dimensions,
-                             prim.point_count, prim.rmse, summaries, "; ".join(reasons))
-    return _unknown(object_id, points, "; ".join(reasons), summaries)
+            return prim
+    return None
 
 
 def _finite(p: Primitive) -> bool:

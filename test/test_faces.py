@@ -138,3 +138,45 @@ def test_large_objects_get_a_coarser_working_cloud_small_ones_keep_the_voxel():
     small = plane[:3000]
     assert working_voxel_size(small, 0.003, 5000) == 0.003
     assert working_voxel_size(plane, 0.003, 10_000_000) == 0.003
+
+
+def _face_set_of_one(cloud):
+    from geomodel_ros.faces import FaceSet
+
+    return FaceSet(np.zeros(len(cloud.points), dtype=np.int64), np.zeros((1, 1), dtype=bool))
+
+
+def test_two_perpendicular_planes_grown_into_one_face_are_taken_apart():
+    # An L of two 100 x 80 mm sides of a box, sampled at 2 mm, given as a single face
+    # (what region growing does when the normals turn gradually across the edge).
+    from geomodel_ros.faces import split_plane_unions
+
+    u, v = np.meshgrid(np.arange(0, 0.1, 0.002), np.arange(0, 0.08, 0.002))
+    side_a = np.column_stack([u.ravel(), v.ravel(), np.zeros(u.size)])
+    side_b = np.column_stack([np.zeros(u.size), v.ravel(), u.ravel()])
+    pts = np.vstack([side_a, side_b[u.ravel() > 0]]) + [0.0, 0.0, 0.6]
+    cloud = build_working_cloud(pts, 0.003, 16)
+    out = split_plane_unions(cloud, _face_set_of_one(cloud), 0.002, 0.14, 12)
+    assert out.count == 2
+    assert out.adjacency[0, 1] and out.adjacency[1, 0]
+    # Each new face is one side: its points lie on one of the two planes.
+    for f in range(2):
+        q = cloud.points[out.labels == f]
+        assert min(np.abs(q[:, 2] - 0.6).max(), np.abs(q[:, 0]).max()) < 0.004
+
+
+def test_a_curved_face_is_not_taken_apart_into_planes():
+    # Half a cylinder (r 40 mm) and a quarter sphere: their normals turn steadily, no
+    # two perpendicular planes hold most of them.
+    from geomodel_ros.faces import split_plane_unions
+
+    phi, y = np.meshgrid(np.linspace(-np.pi / 2, np.pi / 2, 120), np.arange(-0.04, 0.04, 0.002))
+    cyl = np.column_stack([0.04 * np.sin(phi.ravel()), y.ravel(), 0.6 - 0.04 * np.cos(phi.ravel())])
+    th, ph = np.meshgrid(np.linspace(0, np.pi / 2, 60), np.linspace(0, np.pi, 120))
+    sph = 0.05 * np.column_stack([np.sin(th.ravel()) * np.cos(ph.ravel()),
+                                  np.sin(th.ravel()) * np.sin(ph.ravel()),
+                                  -np.cos(th.ravel())]) + [0.0, 0.0, 0.6]
+    for pts in (cyl, sph):
+        cloud = build_working_cloud(pts, 0.003, 16)
+        faces = _face_set_of_one(cloud)
+        assert split_plane_unions(cloud, faces, 0.002, 0.14, 12) is faces

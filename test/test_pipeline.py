@@ -437,3 +437,19 @@ def test_strays_on_the_extended_surface_do_not_stretch_a_cylinder():
     obj = model_objects(clean, np.zeros(len(clean), dtype=np.int64), ModelingParams()).objects[0]
     assert obj.type == "cylinder", obj.reason
     assert obj.dimensions["height"] == pytest.approx(0.08, abs=2 * MM)
+
+
+def test_sizing_ignores_strays_beyond_the_bulk_of_a_projection():
+    # A box's points projected on one of its axes: 100 mm of them, plus 1 % strays
+    # 0.2-0.5 m beyond (flying pixels along the extension of a side face seen at a
+    # grazing angle). The strays go; a clean projection is returned as it is.
+    from geomodel_ros.pipeline import _without_strays
+
+    rng = np.random.default_rng(3)
+    bulk = rng.uniform(0.0, 0.1, 20000)
+    kept = _without_strays(np.r_[bulk, rng.uniform(0.2, 0.5, 200)])
+    assert kept.max() == bulk.max() and kept.min() == bulk.min()
+    assert _without_strays(bulk) is bulk
+    # Uneven but genuine: a box seen almost face on, 5 % of its points on the sides.
+    skewed = np.r_[np.zeros(15000), rng.uniform(0.0, 0.05, 750)]
+    assert _without_strays(skewed).max() == skewed.max()
