@@ -20,7 +20,7 @@ from .evaluation import score_objects, segmentation_scores
 from .params import ModelingParams
 
 __all__ = ["figure9_table", "run_benchmark", "summary_lines", "data_dir", "osd_benchmark",
-           "osd_lines", "mug_benchmark", "synthetic_segmentation", "peak_rss_mb"]
+           "osd_lines", "osd_type_lines", "mug_benchmark", "synthetic_segmentation", "peak_rss_mb"]
 
 
 def data_dir() -> Path:
@@ -139,8 +139,39 @@ def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(45
             result = model_objects(points, seg.labels, params, supports=seg.support_planes)
             row["total_s"] = time.perf_counter() - t0
             row["types"] = {o.id: o.type for o in result.objects}
+            row["object_types"] = _best_segment_types(seg.labels, gt, objects, row["types"])
         rows.append(row)
     return rows
+
+
+def _best_segment_types(labels: np.ndarray, gt: np.ndarray, objects: list[int],
+                        types: dict[int, str]) -> dict[int, str]:
+    """Modeled type of the segment with the highest IoU with each ground-truth object
+    (``none`` when no segment touches it)."""
+    out = {}
+    seg_sizes = np.bincount(labels[labels >= 0]) if (labels >= 0).any() else np.zeros(0)
+    for g in objects:
+        mask = gt == g
+        ids, inter = np.unique(labels[mask & (labels >= 0)], return_counts=True)
+        if not len(ids):
+            out[g] = "none"
+            continue
+        iou = inter / (mask.sum() + seg_sizes[ids] - inter)
+        out[g] = types.get(int(ids[np.argmax(iou)]), "none")
+    return out
+
+
+def osd_type_lines(rows: list[dict]) -> list[str]:
+    """Per group: how the labelled objects (their best-matching segments) were modeled."""
+    kinds = ("plane", "cuboid", "cylinder", "cone", "sphere", "unknown", "none")
+    lines = [f"{'group':<10} " + " ".join(f"{k:>8}" for k in kinds)]
+    groups = dict(OSD_GROUPS)
+    groups["all"] = range(0, 45)
+    for name, members in groups.items():
+        ts = [t for r in rows if r["scene"] in members for t in r.get("object_types", {}).values()]
+        if ts:
+            lines.append(f"{name:<10} " + " ".join(f"{ts.count(k):>8}" for k in kinds))
+    return lines
 
 
 def osd_lines(rows: list[dict]) -> list[str]:

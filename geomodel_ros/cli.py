@@ -305,6 +305,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         report["osd"] = osd
         print("\nReal Kinect scenes, osd_learn (config/kinect.yaml; objects = labels >= 20):")
         print("\n".join(bm.osd_lines(osd)))
+        if any("object_types" in r for r in osd):
+            print("\nModeled type of each labelled object's best-matching segment:")
+            print("\n".join(bm.osd_type_lines(osd)))
         mug = bm.mug_benchmark(kinect)
         report["mug"] = mug
         print("\nPCL mug scene (config/kinect.yaml):", json.dumps(mug))
