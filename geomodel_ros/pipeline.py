@@ -566,9 +566,7 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
     curvature = None
     if not any(i.planar for i in infos):
         curvature = curvature_of(np.ones(len(wc.points), dtype=bool))
-    decision = decide_type(infos, adjacency, params.angle_tolerance, 3 * params.ransac_threshold,
-                           curvature, params.sphere_curvature_ratio,
-                           params.developable_curvature_ratio, params.cone_curvature_variation)
+    decision = _decide(infos, adjacency, curvature, params)
     reasons = [decision.reason]
     if not decision.candidates and decision.category == "mixed":
         # The planar faces fit no rule with the curved ones (handles, rims, slivers of
@@ -592,11 +590,7 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
         flat = [i for i, f in enumerate(faces) if not f.info.planar and _normals_flat(f.info)]
         if flat:
             faces2 = [_as_planar(wc, f) if i in flat else f for i, f in enumerate(faces)]
-            decision2 = decide_type([f.info for f in faces2], adjacency, params.angle_tolerance,
-                                    3 * params.ransac_threshold, None,
-                                    params.sphere_curvature_ratio,
-                                    params.developable_curvature_ratio,
-                                    params.cone_curvature_variation)
+            decision2 = _decide([f.info for f in faces2], adjacency, None, params)
             decision2 = GraphDecision(decision2.category,
                                       tuple(k for k in decision2.candidates
                                             if k in ("plane", "cuboid")),
@@ -614,6 +608,14 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
         return Primitive(prim.id, prim.type, prim.center, prim.rotation, prim.dimensions,
                          prim.point_count, prim.rmse, summaries, "; ".join(reasons))
     return _unknown(object_id, points, "; ".join(reasons), summaries)
+
+
+def _decide(infos: list[FaceInfo], adjacency: NDArray[np.bool_],
+            curvature: tuple[NDArray, NDArray] | None, params: ModelingParams) -> GraphDecision:
+    """The model graph's decision with the thresholds of ``params``."""
+    return decide_type(infos, adjacency, params.angle_tolerance, 3 * params.ransac_threshold,
+                       curvature, params.sphere_curvature_ratio,
+                       params.developable_curvature_ratio, params.cone_curvature_variation)
 
 
 #: A curved face whose point normals stay within this angle [rad] of their mean (90th
