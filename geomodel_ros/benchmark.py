@@ -140,6 +140,7 @@ def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(45
             row["total_s"] = time.perf_counter() - t0
             row["types"] = {o.id: o.type for o in result.objects}
             row["object_types"] = _best_segment_types(seg.labels, gt, objects, row["types"])
+            row["cuboid_stretch"] = _cuboid_stretch(points, seg.labels, result.objects)
         rows.append(row)
     return rows
 
@@ -161,6 +162,20 @@ def _best_segment_types(labels: np.ndarray, gt: np.ndarray, objects: list[int],
     return out
 
 
+def _cuboid_stretch(points: np.ndarray, labels: np.ndarray, objects) -> list[float]:
+    """Per cuboid: its largest side over the extent of its own segment's points along
+    that axis (1st-99th percentile); 1 = as long as the points, 1.5 = half again."""
+    out = []
+    for o in objects:
+        if o.type != "cuboid":
+            continue
+        local = (points[labels == o.id] - o.center) @ o.rotation
+        lo, hi = np.percentile(local, [1.0, 99.0], axis=0)
+        dims = np.array([o.dimensions[n] for n in ("length", "width", "height")])
+        out.append(float(np.max(dims / np.maximum(hi - lo, 1e-3))))
+    return out
+
+
 def osd_type_lines(rows: list[dict]) -> list[str]:
     """Per group: how the labelled objects (their best-matching segments) were modeled."""
     kinds = ("plane", "cuboid", "cylinder", "cone", "sphere", "unknown", "none")
@@ -171,6 +186,10 @@ def osd_type_lines(rows: list[dict]) -> list[str]:
         ts = [t for r in rows if r["scene"] in members for t in r.get("object_types", {}).values()]
         if ts:
             lines.append(f"{name:<10} " + " ".join(f"{ts.count(k):>8}" for k in kinds))
+    stretch = [v for r in rows for v in r.get("cuboid_stretch", [])]
+    if stretch:
+        lines.append(f"cuboids (all segments): {len(stretch)}, longer than 1.3x their points "
+                     f"along an axis: {sum(v > 1.3 for v in stretch)}, most: {max(stretch):.2f}x")
     return lines
 
 
