@@ -277,7 +277,42 @@ def mug_benchmark(params: ModelingParams) -> dict:
         if table_n is not None:
             out["axis_to_table_normal_deg"] = angle(axis, table_n)
             out["tutorial_axis_to_table_normal_deg"] = angle(ref, table_n)
+        out.update(_axis_scan(pts[labels == o.id], axis, ref, table_n, angle))
     return out
+
+
+#: Directions scanned around the mug's modeled axis, and the band [m] that counts a
+#: point as on the circle.
+MUG_SCAN_ANGLE = np.radians(20.0)
+MUG_SCAN_BAND = 0.003
+
+
+def _axis_scan(mug: np.ndarray, ours: np.ndarray, tutorial: np.ndarray,
+               table_n: np.ndarray | None, angle) -> dict:
+    """Which axis direction do the mug's points support, independently of the fitter?
+
+    A circle is fitted to the segment's points seen along every direction within
+    MUG_SCAN_ANGLE of our axis (which includes the tutorial's); reported: the best
+    direction, and the best one within 5 degrees of the tutorial's axis.
+    """
+    from .evaluation import circle_along, scan_axis
+
+    fits = scan_axis(mug, ours, MUG_SCAN_ANGLE, MUG_SCAN_BAND)
+    best = fits[0]
+    near = [f for f in fits if angle(f.direction, tutorial) <= 5.0][0]
+
+    def summary(f) -> dict:
+        row = {"share_within_3mm": f.share, "median_residual_m": f.median_residual,
+               "radius_m": f.radius, "to_ours_deg": angle(f.direction, ours),
+               "to_tutorial_deg": angle(f.direction, tutorial)}
+        if table_n is not None:
+            row["to_table_normal_deg"] = angle(f.direction, table_n)
+        return row
+
+    return {"axis_scan_best": summary(best),
+            "axis_scan_best_within_5deg_of_tutorial": summary(near),
+            "axis_scan_at_ours": summary(circle_along(mug, ours, MUG_SCAN_BAND)),
+            "axis_scan_at_tutorial": summary(circle_along(mug, tutorial, MUG_SCAN_BAND))}
 
 
 def synthetic_segmentation(scenes: Sequence[str], params: ModelingParams, repeats: int = 5,

@@ -8,7 +8,8 @@ import numpy as np
 
 from .primitives import Primitive
 
-__all__ = ["expected_type", "DimensionError", "dimension_errors", "ObjectScore", "score_objects"]
+__all__ = ["expected_type", "DimensionError", "dimension_errors", "ObjectScore", "score_objects",
+           "AxisFit", "circle_along", "scan_axis"]
 
 
 def expected_type(gt_type: str) -> str:
@@ -147,3 +148,69 @@ def segmentation_scores(pred: np.ndarray, gt: np.ndarray, object_ids, share: flo
         parts_iou = union_inter / (gt_size[g] + int(pred_size[inside].sum()) - union_inter)
         scores.append(SegmentScore(g, float(iou), bool(others), bool(over), float(parts_iou)))
     return scores
+
+
+@dataclass(frozen=True)
+class AxisFit:
+    """How well a circle fits a cloud seen along one axis direction.
+
+    Attributes
+    ----------
+    direction : (3,) unit vector
+    share : float
+        Fraction of the points within the threshold of the best circle.
+    median_residual : float [m]
+        Median distance of the points from that circle (radially).
+    radius : float [m]
+    """
+
+    direction: np.ndarray
+    share: float
+    median_residual: float
+    radius: float
+
+
+def circle_along(points: np.ndarray, direction: np.ndarray, threshold: float,
+                 rounds: int = 6) -> AxisFit:
+    """Best circle through ``points`` (N, 3) projected along ``direction``: an algebraic
+    (Kasa) circle refitted on the points near it, the band narrowing to ``threshold`` [m]
+    over ``rounds`` rounds (handles and strays drop out)."""
+    d = np.asarray(direction, dtype=np.float64)
+    d = d / np.linalg.norm(d)
+    a = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(d, a)
+    q = points - points.mean(axis=0)
+    x, y = q @ a, q @ b
+    keep = np.ones(len(q), dtype=bool)
+    r, radius = np.hypot(x, y), 0.0
+    band = max(float(np.ptp(r)), threshold) if len(q) else threshold
+    for _ in range(rounds):
+        if keep.sum() < 3:
+            break
+        lhs = np.column_stack([x[keep], y[keep], np.ones(int(keep.sum()))])
+        c = np.linalg.lstsq(lhs, x[keep] ** 2 + y[keep] ** 2, rcond=None)[0]
+        cx, cy = c[0] / 2.0, c[1] / 2.0
+        radius = float(np.sqrt(max(c[2] + cx * cx + cy * cy, 0.0)))
+        r = np.abs(np.hypot(x - cx, y - cy) - radius)
+        band = max(band / 2.0, threshold)
+        keep = r <= band
+    return AxisFit(d, float(np.mean(r <= threshold)), float(np.median(r)), radius)
+
+
+def scan_axis(points: np.ndarray, around: np.ndarray, max_angle: float, threshold: float,
+              step: float = np.radians(1.0)) -> list[AxisFit]:
+    """:func:`circle_along` for directions up to ``max_angle`` [rad] from ``around``
+    (``step`` [rad] in polar angle, about ``step`` along the circles), best share first."""
+    z = np.asarray(around, dtype=np.float64)
+    z = z / np.linalg.norm(z)
+    e1 = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(z, e1)
+    fits = []
+    for theta in np.arange(0.0, max_angle + 1e-12, step):
+        turns = max(1, int(np.ceil(2.0 * np.pi * np.sin(theta) / step)))
+        for phi in np.arange(turns) * (2.0 * np.pi / turns):
+            d = np.cos(theta) * z + np.sin(theta) * (np.cos(phi) * e1 + np.sin(phi) * e2)
+            fits.append(circle_along(points, d, threshold))
+    return sorted(fits, key=lambda f: (-f.share, f.median_residual))
