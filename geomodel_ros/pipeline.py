@@ -400,15 +400,53 @@ def _curved_and_planar(o: _Object) -> tuple[list[int], list[int]]:
     return curved, planar
 
 
-def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]:
-    """Cylinder, cone or sphere on the curved faces (planar faces: caps / base)."""
+#: A cap grown into a curved face must hold at least this share of the face's working
+#: points (besides ``min_face_points``).
+INNER_CAP_SHARE = 0.1
+
+
+def _inner_cap(wp: NDArray[np.float64], wn: NDArray[np.float64], model,
+               on_model: NDArray[np.bool_], p: ModelingParams
+               ) -> tuple[NDArray[np.float64], float] | None:
+    """A flat end of a cylinder or cone that region growing joined to its curved side.
+
+    Real lids and bottoms meet the side in a rounded edge, over which the normals turn
+    smoothly, so the end is not a face of its own. Its working points (``wp``, ``wn``:
+    the curved faces') are off the fitted side and have normals along the axis; when
+    they are enough and a plane perpendicular to the axis fits them, that plane is
+    returned as (unit normal towards the sensor, offset d of n . x + d = 0).
+    """
+    axis = model.axis
+    cos_tol = math.cos(p.angle_tolerance)
+    along = (np.abs(wn @ axis) >= cos_tol) & ~on_model
+    need = max(p.min_face_points, INNER_CAP_SHARE * len(wp))
+    if along.sum() < need:
+        return None
+    cand = take_rows(wp, along)
+    # The end seen most (a lid; the bottom of a standing object is hidden), refined.
+    plane = refine(PlaneModel(axis.copy(), -float(np.median(cand @ axis))), cand,
+                   p.ransac_threshold)
+    if abs(plane.normal @ axis) < cos_tol:
+        return None
+    if (np.abs(plane.distance(cand)) <= p.ransac_threshold).sum() < need:
+        return None
+    normal = _toward_sensor(plane.normal, centroid(cand))
+    return normal, float(plane.d) if normal @ plane.normal > 0 else -float(plane.d)
+
+
+def _fit_round(o: _Object, kind: str, main: int, axis_prior: NDArray[np.float64] | None = None
+               ) -> tuple[Primitive | None, str]:
+    """Cylinder, cone or sphere on the curved faces (planar faces: caps / base); the
+    axis of a cylinder or cone along ``axis_prior`` or else the main planar face's normal,
+    if any."""
     p = o.params
     curved, planar = _curved_and_planar(o)
     if not curved:
         return None, f"{kind}: no curved face"
     cw = o.face_working(curved)
     wp, wn = o.wc.points[cw], o.wc.normals[cw]
-    prior = o.faces[main].info.normal if main >= 0 and o.faces[main].info.planar else None
+    prior = axis_prior if axis_prior is not None else \
+        o.faces[main].info.normal if main >= 0 and o.faces[main].info.planar else None
     tol = p.angle_tolerance
 
     if kind == "sphere":
@@ -429,7 +467,14 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
     model = refine(fit.model, wp, p.ransac_threshold, rounds=1)
     full = o.sample(o.face_points(curved))
     model = refine(model, full, p.ransac_threshold, rounds=2)
-    ratio = float(np.mean(np.abs(model.distance(wp)) <= p.ransac_threshold))
+    on_model = np.abs(model.distance(wp)) <= p.ransac_threshold
+    inner_caps: list[tuple[NDArray[np.float64], float]] = []
+    if kind != "sphere" and not on_model.all():
+        cap = _inner_cap(wp, wn, model, on_model, p)
+        if cap is not None:
+            inner_caps.append(cap)
+            on_model |= np.abs(wp @ cap[0] + cap[1]) <= p.ransac_threshold
+    ratio = float(np.mean(on_model))
     bad = _verify(ratio, p, kind)
     if bad:
         return None, bad
@@ -444,10 +489,11 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
     axis = model.axis
     if not _axis_ok(axis, prior, tol):
         return None, f"{kind} axis not aligned with its planar face"
-    caps = [o.faces[i] for i in planar if abs(o.faces[i].info.normal @ axis) >= math.cos(tol)]
+    caps = [(o.faces[i].info.normal, o.faces[i].info.offset) for i in planar
+            if abs(o.faces[i].info.normal @ axis) >= math.cos(tol)] + inner_caps
     # Each point goes to its nearest surface: the curved model or one of its caps.
     dists = [np.abs(model.distance(o.points))] + \
-        [np.abs(o.points @ f.info.normal + f.info.offset) for f in caps]
+        [np.abs(o.points @ normal + offset) for normal, offset in caps]
     nearest, nearest_dist = _nearest_surface(dists)
     nearest[nearest_dist > OUTLIER_FACTOR * p.ransac_threshold] = -1
     bad = _coverage(nearest >= 0, kind)
@@ -470,12 +516,12 @@ def _fit_round(o: _Object, kind: str, main: int) -> tuple[Primitive | None, str]
             return None, f"cone half-angle {math.degrees(model.half_angle):.1f} deg too small"
         origin = model.apex
     t_parts, closed = [(curved_pts - origin) @ axis], []
-    for ci, f in enumerate(caps, start=1):
+    for ci, (normal, offset) in enumerate(caps, start=1):
         q = take_rows(o.points, nearest == ci)
         if len(q) == 0:
             continue
         if p.reproject_along_rays:
-            q = obb.ray_to_plane(q, f.info.normal, f.info.offset, 4 * p.ransac_threshold)
+            q = obb.ray_to_plane(q, normal, offset, 4 * p.ransac_threshold)
         t_cap = (q - origin) @ axis
         t_parts.append(t_cap)
         closed.append(float(np.median(t_cap)))
@@ -604,10 +650,37 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
                 prim = _fit_candidates(obj2, decision2, reasons)
                 if prim is not None:
                     summaries = tuple(f.summary for f in faces2)
+    if prim is None:
+        # Upright above its support: a round object standing on the desk (or on another
+        # object on it) mostly has its axis along the desk's normal. Without that prior, a large flat lid grown together with
+        # the side (over a rounded edge) draws RANSAC to a huge cylinder through the lid.
+        kinds = tuple(k for k in decision.candidates if k in ("cylinder", "cone"))
+        up = _support_below(obj) if kinds else None
+        if up is not None:
+            before = len(reasons)
+            prim = _fit_candidates(obj, GraphDecision(decision.category, kinds, decision.main_face,
+                                                      decision.axis_of_face, decision.reason),
+                                   reasons, axis_prior=up)
+            reasons[before:] = [f"upright above the support: {r}" for r in reasons[before:]]
     if prim is not None:
         return Primitive(prim.id, prim.type, prim.center, prim.rotation, prim.dimensions,
                          prim.point_count, prim.rmse, summaries, "; ".join(reasons))
     return _unknown(object_id, points, "; ".join(reasons), summaries)
+
+
+def _support_below(o: _Object) -> NDArray[np.float64] | None:
+    """Normal of a support plane that ``o`` stands above (its bulk above the plane by
+    more than twice ``seg_plane_threshold`` plus the RANSAC threshold, nothing of it
+    below by more than that), or None. Objects stacked on others count too."""
+    tol = 2.0 * o.params.seg_plane_threshold + o.params.ransac_threshold
+    sub = o.points[:: max(1, len(o.points) // 5000)]
+    for n, d in o.supports:
+        h = sub @ n + d
+        if np.median(h) < 0:
+            h = -h
+        if float(np.percentile(h, 1.0)) >= -tol and float(np.median(h)) > tol:
+            return np.asarray(n, dtype=np.float64)
+    return None
 
 
 def _decide(infos: list[FaceInfo], adjacency: NDArray[np.bool_],
@@ -648,8 +721,8 @@ def _as_planar(wc: WorkingCloud, face: _Face) -> _Face:
                  face.points)
 
 
-def _fit_candidates(obj: _Object, decision: GraphDecision, reasons: list[str]
-                    ) -> Primitive | None:
+def _fit_candidates(obj: _Object, decision: GraphDecision, reasons: list[str],
+                    axis_prior: NDArray[np.float64] | None = None) -> Primitive | None:
     """The first of the decision's candidate types that fits and verifies (reasons of
     every attempt appended to ``reasons``), or None."""
     for kind in decision.candidates:
@@ -659,7 +732,7 @@ def _fit_candidates(obj: _Object, decision: GraphDecision, reasons: list[str]
             elif kind == "cuboid":
                 prim, why = _fit_cuboid(obj, decision.main_face, decision.axis_of_face)
             else:
-                prim, why = _fit_round(obj, kind, decision.main_face)
+                prim, why = _fit_round(obj, kind, decision.main_face, axis_prior)
         except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
             prim, why = None, f"{kind}: numerical failure ({exc})"
         reasons.append(why)
