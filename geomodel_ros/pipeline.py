@@ -400,6 +400,8 @@ def _curved_and_planar(o: _Object) -> tuple[list[int], list[int]]:
     return curved, planar
 
 
+#: RANSAC takes no cone hypothesis flatter than this half-angle [rad] (80 deg).
+MAX_CONE_HALF_ANGLE = 1.4
 #: A cap grown into a curved face must hold at least this share of the face's working
 #: points (besides ``min_face_points``).
 INNER_CAP_SHARE = 0.1
@@ -413,10 +415,14 @@ def _inner_cap(wp: NDArray[np.float64], wn: NDArray[np.float64], model,
     Real lids and bottoms meet the side in a rounded edge, over which the normals turn
     smoothly, so the end is not a face of its own. Its working points (``wp``, ``wn``:
     the curved faces') are off the fitted side and have normals along the axis; when
-    they are enough and a plane perpendicular to the axis fits them, that plane is
-    returned as (unit normal towards the sensor, offset d of n . x + d = 0).
+    they are enough and a plane perpendicular to the axis fits enough of them inside
+    the model (within its radius), that plane is returned as (unit normal towards the
+    sensor, offset d of n . x + d = 0).
     """
     axis = model.axis
+    if isinstance(model, ConeModel) and \
+            model.half_angle > math.pi / 2 - 2.0 * p.angle_tolerance:
+        return None  # the side's own normals turn nearly along the axis: no telling apart
     cos_tol = math.cos(p.angle_tolerance)
     along = (np.abs(wn @ axis) >= cos_tol) & ~on_model
     need = max(p.min_face_points, INNER_CAP_SHARE * len(wp))
@@ -428,7 +434,9 @@ def _inner_cap(wp: NDArray[np.float64], wn: NDArray[np.float64], model,
                    p.ransac_threshold)
     if abs(plane.normal @ axis) < cos_tol:
         return None
-    if (np.abs(plane.distance(cand)) <= p.ransac_threshold).sum() < need:
+    on_cap = (np.abs(plane.distance(cand)) <= p.ransac_threshold) & \
+        (model.distance(cand) <= p.ransac_threshold)
+    if on_cap.sum() < need:
         return None
     normal = _toward_sensor(plane.normal, centroid(cand))
     return normal, float(plane.d) if normal @ plane.normal > 0 else -float(plane.d)
@@ -458,7 +466,7 @@ def _fit_round(o: _Object, kind: str, main: int, axis_prior: NDArray[np.float64]
                             and _axis_ok(m.axis, prior, tol))
     else:
         cls = ConeModel
-        accept = lambda m: (p.min_cone_half_angle <= m.half_angle <= 1.4  # noqa: E731
+        accept = lambda m: (p.min_cone_half_angle <= m.half_angle <= MAX_CONE_HALF_ANGLE  # noqa: E731
                             and _axis_ok(m.axis, prior, tol))
     fit = ransac(cls, wp, wn, p.ransac_threshold, p.ransac_normal_threshold,
                  p.ransac_max_iterations, p.ransac_confidence, o.rng, accept=accept)
@@ -473,7 +481,8 @@ def _fit_round(o: _Object, kind: str, main: int, axis_prior: NDArray[np.float64]
         cap = _inner_cap(wp, wn, model, on_model, p)
         if cap is not None:
             inner_caps.append(cap)
-            on_model |= np.abs(wp @ cap[0] + cap[1]) <= p.ransac_threshold
+            on_model |= (np.abs(wp @ cap[0] + cap[1]) <= p.ransac_threshold) & \
+                (model.distance(wp) <= p.ransac_threshold)
     ratio = float(np.mean(on_model))
     bad = _verify(ratio, p, kind)
     if bad:

@@ -438,6 +438,31 @@ def test_a_lid_grown_into_the_side_is_taken_as_the_cylinders_cap():
     assert obj.dimensions["height"] == pytest.approx(0.100, abs=2.0 * MM)
 
 
+def test_an_inner_cap_is_only_taken_where_the_side_is_told_apart_from_it():
+    from geomodel_ros.pipeline import _inner_cap
+    from geomodel_ros.ransac import ConeModel, CylinderModel
+
+    rng = np.random.default_rng(2)
+    axis = np.array([0.0, -0.6, -0.8])
+    e1 = np.array([1.0, 0.0, 0.0])
+    e2 = np.cross(axis, e1)
+    top = np.array([0.0, 0.0, 0.6])
+    disk = rng.uniform(-0.05, 0.05, (400, 2))
+    lid = top + disk[:, :1] * e1 + disk[:, 1:] * e2
+    normals = np.tile(axis, (len(lid), 1))
+    off_side = np.zeros(len(lid), dtype=bool)
+    params = ModelingParams()
+    cylinder = CylinderModel(top - 0.1 * axis, axis, 0.08)
+    normal, d = _inner_cap(lid, normals, cylinder, off_side, params)
+    assert abs(normal @ axis) == pytest.approx(1.0) and np.abs(lid @ normal + d).max() < 1e-9
+    # Beside the cylinder (outside its radius) it is no cap of it.
+    beside = CylinderModel(top - 0.1 * axis + 0.2 * e1, axis, 0.08)
+    assert _inner_cap(lid, normals, beside, off_side, params) is None
+    # A nearly flat cone's own normals turn nearly along its axis.
+    flat = ConeModel(top - 0.01 * axis, axis, math.radians(85.0))
+    assert _inner_cap(lid, normals, flat, off_side, params) is None
+
+
 def test_a_frustum_is_not_modeled_as_a_cone():
     # A cup-like truncated cone: the side from 60 % to 100 % of the full cone's height,
     # seen from the side; the full cone's apex lies far above every point.
