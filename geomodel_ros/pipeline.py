@@ -154,6 +154,10 @@ def _bulk_extent(points: NDArray[np.float64], axis: NDArray[np.float64]) -> floa
 #: whose sides hold less may come out too thin along the view).
 STRAY_PAD = 0.25
 STRAY_MARGIN = 0.01
+#: ... and groups of at most STRAY_GROUP_SHARE of the points beyond an empty gap of
+#: STRAY_GAP [m] at either end (an occluded object's parts are larger).
+STRAY_GROUP_SHARE = 0.05
+STRAY_GAP = 0.03
 
 
 def _without_strays(vals: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -164,7 +168,21 @@ def _without_strays(vals: NDArray[np.float64]) -> NDArray[np.float64]:
     lo, hi = np.percentile(vals[:: max(1, len(vals) // 5000)], [1.0, 99.0])
     pad = STRAY_PAD * (hi - lo) + STRAY_MARGIN
     keep = (vals >= lo - pad) & (vals <= hi + pad)
-    return vals if keep.all() else vals[keep]
+    vals = vals if keep.all() else vals[keep]
+    # Small groups beyond an empty gap (flying pixels between an edge and the far
+    # background come in such clusters, a few per cent of a small box's points).
+    ordered = np.sort(vals)
+    n, k = len(ordered), int(STRAY_GROUP_SHARE * len(ordered))
+    if k < 1:
+        return vals
+    gaps = np.diff(ordered)
+    low = np.flatnonzero(gaps[:k] > STRAY_GAP)
+    high = np.flatnonzero(gaps[n - 1 - k:] > STRAY_GAP)
+    if not low.size and not high.size:
+        return vals
+    lo = ordered[low[-1] + 1] if low.size else ordered[0]
+    hi = ordered[n - 1 - k + high[0]] if high.size else ordered[-1]
+    return vals[(vals >= lo) & (vals <= hi)]
 
 
 def _bulk_reach(points: NDArray[np.float64], origin: NDArray[np.float64],
@@ -220,6 +238,32 @@ def _toward_sensor(n: NDArray[np.float64], at: NDArray[np.float64]) -> NDArray[n
 # Faces and their surface types
 # ---------------------------------------------------------------------------------------
 
+def _face_plane(points: NDArray[np.float64], normals: NDArray[np.float64], threshold: float
+                ) -> tuple[PlaneModel, float]:
+    """Plane of a face's working points (M, 3) and its robust spread [m] (MAD-based, so
+    that a few flying pixels do not make a flat face curved).
+
+    Least squares first; when its spread exceeds half of ``threshold`` [m] (strays far
+    off the face, e.g. flying pixels behind a small box, can tilt the least-squares
+    plane by tens of degrees), the plane through the median along the points' mean
+    normal, refined on its inliers, is taken if it fits tighter.
+    """
+    if len(points) < 3:
+        return PlaneModel(np.array([0, 0, 1.0]), 0.0), 0.0
+    plane = fit_plane_svd(points)
+    spread = robust_sigma(plane.distance(points))
+    if spread <= threshold / 2.0:
+        return plane, spread
+    mean = centroid(normals)
+    norm = float(np.linalg.norm(mean))
+    if norm <= 1e-9:
+        return plane, spread
+    mean /= norm
+    alt = refine(PlaneModel(mean, -float(np.median(points @ mean))), points, threshold)
+    alt_spread = robust_sigma(alt.distance(points))
+    return (alt, alt_spread) if alt_spread < spread else (plane, spread)
+
+
 def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
                  face_labels: NDArray[np.int64] | None
                  ) -> tuple[WorkingCloud, list[_Face], NDArray[np.bool_]]:
@@ -246,9 +290,8 @@ def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
         # (the full-resolution covariance at a fraction of the cost).
         feat = face_feature(wc.points[widx], weights, params.cf_threshold,
                             params.cf_radius_fraction, wc.counts[widx])
-        plane = fit_plane_svd(wc.points[widx]) if len(widx) >= 3 else PlaneModel(np.array([0, 0, 1.0]), 0.0)
-        # Robust spread (MAD) so that a few flying pixels do not make a flat face curved.
-        plane_rmse = robust_sigma(plane.distance(wc.points[widx]))
+        plane, plane_rmse = _face_plane(wc.points[widx], wc.normals[widx],
+                                        params.ransac_threshold)
         # RANSAC-style verification of the CF decision (paper 3.2: a fit that fails rejects
         # the type): a "planar" face no plane fits is curved, a "curved" face that a plane
         # fits to well within the inlier threshold is planar.
@@ -337,7 +380,10 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     normals, weights, planes, inlier_ok, inlier_all = [], [], [], 0, 0
     for f in faces:
         w = o.wc.points[f.working]
-        model = refine(fit_plane_svd(w), w, p.ransac_threshold)
+        # From the face's own normal (robust to strays) through the median, refined on
+        # its inliers.
+        n = f.info.normal
+        model = refine(PlaneModel(n, -float(np.median(w @ n))), w, p.ransac_threshold)
         model = refine(model, o.sample(f.points), p.ransac_threshold)
         inl = np.abs(model.distance(w)) <= p.ransac_threshold
         inlier_ok += int(inl.sum())
@@ -368,6 +414,7 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
         proj_faces.append(take_rows(q, sel) @ rot)
     proj = take_rows(q, nearest >= 0) @ rot
     lo, hi = np.empty(3), np.empty(3)
+    reach = OUTLIER_FACTOR * p.ransac_threshold
     for a in range(3):
         vals = _without_strays(np.ascontiguousarray(proj[:, a]))
         vmin, vmax = float(vals.min()), float(vals.max())
@@ -376,6 +423,8 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
             if assign[fi] != a or len(pf) == 0:
                 continue
             pos = float(np.median(pf[:, a]))
+            if not vmin - reach <= pos <= vmax + reach:
+                continue  # a face of strays beyond the bulk closes nothing
             (closed_hi if vmax - pos < pos - vmin else closed_lo).append(pos)
         s_lo, s_hi = o.support_ends(rot[:, a], np.zeros(3), vmin, vmax)
         lo[a], hi[a] = obb.interval(vals, o.spacing,
@@ -644,7 +693,8 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
         # the object may be a plane or cuboid after all.
         flat = [i for i, f in enumerate(faces) if not f.info.planar and _normals_flat(f.info)]
         if flat:
-            faces2 = [_as_planar(wc, f) if i in flat else f for i, f in enumerate(faces)]
+            faces2 = [_as_planar(wc, f, params.ransac_threshold) if i in flat else f
+                      for i, f in enumerate(faces)]
             decision2 = _decide([f.info for f in faces2], adjacency, None, params)
             decision2 = GraphDecision(decision2.category,
                                       tuple(k for k in decision2.candidates
@@ -718,10 +768,10 @@ def _normals_flat(info: FaceInfo) -> bool:
     return float(np.percentile(cos, 10.0)) >= math.cos(FLAT_FACE_ANGLE)
 
 
-def _as_planar(wc: WorkingCloud, face: _Face) -> _Face:
-    """``face`` re-described as a plane (least squares on its working points)."""
+def _as_planar(wc: WorkingCloud, face: _Face, threshold: float) -> _Face:
+    """``face`` re-described as a plane (:func:`_face_plane` of its working points)."""
     info = face.info
-    plane = fit_plane_svd(wc.points[face.working])
+    plane, _ = _face_plane(wc.points[face.working], wc.normals[face.working], threshold)
     normal = _toward_sensor(plane.normal, info.center)
     info2 = FaceInfo(True, normal, float(-normal @ info.center), info.size,
                      info.point_normals, info.center)

@@ -528,3 +528,47 @@ def test_sizing_ignores_strays_beyond_the_bulk_of_a_projection():
     # Uneven but genuine: a box seen almost face on, 5 % of its points on the sides.
     skewed = np.r_[np.zeros(15000), rng.uniform(0.0, 0.05, 750)]
     assert _without_strays(skewed).max() == skewed.max()
+
+
+def test_sizing_drops_small_groups_beyond_a_gap_but_keeps_occluded_parts():
+    # Flying pixels come in clusters too: 3 % of a small box's points 0.2 m beyond it
+    # (inside the 1st-99th percentile, so only the gap tells them apart). An occluded
+    # object's two visible parts, 40 % and 60 % of its points 50 mm apart, stay whole.
+    from geomodel_ros.pipeline import _without_strays
+
+    rng = np.random.default_rng(4)
+    bulk = rng.uniform(0.0, 0.07, 5000)
+    cluster = rng.uniform(0.27, 0.28, 150)
+    kept = _without_strays(np.r_[cluster, bulk])
+    assert kept.min() == bulk.min() and kept.max() == bulk.max()
+    low = rng.uniform(-0.31, -0.30, 120)
+    kept = _without_strays(np.r_[low, bulk, cluster])
+    assert kept.min() == bulk.min() and kept.max() == bulk.max()
+    parts = np.r_[rng.uniform(0.0, 0.04, 2000), rng.uniform(0.09, 0.15, 3000)]
+    assert _without_strays(parts).size == parts.size
+
+
+def test_a_face_plane_is_not_tilted_by_strays_behind_it():
+    # A 60 x 40 mm face (0.5 mm noise) with 12 % of its working points 0.15-0.35 m
+    # behind it along the view (flying pixels): least squares tilts by tens of degrees
+    # and spreads the face over centimetres, which made small boxes' faces "curved".
+    from geomodel_ros.pipeline import _face_plane
+    from geomodel_ros.ransac import fit_plane_svd
+    from geomodel_ros.fastmath import robust_sigma
+
+    rng = np.random.default_rng(5)
+    normal = np.array([0.0, -0.6, -0.8])
+    e1 = np.array([1.0, 0.0, 0.0])
+    e2 = np.cross(normal, e1)
+    uv = rng.uniform([-0.03, -0.02], [0.03, 0.02], (600, 2))
+    face = np.array([0.0, 0.0, 0.8]) + uv[:, :1] * e1 + uv[:, 1:] * e2 + \
+        rng.normal(0.0, 0.0005, (600, 1)) * normal
+    behind = face[:80] * rng.uniform(1.2, 1.45, (80, 1))
+    pts = np.vstack([face, behind])
+    normals = np.vstack([np.tile(normal, (600, 1)),
+                         rng.normal(0.0, 0.3, (80, 3)) + normal])
+    lsq = fit_plane_svd(pts)
+    assert robust_sigma(lsq.distance(pts)) > 0.003  # what made the face curved
+    plane, spread = _face_plane(pts, normals, 0.006)
+    assert abs(plane.normal @ normal) >= np.cos(np.radians(2.0))
+    assert spread < 0.001
