@@ -398,7 +398,7 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
 #: non-planar face is taken apart into planes (:func:`split_plane_unions`).
 UNION_NORMAL_ANGLE = math.radians(15.0)
 #: Share of a face's points the planes must hold between them to replace it.
-UNION_COVERAGE = 0.8
+UNION_COVERAGE = 0.75
 #: Candidate plane directions tried per face (a regular subset of its normals).
 UNION_CANDIDATES = 64
 
