@@ -452,7 +452,7 @@ def split_plane_unions(cloud: WorkingCloud, faces: FaceSet, threshold: float,
     On real sensor data the normals turn gradually across a box's edge (depth noise,
     the normal neighbourhood straddles the edge), so region growing can run round it
     and join two or three sides of a box into one face that no plane fits. Every face
-    no plane fits to within ``threshold`` [m] (robust spread) is tried: when two or
+    no plane fits to within half of ``threshold`` [m] (robust spread) is tried: when two or
     three mutually perpendicular planes (within ``perpendicular_tolerance`` [rad] of
     90 degrees) hold most of its points, each becomes a face of its own and the rest of
     its points (the rounded edge) join the nearest one.
@@ -466,8 +466,8 @@ def split_plane_unions(cloud: WorkingCloud, faces: FaceSet, threshold: float,
             continue
         pts = cloud.points[w]
         plane = fit_plane_svd(pts)
-        if robust_sigma(pts @ plane.normal + plane.d) <= threshold:
-            continue
+        if robust_sigma(pts @ plane.normal + plane.d) <= threshold / 2.0:
+            continue  # the spread that makes a face planar whatever its CF
         parts = _plane_parts(pts, cloud.normals[w], threshold, perpendicular_tolerance,
                              min_face_points)
         if parts is None:
