@@ -491,8 +491,8 @@ def _inner_cap(wp: NDArray[np.float64], wn: NDArray[np.float64], model,
     return normal, float(plane.d) if normal @ plane.normal > 0 else -float(plane.d)
 
 
-def _fit_round(o: _Object, kind: str, main: int, axis_prior: NDArray[np.float64] | None = None
-               ) -> tuple[Primitive | None, str]:
+def _fit_round(o: _Object, kind: str, main: int,
+               axis_prior: NDArray[np.float64] | None = None) -> tuple[Primitive | None, str]:
     """Cylinder, cone or sphere on the curved faces (planar faces: caps / base); the
     axis of a cylinder or cone along ``axis_prior`` or else the main planar face's normal,
     if any."""
@@ -515,8 +515,9 @@ def _fit_round(o: _Object, kind: str, main: int, axis_prior: NDArray[np.float64]
                             and _axis_ok(m.axis, prior, tol))
     else:
         cls = ConeModel
-        accept = lambda m: (p.min_cone_half_angle <= m.half_angle <= MAX_CONE_HALF_ANGLE  # noqa: E731
-                            and _axis_ok(m.axis, prior, tol))
+        accept = lambda m: (  # noqa: E731
+            p.min_cone_half_angle <= m.half_angle <= MAX_CONE_HALF_ANGLE
+            and _axis_ok(m.axis, prior, tol))
     fit = ransac(cls, wp, wn, p.ransac_threshold, p.ransac_normal_threshold,
                  p.ransac_max_iterations, p.ransac_confidence, o.rng, accept=accept)
     if fit is None:
@@ -711,15 +712,16 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
                     summaries = tuple(f.summary for f in faces2)
     if prim is None:
         # Upright above its support: a round object standing on the desk (or on another
-        # object on it) mostly has its axis along the desk's normal. Without that prior, a large flat lid grown together with
-        # the side (over a rounded edge) draws RANSAC to a huge cylinder through the lid.
+        # object on it) mostly has its axis along the desk's normal. Without that prior,
+        # a large flat lid grown together with the side (over a rounded edge) draws
+        # RANSAC to a huge cylinder through the lid.
         kinds = tuple(k for k in decision.candidates if k in ("cylinder", "cone"))
         up = _support_below(obj) if kinds else None
         if up is not None:
             before = len(reasons)
-            prim = _fit_candidates(obj, GraphDecision(decision.category, kinds, decision.main_face,
-                                                      decision.axis_of_face, decision.reason),
-                                   reasons, axis_prior=up)
+            upright = GraphDecision(decision.category, kinds, decision.main_face,
+                                    decision.axis_of_face, decision.reason)
+            prim = _fit_candidates(obj, upright, reasons, axis_prior=up)
             reasons[before:] = [f"upright above the support: {r}" for r in reasons[before:]]
     if prim is not None:
         return Primitive(prim.id, prim.type, prim.center, prim.rotation, prim.dimensions,
