@@ -295,6 +295,24 @@ def test_osd_learn_objects_iou(group, k):
         assert scores[g].iou >= 0.8, report
 
 
+def _modeled_osd_object(k: int, gt_id: int):
+    """learn<k> segmented and modeled with config/kinect.yaml: the labelled object's own
+    finite points, the primitive of the segment that holds most of them, and the whole
+    result (skips when the data folder is missing)."""
+    path = _osd(k)
+    if not path.exists():
+        pytest.skip(f"{path} not present (osd_learn data folder missing)")
+    from geomodel_ros.io import load_osd
+
+    points, gt = load_osd(path)
+    labels, result = model_scene(points, load_params_file(CONFIG / "kinect.yaml"))
+    by_id = {o.id: o for o in result.objects}
+    mask = gt == gt_id
+    ids, counts = np.unique(labels[mask & (labels >= 0)], return_counts=True)
+    obj = by_id[int(ids[np.argmax(counts)])]
+    return points[mask & np.all(np.isfinite(points), axis=1)], obj, result
+
+
 @pytest.mark.parametrize("k, box", [(9, 3), (12, 3), (14, 3), (7, 3), (16, 4), (20, 2), (25, 2),
                                     (17, 2), (19, 2), (15, 4), (17, 3)])
 def test_osd_learn_boxes_come_out_as_cuboids_of_their_size(k, box):
@@ -305,21 +323,10 @@ def test_osd_learn_boxes_come_out_as_cuboids_of_their_size(k, box):
     # degrees off square (stacked learn17, 19: config/kinect.yaml's angle_tolerance), or
     # whose two sides grown into one face hold 79.7 % of it (learn15) or spread only
     # 5.9 mm about one plane (learn17 box 3); each used to come out `unknown`.
-    path = _osd(k)
-    if not path.exists():
-        pytest.skip(f"{path} not present (osd_learn data folder missing)")
-    from geomodel_ros.io import load_osd
-
-    points, gt = load_osd(path)
-    labels, result = model_scene(points, load_params_file(CONFIG / "kinect.yaml"))
-    by_id = {o.id: o for o in result.objects}
-    mask = gt == box
-    ids, counts = np.unique(labels[mask & (labels >= 0)], return_counts=True)
-    obj = by_id[int(ids[np.argmax(counts)])]
+    own, obj, _ = _modeled_osd_object(k, box)
     assert obj.type == "cuboid", obj.reason
     # Its sides match the extent of the box's own points along its axes (1st-99th
     # percentile, the hidden back excepted) within 20 % + 1 cm.
-    own = points[mask & np.all(np.isfinite(points), axis=1)]
     local = (own - obj.center) @ obj.rotation
     lo, hi = np.percentile(local, [1.0, 99.0], axis=0)
     dims = np.array([obj.dimensions[n] for n in ("length", "width", "height")])
@@ -331,24 +338,14 @@ def test_osd_learn_lidded_containers_come_out_as_upright_cylinders(k):
     # A container whose flat lid meets its side in a rounded edge: lid and side grow
     # into one curved face, and a free RANSAC fit prefers a huge cylinder through the
     # lid (both used to come out `unknown`). learn33: on the table; learn41: on a tin.
-    path = _osd(k)
-    if not path.exists():
-        pytest.skip(f"{path} not present (osd_learn data folder missing)")
-    from geomodel_ros.io import load_osd
-
-    points, gt = load_osd(path)
-    labels, result = model_scene(points, load_params_file(CONFIG / "kinect.yaml"))
-    by_id = {o.id: o for o in result.objects}
-    mask = gt == 3
-    ids, counts = np.unique(labels[mask & (labels >= 0)], return_counts=True)
-    obj = by_id[int(ids[np.argmax(counts)])]
+    own, obj, result = _modeled_osd_object(k, 3)
     assert obj.type == "cylinder", obj.reason
     table = max((o for o in result.objects if o.type == "plane"), key=lambda o: o.point_count)
     axis = obj.rotation[:, 2]
     assert abs(axis @ table.rotation[:, 2]) >= np.cos(np.radians(8.0))
     # The container's own points: most of them lie on its side, at about the radius;
     # its height is about their extent along the axis.
-    own = points[mask & np.all(np.isfinite(points), axis=1)] - obj.center
+    own = own - obj.center
     along = own @ axis
     radial = np.linalg.norm(own - np.outer(along, axis), axis=1)
     assert np.median(radial) == pytest.approx(obj.dimensions["radius"], rel=0.1)
