@@ -20,12 +20,12 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .fastmath import centroid, knn, robust_sigma
-from .ransac import fit_plane_svd
+from .ransac import PlaneModel, fit_plane_svd, refine
 
 __all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
            "split_faces", "faces_from_labels", "working_voxel_size", "link_graph",
-           "split_plane_unions"]
+           "split_plane_unions", "face_plane"]
 
 
 #: Voxel boxes of up to this many cells, or of up to DENSE_CELLS_PER_POINT cells per
@@ -445,6 +445,32 @@ def _plane_parts(points: NDArray[np.float64], normals: NDArray[np.float64], thre
     return parts
 
 
+def face_plane(points: NDArray[np.float64], normals: NDArray[np.float64], threshold: float
+                ) -> tuple[PlaneModel, float]:
+    """Plane of a face's working points (M, 3) and its robust spread [m] (MAD-based, so
+    that a few flying pixels do not make a flat face curved).
+
+    Least squares first; when its spread exceeds half of ``threshold`` [m] (strays far
+    off the face, e.g. flying pixels behind a small box, can tilt the least-squares
+    plane by tens of degrees), the plane through the median along the points' mean
+    normal, refined on its inliers, is taken if it fits tighter.
+    """
+    if len(points) < 3:
+        return PlaneModel(np.array([0, 0, 1.0]), 0.0), 0.0
+    plane = fit_plane_svd(points)
+    spread = robust_sigma(plane.distance(points))
+    if spread <= threshold / 2.0:
+        return plane, spread
+    mean = centroid(normals)
+    norm = float(np.linalg.norm(mean))
+    if norm <= 1e-9:
+        return plane, spread
+    mean /= norm
+    alt = refine(PlaneModel(mean, -float(np.median(points @ mean))), points, threshold)
+    alt_spread = robust_sigma(alt.distance(points))
+    return (alt, alt_spread) if alt_spread < spread else (plane, spread)
+
+
 def split_plane_unions(cloud: WorkingCloud, faces: FaceSet, threshold: float,
                        perpendicular_tolerance: float, min_face_points: int) -> FaceSet:
     """Take apart faces that are two or three perpendicular planes grown together.
@@ -452,7 +478,7 @@ def split_plane_unions(cloud: WorkingCloud, faces: FaceSet, threshold: float,
     On real sensor data the normals turn gradually across a box's edge (depth noise,
     the normal neighbourhood straddles the edge), so region growing can run round it
     and join two or three sides of a box into one face that no plane fits. Every face
-    no plane fits to within half of ``threshold`` [m] (robust spread) is tried: when two or
+    no plane fits to within half of ``threshold`` [m] (:func:`face_plane`) is tried: when two or
     three mutually perpendicular planes (within ``perpendicular_tolerance`` [rad] of
     90 degrees) hold most of its points, each becomes a face of its own and the rest of
     its points (the rounded edge) join the nearest one.
@@ -465,8 +491,7 @@ def split_plane_unions(cloud: WorkingCloud, faces: FaceSet, threshold: float,
         if len(w) < 2 * min_face_points:
             continue
         pts = cloud.points[w]
-        plane = fit_plane_svd(pts)
-        if robust_sigma(pts @ plane.normal + plane.d) <= threshold / 2.0:
+        if face_plane(pts, cloud.normals[w], threshold)[1] <= threshold / 2.0:
             continue  # the spread that makes a face planar whatever its CF
         parts = _plane_parts(pts, cloud.normals[w], threshold, perpendicular_tolerance,
                              min_face_points)

@@ -21,14 +21,13 @@ from scipy.spatial import cKDTree
 
 from . import obb
 from .errors import InputError, as_points
-from .faces import (WorkingCloud, build_working_cloud, faces_from_labels, split_faces,
-                    split_plane_unions)
-from .fastmath import centroid, robust_sigma, rows_finite, take_rows
+from .faces import (WorkingCloud, build_working_cloud, face_plane, faces_from_labels,
+                    split_faces, split_plane_unions)
+from .fastmath import centroid, rows_finite, take_rows
 from .model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
 from .params import ModelingParams
 from .primitives import FaceSummary, ModelingResult, Primitive
-from .ransac import (ConeModel, CylinderModel, PlaneModel, SphereModel, fit_plane_svd, ransac,
-                     refine)
+from .ransac import ConeModel, CylinderModel, PlaneModel, SphereModel, ransac, refine
 from .surface_type import face_feature, principal_curvatures
 
 __all__ = ["model_objects", "model_object", "model_scene", "InputError"]
@@ -238,32 +237,6 @@ def _toward_sensor(n: NDArray[np.float64], at: NDArray[np.float64]) -> NDArray[n
 # Faces and their surface types
 # ---------------------------------------------------------------------------------------
 
-def _face_plane(points: NDArray[np.float64], normals: NDArray[np.float64], threshold: float
-                ) -> tuple[PlaneModel, float]:
-    """Plane of a face's working points (M, 3) and its robust spread [m] (MAD-based, so
-    that a few flying pixels do not make a flat face curved).
-
-    Least squares first; when its spread exceeds half of ``threshold`` [m] (strays far
-    off the face, e.g. flying pixels behind a small box, can tilt the least-squares
-    plane by tens of degrees), the plane through the median along the points' mean
-    normal, refined on its inliers, is taken if it fits tighter.
-    """
-    if len(points) < 3:
-        return PlaneModel(np.array([0, 0, 1.0]), 0.0), 0.0
-    plane = fit_plane_svd(points)
-    spread = robust_sigma(plane.distance(points))
-    if spread <= threshold / 2.0:
-        return plane, spread
-    mean = centroid(normals)
-    norm = float(np.linalg.norm(mean))
-    if norm <= 1e-9:
-        return plane, spread
-    mean /= norm
-    alt = refine(PlaneModel(mean, -float(np.median(points @ mean))), points, threshold)
-    alt_spread = robust_sigma(alt.distance(points))
-    return (alt, alt_spread) if alt_spread < spread else (plane, spread)
-
-
 def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
                  face_labels: NDArray[np.int64] | None
                  ) -> tuple[WorkingCloud, list[_Face], NDArray[np.bool_]]:
@@ -290,7 +263,7 @@ def _build_faces(obj_pts: NDArray[np.float64], params: ModelingParams,
         # (the full-resolution covariance at a fraction of the cost).
         feat = face_feature(wc.points[widx], weights, params.cf_threshold,
                             params.cf_radius_fraction, wc.counts[widx])
-        plane, plane_rmse = _face_plane(wc.points[widx], wc.normals[widx],
+        plane, plane_rmse = face_plane(wc.points[widx], wc.normals[widx],
                                         params.ransac_threshold)
         # RANSAC-style verification of the CF decision (paper 3.2: a fit that fails rejects
         # the type): a "planar" face no plane fits is curved, a "curved" face that a plane
@@ -324,11 +297,18 @@ def _verify(ratio: float, params: ModelingParams, what: str) -> str | None:
     return None
 
 
+def _plane_from_face(face: _Face, w: NDArray[np.float64]) -> PlaneModel:
+    """Start for a plane fit to a face's working points ``w``: the face's own normal
+    (robust to strays, :func:`~geomodel_ros.faces.face_plane`) through their median."""
+    n = face.info.normal
+    return PlaneModel(n, -float(np.median(w @ n)))
+
+
 def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
     p = o.params
     all_faces = list(range(len(o.faces)))
     widx = o.face_working(all_faces)
-    model = fit_plane_svd(o.wc.points[o.faces[main].working])
+    model = _plane_from_face(o.faces[main], o.wc.points[o.faces[main].working])
     model = refine(model, o.wc.points[widx], p.ransac_threshold)
     model = refine(model, o.sample(o.face_points(all_faces)), p.ransac_threshold, rounds=1)
     ratio = float(np.mean(np.abs(model.distance(o.wc.points[widx])) <= p.ransac_threshold))
@@ -380,10 +360,7 @@ def _fit_cuboid(o: _Object, main: int, assignment: tuple[int, ...]) -> tuple[Pri
     normals, weights, planes, inlier_ok, inlier_all = [], [], [], 0, 0
     for f in faces:
         w = o.wc.points[f.working]
-        # From the face's own normal (robust to strays) through the median, refined on
-        # its inliers.
-        n = f.info.normal
-        model = refine(PlaneModel(n, -float(np.median(w @ n))), w, p.ransac_threshold)
+        model = refine(_plane_from_face(f, w), w, p.ransac_threshold)
         model = refine(model, o.sample(f.points), p.ransac_threshold)
         inl = np.abs(model.distance(w)) <= p.ransac_threshold
         inlier_ok += int(inl.sum())
@@ -458,7 +435,7 @@ INNER_CAP_SHARE = 0.1
 
 def _inner_cap(wp: NDArray[np.float64], wn: NDArray[np.float64], model,
                on_model: NDArray[np.bool_], p: ModelingParams
-               ) -> tuple[NDArray[np.float64], float] | None:
+               ) -> tuple[NDArray[np.float64], float, NDArray[np.bool_]] | None:
     """A flat end of a cylinder or cone that region growing joined to its curved side.
 
     Real lids and bottoms meet the side in a rounded edge, over which the normals turn
@@ -466,7 +443,7 @@ def _inner_cap(wp: NDArray[np.float64], wn: NDArray[np.float64], model,
     the curved faces') are off the fitted side and have normals along the axis; when
     they are enough and a plane perpendicular to the axis fits enough of them inside
     the model (within its radius), that plane is returned as (unit normal towards the
-    sensor, offset d of n . x + d = 0).
+    sensor, offset d of n . x + d = 0, which of ``wp`` lie on it inside the model).
     """
     axis = model.axis
     if isinstance(model, ConeModel) and \
@@ -483,12 +460,12 @@ def _inner_cap(wp: NDArray[np.float64], wn: NDArray[np.float64], model,
                    p.ransac_threshold)
     if abs(plane.normal @ axis) < cos_tol:
         return None
-    on_cap = (np.abs(plane.distance(cand)) <= p.ransac_threshold) & \
-        (model.distance(cand) <= p.ransac_threshold)
-    if on_cap.sum() < need:
+    on_cap = (np.abs(plane.distance(wp)) <= p.ransac_threshold) & \
+        (model.distance(wp) <= p.ransac_threshold)
+    if (on_cap & along).sum() < need:
         return None
     normal = _toward_sensor(plane.normal, centroid(cand))
-    return normal, float(plane.d) if normal @ plane.normal > 0 else -float(plane.d)
+    return normal, float(plane.d) if normal @ plane.normal > 0 else -float(plane.d), on_cap
 
 
 def _fit_round(o: _Object, kind: str, main: int,
@@ -530,9 +507,9 @@ def _fit_round(o: _Object, kind: str, main: int,
     if kind != "sphere" and not on_model.all():
         cap = _inner_cap(wp, wn, model, on_model, p)
         if cap is not None:
-            inner_caps.append(cap)
-            on_model |= (np.abs(wp @ cap[0] + cap[1]) <= p.ransac_threshold) & \
-                (model.distance(wp) <= p.ransac_threshold)
+            normal, offset, on_cap = cap
+            inner_caps.append((normal, offset))
+            on_model |= on_cap
     ratio = float(np.mean(on_model))
     bad = _verify(ratio, p, kind)
     if bad:
@@ -771,9 +748,9 @@ def _normals_flat(info: FaceInfo) -> bool:
 
 
 def _as_planar(wc: WorkingCloud, face: _Face, threshold: float) -> _Face:
-    """``face`` re-described as a plane (:func:`_face_plane` of its working points)."""
+    """``face`` re-described as a plane (:func:`~geomodel_ros.faces.face_plane`)."""
     info = face.info
-    plane, _ = _face_plane(wc.points[face.working], wc.normals[face.working], threshold)
+    plane, _ = face_plane(wc.points[face.working], wc.normals[face.working], threshold)
     normal = _toward_sensor(plane.normal, info.center)
     info2 = FaceInfo(True, normal, float(-normal @ info.center), info.size,
                      info.point_normals, info.center)

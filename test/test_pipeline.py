@@ -453,8 +453,9 @@ def test_an_inner_cap_is_only_taken_where_the_side_is_told_apart_from_it():
     off_side = np.zeros(len(lid), dtype=bool)
     params = ModelingParams()
     cylinder = CylinderModel(top - 0.1 * axis, axis, 0.08)
-    normal, d = _inner_cap(lid, normals, cylinder, off_side, params)
+    normal, d, on_cap = _inner_cap(lid, normals, cylinder, off_side, params)
     assert abs(normal @ axis) == pytest.approx(1.0) and np.abs(lid @ normal + d).max() < 1e-9
+    assert on_cap.all()
     # Beside the cylinder (outside its radius) it is no cap of it.
     beside = CylinderModel(top - 0.1 * axis + 0.2 * e1, axis, 0.08)
     assert _inner_cap(lid, normals, beside, off_side, params) is None
@@ -546,29 +547,3 @@ def test_sizing_drops_small_groups_beyond_a_gap_but_keeps_occluded_parts():
     assert kept.min() == bulk.min() and kept.max() == bulk.max()
     parts = np.r_[rng.uniform(0.0, 0.04, 2000), rng.uniform(0.09, 0.15, 3000)]
     assert _without_strays(parts).size == parts.size
-
-
-def test_a_face_plane_is_not_tilted_by_strays_behind_it():
-    # A 60 x 40 mm face (0.5 mm noise) with 12 % of its working points 0.15-0.35 m
-    # behind it along the view (flying pixels): least squares tilts by tens of degrees
-    # and spreads the face over centimetres, which made small boxes' faces "curved".
-    from geomodel_ros.pipeline import _face_plane
-    from geomodel_ros.ransac import fit_plane_svd
-    from geomodel_ros.fastmath import robust_sigma
-
-    rng = np.random.default_rng(5)
-    normal = np.array([0.0, -0.6, -0.8])
-    e1 = np.array([1.0, 0.0, 0.0])
-    e2 = np.cross(normal, e1)
-    uv = rng.uniform([-0.03, -0.02], [0.03, 0.02], (600, 2))
-    face = np.array([0.0, 0.0, 0.8]) + uv[:, :1] * e1 + uv[:, 1:] * e2 + \
-        rng.normal(0.0, 0.0005, (600, 1)) * normal
-    behind = face[:80] * rng.uniform(1.2, 1.45, (80, 1))
-    pts = np.vstack([face, behind])
-    normals = np.vstack([np.tile(normal, (600, 1)),
-                         rng.normal(0.0, 0.3, (80, 3)) + normal])
-    lsq = fit_plane_svd(pts)
-    assert robust_sigma(lsq.distance(pts)) > 0.003  # what made the face curved
-    plane, spread = _face_plane(pts, normals, 0.006)
-    assert abs(plane.normal @ normal) >= np.cos(np.radians(2.0))
-    assert spread < 0.001
