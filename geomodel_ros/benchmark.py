@@ -139,6 +139,7 @@ def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(45
             result = model_objects(points, seg.labels, params, supports=seg.support_planes)
             row["total_s"] = time.perf_counter() - t0
             row["types"] = {o.id: o.type for o in result.objects}
+            row["dimensions"] = {o.id: dict(o.dimensions) for o in result.objects}
             row["object_types"] = _best_segment_types(seg.labels, gt, objects, row["types"])
             row["cuboid_stretch"] = _cuboid_stretch(points, seg.labels, result.objects)
         rows.append(row)
