@@ -12,7 +12,7 @@ setup:
 	@bash .ci/setup_env.sh
 
 demo: setup
-	$(PY) -m geomodel_ros.demo --out demo_out
+	$(PY) -m geomodel_ros.tools.demo --out demo_out
 
 test: setup
 	$(PY) -m pytest -q test
@@ -20,7 +20,7 @@ test: setup
 bench: setup
 	@mkdir -p bench_out
 	$(PY) -m geomodel_ros.cli bench --json bench_out/bench.json
-	$(PY) -m geomodel_ros.bench_node
+	$(PY) -m geomodel_ros.tools.bench_node
 
 clean:
 	rm -rf $(VENV) build install log demo_out bench_out

@@ -23,8 +23,8 @@ setup(
     license="BSD-3-Clause",
     entry_points={
         "console_scripts": [
-            "geomodel = geomodel_ros.cli:main",
-            "modeler = geomodel_ros.node:main",
+            "geomodel = geomodel_ros.tools.cli:main",
+            "modeler = geomodel_ros.ros.node:main",
         ],
     },
 )

@@ -1,4 +1,5 @@
-"""Conversions between ROS 2 messages and the numpy arrays of the geomodel_ros core.
+"""Conversions between ROS 2 messages and the types of the geomodel_ros core.
 
-This is the only package that knows both worlds; it never calls ``rclpy.init``.
+Every module that reads or builds a message goes through these functions; they never call
+``rclpy.init`` and import nothing of geomodel_ros but its core types.
 """

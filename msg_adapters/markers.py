@@ -31,7 +31,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from geomodel_ros.primitives import DIMENSION_NAMES, Primitive
+from geomodel_ros.core.primitives import DIMENSION_NAMES, Primitive
 
 from .pointcloud2 import pack_rgb, xyz_to_cloud
 

@@ -11,7 +11,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
-from geomodel_ros.synth import render_scene
+from geomodel_ros.tools.synth import render_scene
 from msg_adapters.pointcloud2 import xyz_to_cloud
 
 #: Longest wait for any condition [s].

@@ -27,10 +27,10 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from geomodel_ros import bags
-from geomodel_ros.cli import main
-from geomodel_ros.node import ModelerNode
-from geomodel_ros.synth import render_scene
+from geomodel_ros.ros import bags
+from geomodel_ros.tools.cli import main
+from geomodel_ros.ros.node import ModelerNode
+from geomodel_ros.tools.synth import render_scene
 from msg_adapters.markers import LABEL_NAMESPACE, PLANE_THICKNESS
 from msg_adapters.pointcloud2 import xyz_to_cloud
 

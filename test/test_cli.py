@@ -1,4 +1,4 @@
-"""The ``geomodel`` command line, run in-process (geomodel_ros.cli.main)."""
+"""The ``geomodel`` command line, run in-process (geomodel_ros.tools.cli.main)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from geomodel_ros.cli import main, params_yaml
-from geomodel_ros.io import read_pcd, read_ply
-from geomodel_ros.primitives import DIMENSION_NAMES, PRIMITIVE_TYPES, Primitive
-from geomodel_ros.reconstruction import reconstruct
-from geomodel_ros.synth import render_scene
+from geomodel_ros.tools.cli import main, params_yaml
+from geomodel_ros.tools.io import read_pcd, read_ply
+from geomodel_ros.core.primitives import DIMENSION_NAMES, PRIMITIVE_TYPES, Primitive
+from geomodel_ros.core.reconstruction import reconstruct
+from geomodel_ros.tools.synth import render_scene
 
 SCENE = "tiny_box"
 
@@ -307,7 +307,7 @@ def test_unwritable_json(scene_files, tmp_path, capsys):
 
 
 def test_labels_field_with_count_two(tmp_path, capsys):
-    from geomodel_ros.io import write_pcd
+    from geomodel_ros.tools.io import write_pcd
 
     f = tmp_path / "count2.pcd"
     write_pcd(f, np.random.default_rng(0).normal(size=(10, 3)),

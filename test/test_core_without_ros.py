@@ -40,17 +40,17 @@ CORE = BLOCKER + textwrap.dedent("""
     import numpy as np
 
     import geomodel_ros
-    import geomodel_ros.cli
-    import geomodel_ros.io
-    import geomodel_ros.pipeline
-    import geomodel_ros.synth
-    from geomodel_ros.pipeline import model_objects
-    from geomodel_ros.synth import render_scene
+    import geomodel_ros.tools.cli
+    import geomodel_ros.tools.io
+    import geomodel_ros.core.pipeline
+    import geomodel_ros.tools.synth
+    from geomodel_ros.core.pipeline import model_objects
+    from geomodel_ros.tools.synth import render_scene
 
     scene = render_scene("tiny_box")
     result = model_objects(scene.points, scene.labels)
     print(",".join(o.type for o in result.objects))
-    assert geomodel_ros.cli.main(["params"]) == 0
+    assert geomodel_ros.tools.cli.main(["params"]) == 0
     leaked = sorted(m for m in sys.modules if m.split(".")[0] in BLOCKED)
     assert not leaked, leaked
 """)

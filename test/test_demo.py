@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from geomodel_ros.demo import run_demo
+from geomodel_ros.tools.demo import run_demo
 
 
 def test_reduced_demo_models_every_frame_and_writes_pictures(tmp_path, capsys):

@@ -1,9 +1,9 @@
-"""Scoring helpers used by the benchmarks (geomodel_ros.evaluation)."""
+"""Scoring helpers used by the benchmarks (geomodel_ros.tools.evaluation)."""
 
 import numpy as np
 import pytest
 
-from geomodel_ros.evaluation import circle_along, scan_axis, segmentation_scores
+from geomodel_ros.tools.evaluation import circle_along, scan_axis, segmentation_scores
 
 
 def test_perfect_segmentation():

@@ -1,9 +1,9 @@
-"""Working cloud, normals and face splitting (geomodel_ros.faces)."""
+"""Working cloud, normals and face splitting (geomodel_ros.core.faces)."""
 
 import numpy as np
 import pytest
 
-from geomodel_ros.faces import (build_working_cloud, estimate_normals, face_plane,
+from geomodel_ros.core.faces import (build_working_cloud, estimate_normals, face_plane,
                                 smallest_eigenpairs, split_faces, voxelize, working_voxel_size)
 
 
@@ -85,7 +85,7 @@ def test_tiny_inputs_do_not_crash(n):
 
 
 def test_neighborhood_moments_match_direct_covariances():
-    from geomodel_ros.faces import neighborhood_moments
+    from geomodel_ros.core.faces import neighborhood_moments
     rng = np.random.default_rng(7)
     # Far from the origin and nearly planar: the case where raw moments lose precision.
     pts = rng.normal(size=(500, 3)) * [0.01, 0.01, 1e-5] + [0.3, -0.2, 0.9]
@@ -108,7 +108,7 @@ def test_estimate_normals_equal_eigh_of_the_neighbourhood_covariance():
 
 
 def test_voxelize_dense_table_and_sorting_paths_agree(monkeypatch):
-    import geomodel_ros.faces as faces
+    import geomodel_ros.core.faces as faces
 
     rng = np.random.default_rng(4)
     pts = rng.uniform(-0.1, 0.1, size=(5000, 3))
@@ -141,7 +141,7 @@ def test_large_objects_get_a_coarser_working_cloud_small_ones_keep_the_voxel():
 
 
 def _face_set_of_one(cloud):
-    from geomodel_ros.faces import FaceSet
+    from geomodel_ros.core.faces import FaceSet
 
     return FaceSet(np.zeros(len(cloud.points), dtype=np.int64), np.zeros((1, 1), dtype=bool))
 
@@ -149,7 +149,7 @@ def _face_set_of_one(cloud):
 def test_two_perpendicular_planes_grown_into_one_face_are_taken_apart():
     # An L of two 100 x 80 mm sides of a box, sampled at 2 mm, given as a single face
     # (what region growing does when the normals turn gradually across the edge).
-    from geomodel_ros.faces import split_plane_unions
+    from geomodel_ros.core.faces import split_plane_unions
 
     u, v = np.meshgrid(np.arange(0, 0.1, 0.002), np.arange(0, 0.08, 0.002))
     side_a = np.column_stack([u.ravel(), v.ravel(), np.zeros(u.size)])
@@ -168,7 +168,7 @@ def test_two_perpendicular_planes_grown_into_one_face_are_taken_apart():
 def test_a_curved_face_is_not_taken_apart_into_planes():
     # Half a cylinder (r 40 mm) and a quarter sphere: their normals turn steadily, no
     # two perpendicular planes hold most of them.
-    from geomodel_ros.faces import split_plane_unions
+    from geomodel_ros.core.faces import split_plane_unions
 
     phi, y = np.meshgrid(np.linspace(-np.pi / 2, np.pi / 2, 120), np.arange(-0.04, 0.04, 0.002))
     cyl = np.column_stack([0.04 * np.sin(phi.ravel()), y.ravel(), 0.6 - 0.04 * np.cos(phi.ravel())])
@@ -186,8 +186,8 @@ def test_a_face_plane_is_not_tilted_by_strays_behind_it():
     # A 60 x 40 mm face (0.5 mm noise) with 12 % of its working points 0.15-0.35 m
     # behind it along the view (flying pixels): least squares tilts by tens of degrees
     # and spreads the face over centimetres, which made small boxes' faces "curved".
-    from geomodel_ros.fastmath import robust_sigma
-    from geomodel_ros.ransac import fit_plane_svd
+    from geomodel_ros.core.fastmath import robust_sigma
+    from geomodel_ros.core.ransac import fit_plane_svd
 
     rng = np.random.default_rng(5)
     normal = np.array([0.0, -0.6, -0.8])

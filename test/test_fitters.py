@@ -1,4 +1,4 @@
-"""RANSAC fitters and least-squares refinement (geomodel_ros.ransac) on seeded primitives.
+"""RANSAC fitters and least-squares refinement (geomodel_ros.core.ransac) on seeded primitives.
 
 Every cloud is sampled on a known primitive with exact normals, disturbed by Gaussian
 noise, and 30 % of its points are replaced by uniform outliers at known indices.
@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from geomodel_ros.ransac import (
+from geomodel_ros.core.ransac import (
     MODELS,
     ConeModel,
     CylinderModel,

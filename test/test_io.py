@@ -1,4 +1,4 @@
-"""Tests of geomodel_ros.io: PCD / PLY / NPY reading and writing, LZF, dataset helpers."""
+"""Tests of geomodel_ros.tools.io: PCD / PLY / NPY reading and writing, LZF, dataset helpers."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geomodel_ros.io import (
+from geomodel_ros.tools.io import (
     OSD_INVALID_ID,
     OSD_TABLE_ID,
     Cloud,

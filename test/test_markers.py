@@ -11,7 +11,7 @@ from sensor_msgs.msg import PointField
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 
-from geomodel_ros.primitives import Primitive
+from geomodel_ros.core.primitives import Primitive
 from msg_adapters.markers import (CONE_SEGMENTS, LABEL_NAMESPACE, PLANE_THICKNESS,
                                   UNKNOWN_MARKER_SIZE, object_colours, primitives_to_markers,
                                   reconstruction_cloud, rotation_to_quaternion, segments_cloud)

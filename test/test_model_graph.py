@@ -1,4 +1,4 @@
-"""The basic geometric model graph (geomodel_ros.model_graph) on hand-built faces."""
+"""The basic geometric model graph (geomodel_ros.core.model_graph) on hand-built faces."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from geomodel_ros.model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
+from geomodel_ros.core.model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
 
 TOL = 0.14  # angle tolerance [rad] (the default)
 COPLANAR = 0.006  # coplanarity tolerance [m] (3 x the default RANSAC threshold)

@@ -1,6 +1,6 @@
 """The ``modeler`` node with real rclpy pub/sub in one process (private Context per test).
 
-The core is the real :func:`geomodel_ros.pipeline.model_scene`, wrapped by
+The core is the real :func:`geomodel_ros.core.pipeline.model_scene`, wrapped by
 :class:`CoreProbe`, which records its calls and can hold the worker (newest-frame-wins
 test) or fail a frame.
 """
@@ -24,10 +24,10 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from geomodel_ros import pipeline
-from geomodel_ros.node import NODE_PARAMETERS, ModelerNode
-from geomodel_ros.params import PARAMETERS, ModelingParams, ParameterError
-from geomodel_ros.synth import render_scene
+from geomodel_ros.core import pipeline
+from geomodel_ros.ros.node import NODE_PARAMETERS, ModelerNode
+from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError
+from geomodel_ros.tools.synth import render_scene
 from msg_adapters.pointcloud2 import cloud_to_fields, cloud_to_xyz_and_mask, xyz_to_cloud
 from ros_helpers import FRAME, RELIABLE, TIMEOUT, scene_cloud, wait_until
 

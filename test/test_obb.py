@@ -1,5 +1,5 @@
-"""Bounding-box helpers (geomodel_ros.obb) and the fast reductions they use
-(geomodel_ros.fastmath)."""
+"""Bounding-box helpers (geomodel_ros.core.obb) and the fast reductions they use
+(geomodel_ros.core.fastmath)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import ConvexHull
 
-from geomodel_ros import fastmath, obb
+from geomodel_ros.core import fastmath, obb
 
 
 @settings(max_examples=60, deadline=None)
@@ -103,7 +103,7 @@ def test_retain_freed_memory_stops_the_page_faults_of_repeated_large_arrays():
     # memory is kept.
     code = (
         "import resource, sys, numpy as np\n"
-        "from geomodel_ros.fastmath import retain_freed_memory\n"
+        "from geomodel_ros.core.fastmath import retain_freed_memory\n"
         "ok = retain_freed_memory() if sys.argv[1] == '1' else True\n"
         "def frame():\n"
         "    a, b, c = np.ones(2_000_000), np.ones(2_000_000), np.ones(2_000_000)\n"

@@ -1,4 +1,4 @@
-"""The one definition of every parameter (geomodel_ros.params) and its YAML forms."""
+"""The one definition of every parameter (geomodel_ros.core.params) and its YAML forms."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from geomodel_ros.cli import params_yaml
-from geomodel_ros.params import (
+from geomodel_ros.tools.cli import params_yaml
+from geomodel_ros.core.params import (
     PARAMETERS,
     ModelingParams,
     ParameterError,

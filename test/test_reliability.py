@@ -41,11 +41,11 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker
 
-from geomodel_ros.cli import main as cli_main
-from geomodel_ros.params import PARAMETERS, ModelingParams, ParameterError, load_params_file
-from geomodel_ros.pipeline import model_scene
-from geomodel_ros.primitives import DIMENSION_NAMES, PRIMITIVE_TYPES, Primitive
-from geomodel_ros.reconstruction import reconstruct
+from geomodel_ros.tools.cli import main as cli_main
+from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError, load_params_file
+from geomodel_ros.core.pipeline import model_scene
+from geomodel_ros.core.primitives import DIMENSION_NAMES, PRIMITIVE_TYPES, Primitive
+from geomodel_ros.core.reconstruction import reconstruct
 from msg_adapters.markers import primitives_to_markers, reconstruction_cloud, segments_cloud
 from msg_adapters.pointcloud2 import (PointCloud2Error, cloud_to_fields, cloud_to_xyz,
                                       cloud_to_xyz_and_mask)
@@ -466,7 +466,7 @@ def test_core_never_raises_and_never_returns_non_finite_numbers(data):
 
 @pytest.mark.parametrize("name", ["tiny_box", "tiny_shapes"])
 def test_organized_scene_with_nan_patches_keeps_layout(name):
-    from geomodel_ros.synth import render_scene
+    from geomodel_ros.tools.synth import render_scene
 
     organized = render_scene(name).organized.copy()
     organized[10:30, 20:60] = np.nan
@@ -508,8 +508,8 @@ def test_reconstruction_of_a_large_plane_is_bounded():
     code = textwrap.dedent("""
         import resource, time, numpy as np
         resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
-        from geomodel_ros.primitives import Primitive
-        from geomodel_ros.reconstruction import reconstruct
+        from geomodel_ros.core.primitives import Primitive
+        from geomodel_ros.core.reconstruction import reconstruct
         floor = Primitive(1, "plane", np.zeros(3), np.eye(3),
                           {"length": 100.0, "width": 100.0}, 1000, 0.001)
         t = time.perf_counter()

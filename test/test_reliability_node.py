@@ -30,8 +30,8 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from geomodel_ros.node import ModelerNode
-from geomodel_ros.synth import render_scene
+from geomodel_ros.ros.node import ModelerNode
+from geomodel_ros.tools.synth import render_scene
 from msg_adapters.pointcloud2 import xyz_to_cloud
 from ros_helpers import FRAME, RELIABLE, TIMEOUT, wait_until
 from ros_helpers import scene_cloud as _scene_cloud

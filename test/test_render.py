@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from geomodel_ros.errors import InputError
-from geomodel_ros.params import ModelingParams
-from geomodel_ros.pipeline import model_scene
-from geomodel_ros.primitives import Primitive
-from geomodel_ros.reconstruction import reconstruct
-from geomodel_ros.render import (
+from geomodel_ros.core.errors import InputError
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.pipeline import model_scene
+from geomodel_ros.core.primitives import Primitive
+from geomodel_ros.core.reconstruction import reconstruct
+from geomodel_ros.tools.render import (
     Camera,
     draw_text,
     fit_camera,
@@ -25,7 +25,7 @@ from geomodel_ros.render import (
     render_points,
     text_size,
 )
-from geomodel_ros.synth import render_scene
+from geomodel_ros.tools.synth import render_scene
 
 CAM = (100.0, 100.0, 10.0, 10.0, 21, 21)  # fx, fy, cx, cy, width, height
 RED, BLUE = (255, 0, 0), (0, 0, 255)

@@ -32,7 +32,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from geomodel_ros.synth import render_scene
+from geomodel_ros.tools.synth import render_scene
 from msg_adapters.pointcloud2 import cloud_to_fields, cloud_to_xyz_and_mask, xyz_to_cloud
 
 REPO = Path(__file__).resolve().parent.parent
@@ -92,7 +92,7 @@ def installed(tmp_path_factory):
         "from ament_index_python.packages import get_package_prefix, "
         "get_package_share_directory as share; "
         "print(json.dumps({'prefix': get_package_prefix('geomodel_ros'), "
-        "'share': share('geomodel_ros'), 'module': u.find_spec('geomodel_ros.node').origin, "
+        "'share': share('geomodel_ros'), 'module': u.find_spec('geomodel_ros.ros.node').origin, "
         "'env': dict(os.environ)}))"
         '"'
     )

@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from geomodel_ros.benchmark import OSD_GROUPS, data_dir
-from geomodel_ros.evaluation import dimension_errors, segmentation_scores
-from geomodel_ros.params import ModelingParams, load_params_file
-from geomodel_ros.pipeline import InputError, model_scene
-from geomodel_ros.segmentation import segment_scene
-from geomodel_ros.synth import SENSOR_NOISE, Box, Cylinder, Sphere, render_scene, scene_geometry
-from geomodel_ros.synth.scenes import (DESK_CENTER, DESK_NORMAL, SCENE_NAMES,
+from geomodel_ros.tools.benchmark import OSD_GROUPS, data_dir
+from geomodel_ros.tools.evaluation import dimension_errors, segmentation_scores
+from geomodel_ros.core.params import ModelingParams, load_params_file
+from geomodel_ros.core.pipeline import InputError, model_scene
+from geomodel_ros.core.segmentation import segment_scene
+from geomodel_ros.tools.synth import SENSOR_NOISE, Box, Cylinder, Sphere, render_scene, scene_geometry
+from geomodel_ros.tools.synth.scenes import (DESK_CENTER, DESK_NORMAL, SCENE_NAMES,
                                        SEGMENTATION_CAMERA, SEGMENTATION_SCENE_NAMES,
                                        _rest_on_desk, _standing)
 
@@ -279,7 +279,7 @@ def test_osd_learn_objects_iou(group, k):
     path = _osd(k)
     if not path.exists():
         pytest.skip(f"{path} not present (osd_learn data folder missing)")
-    from geomodel_ros.io import load_osd
+    from geomodel_ros.tools.io import load_osd
 
     assert k in OSD_GROUPS[group]
     points, gt = load_osd(path)
@@ -302,7 +302,7 @@ def _modeled_osd_object(k: int, gt_id: int):
     path = _osd(k)
     if not path.exists():
         pytest.skip(f"{path} not present (osd_learn data folder missing)")
-    from geomodel_ros.io import load_osd
+    from geomodel_ros.tools.io import load_osd
 
     points, gt = load_osd(path)
     labels, result = model_scene(points, load_params_file(CONFIG / "kinect.yaml"))

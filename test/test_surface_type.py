@@ -1,4 +1,4 @@
-"""Surface type of a face (paper eqs. 1-6) and principal curvatures (geomodel_ros.surface_type)."""
+"""Surface type of a face (paper eqs. 1-6) and principal curvatures (geomodel_ros.core.surface_type)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from geomodel_ros.faces import estimate_normals
-from geomodel_ros.params import ModelingParams
-from geomodel_ros.surface_type import covariance_features, face_feature, principal_curvatures
+from geomodel_ros.core.faces import estimate_normals
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.surface_type import covariance_features, face_feature, principal_curvatures
 
 SPACING = 0.001  # sample spacing of the synthetic faces [m]
 OFFSET = np.array([0.01, -0.02, 0.5])  # in front of the sensor

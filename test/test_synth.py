@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from geomodel_ros.synth import (
+from geomodel_ros.tools.synth import (
     PAPER_SCENE_NAMES,
     SCENE_NAMES,
     SENSOR_NOISE,

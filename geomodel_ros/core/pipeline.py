@@ -1,7 +1,7 @@
 """Modeling of segmented objects: faces -> surface types -> model graph -> RANSAC -> size.
 
 :func:`model_objects` takes a scene's points with per-point object labels (from the
-segmentation or ground truth) and returns one :class:`~geomodel_ros.primitives.Primitive`
+segmentation or ground truth) and returns one :class:`~geomodel_ros.core.primitives.Primitive`
 per object. Degenerate objects (too few points, fits that fail verification, shapes no
 rule of the model graph accepts) come out as ``unknown``; this never raises for bad
 geometry, only for malformed arguments.
@@ -19,16 +19,16 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from . import obb
-from .errors import InputError, as_points
-from .faces import (WorkingCloud, build_working_cloud, face_plane, faces_from_labels,
+from geomodel_ros.core import obb
+from geomodel_ros.core.errors import InputError, as_points
+from geomodel_ros.core.faces import (WorkingCloud, build_working_cloud, face_plane, faces_from_labels,
                     split_faces, split_plane_unions)
-from .fastmath import centroid, rows_finite, take_rows
-from .model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
-from .params import ModelingParams
-from .primitives import FaceSummary, ModelingResult, Primitive
-from .ransac import ConeModel, CylinderModel, PlaneModel, SphereModel, ransac, refine
-from .surface_type import face_feature, principal_curvatures
+from geomodel_ros.core.fastmath import centroid, rows_finite, take_rows
+from geomodel_ros.core.model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import FaceSummary, ModelingResult, Primitive
+from geomodel_ros.core.ransac import ConeModel, CylinderModel, PlaneModel, SphereModel, ransac, refine
+from geomodel_ros.core.surface_type import face_feature, principal_curvatures
 
 __all__ = ["model_objects", "model_object", "model_scene", "InputError"]
 
@@ -299,7 +299,7 @@ def _verify(ratio: float, params: ModelingParams, what: str) -> str | None:
 
 def _plane_from_face(face: _Face, w: NDArray[np.float64]) -> PlaneModel:
     """Start for a plane fit to a face's working points ``w``: the face's own normal
-    (robust to strays, :func:`~geomodel_ros.faces.face_plane`) through their median."""
+    (robust to strays, :func:`~geomodel_ros.core.faces.face_plane`) through their median."""
     n = face.info.normal
     return PlaneModel(n, -float(np.median(w @ n)))
 
@@ -748,7 +748,7 @@ def _normals_flat(info: FaceInfo) -> bool:
 
 
 def _as_planar(wc: WorkingCloud, face: _Face, threshold: float) -> _Face:
-    """``face`` re-described as a plane (:func:`~geomodel_ros.faces.face_plane`)."""
+    """``face`` re-described as a plane (:func:`~geomodel_ros.core.faces.face_plane`)."""
     info = face.info
     plane, _ = face_plane(wc.points[face.working], wc.normals[face.working], threshold)
     normal = _toward_sensor(plane.normal, info.center)
@@ -910,7 +910,7 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
     result : ModelingResult
         Objects by id; timing has ``segmentation_s`` and ``modeling_s``.
     """
-    from .segmentation import segment_scene
+    from geomodel_ros.core.segmentation import segment_scene
 
     params = params if params is not None else ModelingParams()
     pts = _check_points(points)

@@ -2,16 +2,16 @@
 
 Run as::
 
-    python -m geomodel_ros.bench_load --minutes 10 --cloud paper          # 15 Hz
-    python -m geomodel_ros.bench_load --minutes 10 --cloud kinect         # 30 Hz
+    python -m geomodel_ros.tools.bench_load --minutes 10 --cloud paper          # 15 Hz
+    python -m geomodel_ros.tools.bench_load --minutes 10 --cloud kinect         # 30 Hz
 
-The node is started as a separate process (``sys.executable -m geomodel_ros.node``), and
+The node is started as a separate process (``sys.executable -m geomodel_ros.ros.node``), and
 this process publishes clouds to it faster than it can model them, for ``--minutes``:
 
 * ``paper``: the paper's Scene 3 (``render_scene("scene3")``, 624 x 1104 organized,
   ~370k valid points) at 15 Hz with the default parameters;
-* ``kinect``: osd_learn scenes (640 x 480 Kinect frames, :func:`geomodel_ros.io.load_osd`
-  from :func:`geomodel_ros.benchmark.data_dir`), cycled, at 30 Hz with
+* ``kinect``: osd_learn scenes (640 x 480 Kinect frames, :func:`geomodel_ros.tools.io.load_osd`
+  from :func:`geomodel_ros.tools.benchmark.data_dir`), cycled, at 30 Hz with
   ``config/kinect.yaml``.
 
 It subscribes to every output (like RViz) and reports:
@@ -47,13 +47,13 @@ import threading
 import time
 from pathlib import Path
 
+from geomodel_ros.tools.paths import FASTDDS_LARGE_DATA, REPO
+
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # before rclpy starts DDS
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
 # Several-MB clouds between processes: Fast DDS over shared memory with large segments
 # (inherited by the node process too); see config/fastdds_large_data.xml.
-os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", os.path.join(
-    os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "config",
-    "fastdds_large_data.xml"))
+os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_LARGE_DATA))
 
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
@@ -71,7 +71,6 @@ from msg_adapters.pointcloud2 import xyz_to_cloud  # noqa: E402
 
 __all__ = ["main"]
 
-REPO = Path(__file__).resolve().parent.parent
 FRAME = "camera_optical"
 TOPIC = "/bench_load/points"
 DEFAULT_RATE = {"paper": 15.0, "kinect": 30.0}
@@ -82,11 +81,11 @@ def _clouds(kind: str, count: int) -> list[PointCloud2]:
     """Input messages (stamps are set at publish time)."""
     header = Header(frame_id=FRAME)
     if kind == "paper":
-        from .synth import render_scene
+        from geomodel_ros.tools.synth import render_scene
 
         return [xyz_to_cloud(render_scene("scene3").organized, header)]
-    from .benchmark import data_dir
-    from .io import load_osd
+    from geomodel_ros.tools.benchmark import data_dir
+    from geomodel_ros.tools.io import load_osd
 
     folder = data_dir() / "osd_learn"
     msgs = []
@@ -101,9 +100,9 @@ def _single_frame_s(clouds: list[PointCloud2], params_file: str | None, repeats:
     """Median time [s] the node's per-frame work (``process_cloud``: conversion, segmentation,
     modeling, output messages) takes on these clouds, measured here, one frame at a time,
     before the load starts."""
-    from msg_adapters.processing import process_cloud
+    from geomodel_ros.ros.processing import process_cloud
 
-    from .params import ModelingParams, load_params_file
+    from geomodel_ros.core.params import ModelingParams, load_params_file
 
     params = load_params_file(params_file) if params_file else ModelingParams()
     process_cloud(clouds[0], params)  # warm-up (imports, caches)
@@ -218,7 +217,7 @@ def run(args: argparse.Namespace) -> dict:
     params = args.params or (str(REPO / "config" / "kinect.yaml")
                              if args.cloud == "kinect" else None)
     single_s = _single_frame_s(clouds, params)
-    cmd = [sys.executable, "-m", "geomodel_ros.node", "--ros-args", "-r", f"points:={TOPIC}",
+    cmd = [sys.executable, "-m", "geomodel_ros.ros.node", "--ros-args", "-r", f"points:={TOPIC}",
            "-p", f"qos_reliability:={'reliable' if args.reliable else 'best_effort'}"]
     if params:
         cmd += ["--params-file", params]
@@ -377,7 +376,7 @@ def _print(r: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m geomodel_ros.bench_load",
+    parser = argparse.ArgumentParser(prog="python -m geomodel_ros.tools.bench_load",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--cloud", choices=("paper", "kinect"), default="paper")

@@ -11,7 +11,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from .primitives import Primitive
+from geomodel_ros.core.primitives import Primitive
 
 __all__ = ["sample_primitive", "reconstruct", "surface_area"]
 

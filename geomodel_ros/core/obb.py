@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
-from .fastmath import row_norms
+from geomodel_ros.core.fastmath import row_norms
 
 __all__ = ["ray_to_plane", "ray_scale_to_plane", "ray_to_cylinder", "hull_candidates",
            "min_area_rectangle", "orthonormalize_axes", "interval", "edge_gap"]

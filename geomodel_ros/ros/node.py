@@ -23,14 +23,14 @@ Every output carries the input's header (``frame_id`` and ``stamp``).  Outputs a
 published reliable, keep last ``qos_depth`` (compatible with reliable and best-effort
 subscribers such as RViz and planners).
 
-The node is a thin wire: :func:`msg_adapters.processing.process_cloud` (adapter -> core
-:func:`geomodel_ros.pipeline.model_scene` -> adapters, shared with the offline bag tool
+The node is a thin wire: :func:`geomodel_ros.ros.processing.process_cloud` (adapter -> core
+:func:`geomodel_ros.core.pipeline.model_scene` -> adapters, shared with the offline bag tool
 ``geomodel bag``) -> publish.  Modeling runs in a worker thread fed by a one-slot
 mailbox: a frame that arrives while another waits replaces it (newest frame wins) and is
 counted as dropped.  A malformed message or a frame
 the core fails on is logged (throttled) and skipped; the node keeps running.
 
-Parameters: every entry of :data:`geomodel_ros.params.PARAMETERS` (changeable at run time,
+Parameters: every entry of :data:`geomodel_ros.core.params.PARAMETERS` (changeable at run time,
 used from the next frame) plus the node parameters of :data:`NODE_PARAMETERS`.
 """
 
@@ -57,10 +57,10 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
-from msg_adapters.processing import ModelingError, PointCloud2Error, process_cloud
+from geomodel_ros.ros.processing import ModelingError, PointCloud2Error, process_cloud
 
-from .fastmath import retain_freed_memory
-from .params import PARAMETERS, ModelingParams, ParameterError, ParamSpec
+from geomodel_ros.core.fastmath import retain_freed_memory
+from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError, ParamSpec
 
 __all__ = ["ModelerNode", "NODE_PARAMETERS", "NodeOptions", "FrameStats", "main"]
 

@@ -1,8 +1,8 @@
 """One frame through the whole chain: PointCloud2 -> core -> MarkerArray and clouds.
 
 :func:`process_cloud` is the single definition of what the ``modeler`` node does with a
-frame; the node (:mod:`geomodel_ros.node`) and the offline bag tool
-(:mod:`geomodel_ros.bags`) both call it, so that a bag processed offline gives the same
+frame; the node (:mod:`geomodel_ros.ros.node`) and the offline bag tool
+(:mod:`geomodel_ros.ros.bags`) both call it, so that a bag processed offline gives the same
 outputs as the node would publish for it.
 
 It uses messages (``sensor_msgs``, ``visualization_msgs``) but never ``rclpy`` itself: no
@@ -18,13 +18,13 @@ import numpy as np
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
-from geomodel_ros import pipeline
-from geomodel_ros.params import ModelingParams
-from geomodel_ros.primitives import ModelingResult
-from geomodel_ros.reconstruction import reconstruct
+from geomodel_ros.core import pipeline
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import ModelingResult
+from geomodel_ros.core.reconstruction import reconstruct
 
-from .markers import primitives_to_markers, reconstruction_cloud, segments_cloud
-from .pointcloud2 import PointCloud2Error, cloud_to_xyz
+from msg_adapters.markers import primitives_to_markers, reconstruction_cloud, segments_cloud
+from msg_adapters.pointcloud2 import PointCloud2Error, cloud_to_xyz
 
 __all__ = ["FrameResult", "ModelingError", "PointCloud2Error", "process_cloud"]
 

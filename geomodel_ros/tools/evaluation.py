@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .primitives import Primitive
+from geomodel_ros.core.primitives import Primitive
 
 __all__ = ["expected_type", "DimensionError", "dimension_errors", "ObjectScore", "score_objects",
            "AxisFit", "circle_along", "scan_axis"]

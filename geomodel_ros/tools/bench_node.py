@@ -1,10 +1,10 @@
 """Benchmark of the ``modeler`` node: its own overhead and end-to-end latency.
 
-Run as ``python -m geomodel_ros.bench_node [--scene scene3] [--frames 20]``.
+Run as ``python -m geomodel_ros.tools.bench_node [--scene scene3] [--frames 20]``.
 
 1. **Node overhead** (conversion in, markers and clouds out, publish) per frame: the core
    is replaced by a stand-in that returns a precomputed result of the real
-   :func:`~geomodel_ros.pipeline.model_scene` for the same scene, so only the node's own
+   :func:`~geomodel_ros.core.pipeline.model_scene` for the same scene, so only the node's own
    work is timed (stage times come from :meth:`ModelerNode.stats`).  The publish ->
    MarkerArray-received latency is also given for this case.
 2. **End to end** with the real core: publish -> MarkerArray received.
@@ -41,11 +41,11 @@ from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from msg_adapters.pointcloud2 import xyz_to_cloud  # noqa: E402
 
-from . import pipeline  # noqa: E402
-from .fastmath import retain_freed_memory  # noqa: E402
-from .node import ModelerNode  # noqa: E402
-from .params import ModelingParams  # noqa: E402
-from .synth import SCENE_NAMES, render_scene  # noqa: E402
+from geomodel_ros.core import pipeline  # noqa: E402
+from geomodel_ros.core.fastmath import retain_freed_memory  # noqa: E402
+from geomodel_ros.ros.node import ModelerNode  # noqa: E402
+from geomodel_ros.core.params import ModelingParams  # noqa: E402
+from geomodel_ros.tools.synth import SCENE_NAMES, render_scene  # noqa: E402
 
 _QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 _STAGES = (("convert_s", "convert in (PointCloud2 -> numpy)"),
@@ -142,7 +142,7 @@ def _row(name: str, values_s: list[float]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m geomodel_ros.bench_node",
+    parser = argparse.ArgumentParser(prog="python -m geomodel_ros.tools.bench_node",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", default="scene3", choices=SCENE_NAMES)
     parser.add_argument("--frames", type=int, default=20)

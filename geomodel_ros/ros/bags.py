@@ -3,7 +3,7 @@
 * :func:`write_synth_bag` renders synthetic scenes into a rosbag2 (MCAP or sqlite3) of
   organized ``sensor_msgs/PointCloud2`` frames, with the ground truth in ``<bag>.json``.
 * :func:`process_bag` runs every cloud of a topic through
-  :func:`msg_adapters.processing.process_cloud` -- exactly what the ``modeler`` node does
+  :func:`geomodel_ros.ros.processing.process_cloud` -- exactly what the ``modeler`` node does
   with a frame -- and writes the input topic plus the node's output topics to a new bag.
 * :func:`play` publishes a bag's PointCloud2 records into DDS at the recorded rate, as
   serialized bytes (no deserialization), like ``ros2 bag play``.
@@ -35,9 +35,9 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
 from msg_adapters.pointcloud2 import PointCloud2Error, xyz_to_cloud
-from msg_adapters.processing import ModelingError, process_cloud
+from geomodel_ros.ros.processing import ModelingError, process_cloud
 
-from .params import ModelingParams
+from geomodel_ros.core.params import ModelingParams
 
 __all__ = [
     "BagError",
@@ -141,14 +141,14 @@ def write_synth_bag(path: str | os.PathLike[str], names: Sequence[str], *, frame
         The bag directory to create (must not exist).  The ground truth goes to
         :func:`ground_truth_path` (``<path>.json``).
     names : sequence of str
-        Scenes (:data:`geomodel_ros.synth.SCENE_NAMES`), recorded one after the other.
+        Scenes (:data:`geomodel_ros.tools.synth.SCENE_NAMES`), recorded one after the other.
     frames : int
         Frames per scene (>= 1).
     rate : float
         Frame rate [Hz] (> 0): frame ``k`` (counted over all scenes) has header stamp and
         bag time ``SYNTH_START_NS + k / rate``.
     noise : bool
-        Add :data:`geomodel_ros.synth.SENSOR_NOISE`, drawn anew for every frame from one
+        Add :data:`geomodel_ros.tools.synth.SENSOR_NOISE`, drawn anew for every frame from one
         generator seeded with ``seed``.
     topic, frame_id : str
         Topic of the clouds and ``header.frame_id`` (the sensor's optical frame).
@@ -173,7 +173,7 @@ def write_synth_bag(path: str | os.PathLike[str], names: Sequence[str], *, frame
     Clouds: ``height x width`` = the camera's image, float32 x, y, z [m] in the camera's
     optical frame (REP 103), NaN where the ray hit nothing or dropped out.
     """
-    from .synth import SCENE_NAMES, SENSOR_NOISE, render_scene
+    from geomodel_ros.tools.synth import SCENE_NAMES, SENSOR_NOISE, render_scene
 
     unknown = [n for n in names if n not in SCENE_NAMES]
     if not names or unknown:

@@ -16,7 +16,7 @@ All shapes provide
   support function, exact and analytic);
 * ``bounding_radius`` -> radius [m] of a sphere about ``center`` that encloses
   the shape;
-* ``ground_truth(id)`` -> :class:`geomodel_ros.synth.scenes.GroundTruthObject`.
+* ``ground_truth(id)`` -> :class:`geomodel_ros.tools.synth.scenes.GroundTruthObject`.
 
 The shapes are ROS-free and depend on numpy only.
 """

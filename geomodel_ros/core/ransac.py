@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import leastsq
 
-from .fastmath import centroid
+from geomodel_ros.core.fastmath import centroid
 
 __all__ = [
     "PlaneModel", "SphereModel", "CylinderModel", "ConeModel", "FitResult",

@@ -27,8 +27,8 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import InputError, as_points
-from .primitives import Primitive
+from geomodel_ros.core.errors import InputError, as_points
+from geomodel_ros.core.primitives import Primitive
 
 __all__ = [
     "Camera",
@@ -479,7 +479,7 @@ def primitive_normals(points, ids, primitives: Iterable[Primitive]) -> NDArray[n
     Parameters
     ----------
     points : (N, 3) float array [m]
-        Samples of :func:`geomodel_ros.reconstruction.reconstruct`.
+        Samples of :func:`geomodel_ros.core.reconstruction.reconstruct`.
     ids : (N,) int array
         Object id of every sample.
     primitives : iterable of Primitive
@@ -879,7 +879,7 @@ def render_figures(points, labels, primitives, out_dir, *, title_prefix: str = "
     list of Path
         ``segments.png``, ``reconstruction.png``, ``overlay.png`` [, ``summary.png``].
     """
-    from .reconstruction import reconstruct
+    from geomodel_ros.core.reconstruction import reconstruct
 
     prims = list(getattr(primitives, "objects", primitives))
     pts = as_points(points, allow_organized=True)

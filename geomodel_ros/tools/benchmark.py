@@ -16,17 +16,12 @@ from typing import Sequence
 
 import numpy as np
 
-from .evaluation import score_objects, segmentation_scores
-from .params import ModelingParams
+from geomodel_ros.tools.evaluation import score_objects, segmentation_scores
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.tools.paths import data_dir
 
 __all__ = ["figure9_table", "run_benchmark", "summary_lines", "data_dir", "osd_benchmark",
            "osd_lines", "osd_type_lines", "mug_benchmark", "synthetic_segmentation", "peak_rss_mb"]
-
-
-def data_dir() -> Path:
-    """The shared data folder: $GEOMODEL_DATA or ../shared/data beside the repository."""
-    env = os.environ.get("GEOMODEL_DATA")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def peak_rss_mb() -> float:
@@ -57,8 +52,8 @@ def figure9_table(scene, result) -> str:
 def run_benchmark(scenes: Sequence[str], repeats: int, noisy_params: ModelingParams,
                   clean_params: ModelingParams, seed: int = 1) -> dict:
     """Accuracy and parameter-extraction time over scenes, noise-free and noisy."""
-    from .pipeline import model_objects
-    from .synth import SENSOR_NOISE, render_scene
+    from geomodel_ros.core.pipeline import model_objects
+    from geomodel_ros.tools.synth import SENSOR_NOISE, render_scene
 
     report: dict = {"runs": []}
     for noisy in (False, True):
@@ -119,9 +114,9 @@ OSD_GROUPS = {"boxes": range(0, 17), "stacked": range(17, 25), "occluded": range
 def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(45)),
                   model: bool = True) -> list[dict]:
     """Segment (and model) osd_learn scenes; per-scene IoU scores and timings."""
-    from .io import load_osd
-    from .pipeline import model_objects
-    from .segmentation import segment_scene
+    from geomodel_ros.tools.io import load_osd
+    from geomodel_ros.core.pipeline import model_objects
+    from geomodel_ros.core.segmentation import segment_scene
 
     rows = []
     for k in scenes:
@@ -234,8 +229,8 @@ MUG_SELECT_HEIGHT = (0.01, 0.2)
 
 def mug_benchmark(params: ModelingParams) -> dict:
     """Model the PCL mug scene (points with 0 <= z <= 1.5 m) and compare with the tutorial."""
-    from .io import read_cloud
-    from .pipeline import model_scene
+    from geomodel_ros.tools.io import read_cloud
+    from geomodel_ros.core.pipeline import model_scene
 
     cloud = read_cloud(data_dir() / "pcl_mug" / "table_scene_mug_stereo_textured.pcd")
     pts = cloud.points
@@ -310,7 +305,7 @@ def _axis_scan(mug: np.ndarray, ours: np.ndarray, tutorial: np.ndarray,
     MUG_SCAN_ANGLE of our axis (which includes the tutorial's); reported: the best
     direction, and the best one within 5 degrees of the tutorial's axis.
     """
-    from .evaluation import circle_along, scan_axis
+    from geomodel_ros.tools.evaluation import circle_along, scan_axis
 
     fits = scan_axis(mug, ours, MUG_SCAN_ANGLE, MUG_SCAN_BAND)
     best = fits[0]
@@ -333,9 +328,9 @@ def _axis_scan(mug: np.ndarray, ours: np.ndarray, tutorial: np.ndarray,
 def synthetic_segmentation(scenes: Sequence[str], params: ModelingParams, repeats: int = 5,
                            noise=None, seed: int = 1) -> list[dict]:
     """End-to-end (segmentation + modeling) on synthetic scenes: IoU, types, sizes, time."""
-    from .evaluation import dimension_errors, expected_type
-    from .pipeline import model_scene
-    from .synth import render_scene
+    from geomodel_ros.tools.evaluation import dimension_errors, expected_type
+    from geomodel_ros.core.pipeline import model_scene
+    from geomodel_ros.tools.synth import render_scene
 
     rows = []
     for name in scenes:

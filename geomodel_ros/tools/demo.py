@@ -23,27 +23,27 @@ import sys
 import threading
 import time
 from pathlib import Path
+
+from geomodel_ros.tools.paths import FASTDDS_LARGE_DATA, REPO
 from typing import Sequence
 
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # before rclpy starts DDS
 # ~8 MB clouds between processes: Fast DDS over shared memory with large segments (the
 # default transports lose such messages on loopback). Nothing leaves the host.
-os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE",
-                      str(__import__("pathlib").Path(__file__).resolve().parent.parent
-                          / "config" / "fastdds_large_data.xml"))
+os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_LARGE_DATA))
 
 import numpy as np  # noqa: E402
 
 __all__ = ["run_demo", "main"]
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 TOPIC = "/camera/depth/points"
 
 
 def _node_command(params_file: Path) -> list[str]:
     """The installed ``modeler`` console script (as ``ros2 run`` would start it)."""
     script = Path(sys.prefix) / "lib" / "geomodel_ros" / "modeler"
-    exe = [str(script)] if script.exists() else [sys.executable, "-m", "geomodel_ros.node"]
+    exe = [str(script)] if script.exists() else [sys.executable, "-m", "geomodel_ros.ros.node"]
     return exe + ["--ros-args", "--params-file", str(params_file), "-r", f"points:={TOPIC}",
                   "-p", "qos_reliability:=reliable", "-p", "qos_depth:=10"]
 
@@ -103,8 +103,8 @@ def _match(truth: list[dict], detected) -> list[tuple[dict, object]]:
 
 
 def _table(truth: list[dict], detected) -> tuple[str, int]:
-    from .evaluation import dimension_errors
-    from .synth import GroundTruthObject
+    from geomodel_ros.tools.evaluation import dimension_errors
+    from geomodel_ros.tools.synth import GroundTruthObject
 
     lines = [f"  {'object':<10} {'true size (mm)':<34} {'modeled (mm)':<34} {'error (mm)':<24}"]
     found = 0
@@ -138,7 +138,7 @@ def run_demo(out_dir: str | Path = "demo_out", scenes: Sequence[str] = ("scene1"
     from msg_adapters.markers import markers_to_primitives
     from msg_adapters.pointcloud2 import cloud_to_fields, cloud_to_xyz_and_mask
 
-    from .bags import ground_truth_path, play, write_synth_bag
+    from geomodel_ros.ros.bags import ground_truth_path, play, write_synth_bag
 
     out = Path(out_dir)
     bag = out / "scenes_bag"
@@ -218,7 +218,7 @@ def run_demo(out_dir: str | Path = "demo_out", scenes: Sequence[str] = ("scene1"
             print(f"  {found}/{len(scene['objects'])} objects found with the right type; "
                   f"{len(detected)} primitives published\n")
             if pictures and last in segments:
-                from .render import render_figures
+                from geomodel_ros.tools.render import render_figures
 
                 pts, mask = cloud_to_xyz_and_mask(segments[last], skip_nans=False)
                 ids = cloud_to_fields(segments[last], ["object_id"])["object_id"]

@@ -21,11 +21,11 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .errors import as_points
-from .faces import WorkingCloud, estimate_normals, link_graph, split_faces, voxelize
-from .fastmath import row_norms, rows_finite, take_rows
-from .params import ModelingParams
-from .ransac import PlaneModel, fit_plane_svd, ransac, refine
+from geomodel_ros.core.errors import as_points
+from geomodel_ros.core.faces import WorkingCloud, estimate_normals, link_graph, split_faces, voxelize
+from geomodel_ros.core.fastmath import row_norms, rows_finite, take_rows
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, ransac, refine
 
 __all__ = ["Segmentation", "segment_scene"]
 
@@ -117,7 +117,7 @@ def _support_planes(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
 def _convex_objects(points: NDArray[np.float64], params: ModelingParams) -> NDArray[np.int64]:
     """Object label of every point of a support-free working cloud (local convexity).
 
-    Patches are smooth regions (:func:`geomodel_ros.faces.split_faces`). Across the border
+    Patches are smooth regions (:func:`geomodel_ros.core.faces.split_faces`). Across the border
     of two adjacent patches every neighbour link votes with its convexity
     (n_i - n_j) . (p_i - p_j) / |p_i - p_j| (~0 flat, > 0 convex, < 0 concave); the patches
     belong to one object when at least half the votes are above ``-seg_concavity_tolerance``.

@@ -3,7 +3,7 @@ and the paper's desk scenes with exact ground truth.
 
 ROS-free (numpy only).  Typical use::
 
-    from geomodel_ros.synth import render_scene, SENSOR_NOISE
+    from geomodel_ros.tools.synth import render_scene, SENSOR_NOISE
     scene = render_scene("scene3", noise=SENSOR_NOISE, rng=0)
     scene.points, scene.labels, scene.objects
 """

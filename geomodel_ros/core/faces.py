@@ -19,8 +19,8 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .fastmath import centroid, knn, robust_sigma
-from .ransac import PlaneModel, fit_plane_svd, refine
+from geomodel_ros.core.fastmath import centroid, knn, robust_sigma
+from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, refine
 
 __all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",

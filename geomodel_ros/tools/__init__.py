@@ -1,0 +1,1 @@
+"""Tools around the core: CLI, benchmarks, evaluation, rendering, demo, synthetic scenes, files."""
