@@ -23,6 +23,7 @@ from geomodel_ros.core import obb
 from geomodel_ros.core.errors import InputError, as_points
 from geomodel_ros.core.faces import (WorkingCloud, build_working_cloud, face_plane, faces_from_labels,
                     split_faces, split_plane_unions)
+from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.fastmath import centroid, rows_finite, take_rows
 from geomodel_ros.core.model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
 from geomodel_ros.core.params import ModelingParams
@@ -116,13 +117,6 @@ def _unknown(oid: int, points: NDArray[np.float64], reason: str,
     return Primitive(oid, "unknown", center, np.eye(3), {}, len(points), 0.0, faces, reason)
 
 
-def _perp_frame(z: NDArray[np.float64]) -> NDArray[np.float64]:
-    helper = np.array([1.0, 0, 0]) if abs(z[0]) < 0.9 else np.array([0, 1.0, 0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(z, x), z])
-
-
 #: Points farther than this many RANSAC thresholds from the fitted surfaces are outliers
 #: for sizing.
 OUTLIER_FACTOR = 3.0
@@ -198,7 +192,7 @@ def _arc_span(pts: NDArray[np.float64], origin: NDArray[np.float64],
     """Angle [rad] that points span around an axis (2 pi minus the largest empty gap)."""
     if len(pts) < 3:
         return 0.0
-    frame = _perp_frame(axis)
+    frame = frame_with_z(axis)
     v = pts[:: max(1, len(pts) // 20000)] - origin  # a 20k subset finds any real gap
     ang = np.sort(np.arctan2(v @ frame[:, 1], v @ frame[:, 0]))
     gaps = np.diff(np.r_[ang, ang[0] + 2.0 * math.pi])
@@ -319,7 +313,7 @@ def _fit_plane(o: _Object, main: int) -> tuple[Primitive | None, str]:
     d = -model.d if n @ model.normal < 0 else model.d
     # Sizing uses the points on the model (flying pixels and strays do not stretch it),
     # in the plane's frame (x, y in the plane, h along the normal: one product).
-    frame = _perp_frame(n)
+    frame = frame_with_z(n)
     x, y, h = frame.T @ o.points.T
     on = np.abs(h + d) <= OUTLIER_FACTOR * p.ransac_threshold
     bad = _coverage(on, "plane")
@@ -580,7 +574,7 @@ def _fit_round(o: _Object, kind: str, main: int,
         if axis @ (origin + axis * (lo + hi) / 2) > 0:  # point the axis towards the sensor
             axis, lo, hi = -axis, -hi, -lo
         center = origin + axis * (lo + hi) / 2
-        return Primitive(o.oid, "cylinder", center, _perp_frame(axis),
+        return Primitive(o.oid, "cylinder", center, frame_with_z(axis),
                          {"radius": float(model.radius), "height": float(hi - lo)}, n_all, rmse), \
             "cylinder verified"
     # Cone: apex at t = 0, base at the far end.
@@ -599,7 +593,7 @@ def _fit_round(o: _Object, kind: str, main: int,
         return None, (f"cone rejected: radius {radius * 1000:.0f} mm, the object's points "
                       f"reach {reach * 1000:.0f} mm from its axis")
     center = origin + axis * height / 2
-    return Primitive(o.oid, "cone", center, _perp_frame(-axis),
+    return Primitive(o.oid, "cone", center, frame_with_z(-axis),
                      {"radius": float(radius), "height": float(height)}, n_all, rmse), "cone verified"
 
 

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from scipy.optimize import leastsq
 
 from geomodel_ros.core.fastmath import centroid
+from geomodel_ros.core.geometry import cross3, perpendicular_basis, unit3
 
 __all__ = [
     "PlaneModel", "SphereModel", "CylinderModel", "ConeModel", "FitResult",
@@ -52,25 +53,6 @@ def _axial_parts_t(v: NDArray[np.float64], axis: NDArray[np.float64]
 
 def _radial_units_t(radial: NDArray[np.float64], rho: NDArray[np.float64]) -> NDArray:
     return radial / np.maximum(rho, _EPS)
-
-
-def _unit3(v: NDArray[np.float64]) -> NDArray[np.float64]:
-    n = math.sqrt(float(v[0]) ** 2 + float(v[1]) ** 2 + float(v[2]) ** 2)
-    return v / n if n > _EPS else v
-
-
-def _cross3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
-    b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
-    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
-
-
-_X, _Y = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
-
-
-def _perp_basis(a: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    e1 = _unit3(_cross3(a, _X if abs(a[0]) < 0.9 else _Y))
-    return e1, _cross3(a, e1)
 
 
 # ----------------------------------------------------------------------------------------
@@ -241,12 +223,12 @@ class CylinderModel:
         return np.zeros(5)
 
     def _frame(self):
-        return _perp_basis(self.axis)
+        return perpendicular_basis(self.axis)
 
     @staticmethod
     def from_vector(x: NDArray, ref: "CylinderModel") -> "CylinderModel":
         e1, e2 = ref._frame()
-        axis = _unit3(ref.axis + x[0] * e1 + x[1] * e2)
+        axis = unit3(ref.axis + x[0] * e1 + x[1] * e2)
         point = ref.point + x[2] * e1 + x[3] * e2
         return CylinderModel(point, axis, float(ref.radius + x[4]))
 
@@ -330,8 +312,8 @@ class ConeModel:
 
     @staticmethod
     def from_vector(x: NDArray, ref: "ConeModel") -> "ConeModel":
-        e1, e2 = _perp_basis(ref.axis)
-        axis = _unit3(ref.axis + x[0] * e1 + x[1] * e2)
+        e1, e2 = perpendicular_basis(ref.axis)
+        axis = unit3(ref.axis + x[0] * e1 + x[1] * e2)
         return ConeModel(ref.apex + x[2:5], axis, float(ref.half_angle + x[5]))
 
     @staticmethod
@@ -342,7 +324,7 @@ class ConeModel:
     @staticmethod
     def jacobian_t(x: NDArray, ref: "ConeModel", pt: NDArray) -> NDArray:
         """Transposed :meth:`jacobian`, shape (P, M), of points given as (3, M)."""
-        e1, e2 = _perp_basis(ref.axis)
+        e1, e2 = perpendicular_basis(ref.axis)
         m = ConeModel.from_vector(x, ref)
         scale = float(np.linalg.norm(ref.axis + x[0] * e1 + x[1] * e2))
         a = m.axis

@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 
 from geomodel_ros.core.errors import as_points
 from geomodel_ros.core.faces import WorkingCloud, estimate_normals, link_graph, split_faces, voxelize
+from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.fastmath import row_norms, rows_finite, take_rows
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, ransac, refine
@@ -302,9 +303,7 @@ def _join_contained_parts(points: NDArray[np.float64], normals: NDArray[np.float
     if len(ids) < 2:
         return comp
     n = support.normal
-    e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(n, e1)
+    e1, e2 = perpendicular_basis(n)
     members = {i: np.flatnonzero(valid & (comp == i)) for i in ids}
     foot = {i: points[m] @ np.column_stack([e1, e2]) for i, m in members.items()}
     height = {i: np.abs(points[m] @ n + support.d) for i, m in members.items()}

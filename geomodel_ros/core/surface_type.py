@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from geomodel_ros.core.geometry import perpendicular_bases
+
 __all__ = ["FaceFeature", "covariance_features", "face_feature", "principal_curvatures"]
 
 
@@ -144,10 +146,7 @@ def principal_curvatures(points: NDArray[np.float64], normals: NDArray[np.float6
         Curvature of largest and smallest magnitude (signs kept).
     """
     m = len(points)
-    helper = np.where(np.abs(normals[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
-    u = np.cross(normals, helper)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = np.cross(normals, u)
+    u, v = perpendicular_bases(normals)
     d = points[neighbors] - points[:, None, :]
     x = np.einsum("mki,mi->mk", d, u)
     y = np.einsum("mki,mi->mk", d, v)

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.primitives import Primitive
 
 __all__ = ["expected_type", "DimensionError", "dimension_errors", "ObjectScore", "score_objects",
@@ -177,9 +178,7 @@ def circle_along(points: np.ndarray, direction: np.ndarray, threshold: float,
     over ``rounds`` rounds (handles and strays drop out)."""
     d = np.asarray(direction, dtype=np.float64)
     d = d / np.linalg.norm(d)
-    a = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(d, a)
+    a, b = perpendicular_basis(d)
     q = points - points.mean(axis=0)
     x, y = q @ a, q @ b
     keep = np.ones(len(q), dtype=bool)
@@ -204,9 +203,7 @@ def scan_axis(points: np.ndarray, around: np.ndarray, max_angle: float, threshol
     (``step`` [rad] in polar angle, about ``step`` along the circles), best share first."""
     z = np.asarray(around, dtype=np.float64)
     z = z / np.linalg.norm(z)
-    e1 = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(z, e1)
+    e1, e2 = perpendicular_basis(z)
     fits = []
     for theta in np.arange(0.0, max_angle + 1e-12, step):
         turns = max(1, int(np.ceil(2.0 * np.pi * np.sin(theta) / step)))
