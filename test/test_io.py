@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from data_helpers import DATA, require
+
 from geomodel_ros.tools.io import (
     OSD_INVALID_ID,
     OSD_TABLE_ID,
@@ -27,13 +29,9 @@ from geomodel_ros.tools.io import (
     write_ply,
 )
 
-# The project's shared data sits beside the repository (../shared/data).
-DATA = Path(os.environ.get("GEOMODEL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 OSD_LEARN0 = DATA / "osd_learn" / "learn0.pcd"
 MUG = DATA / "pcl_mug" / "table_scene_mug_stereo_textured.pcd"
 
-needs_osd = pytest.mark.skipif(not OSD_LEARN0.exists(), reason=f"{OSD_LEARN0} not present")
-needs_mug = pytest.mark.skipif(not MUG.exists(), reason=f"{MUG} not present")
 
 
 # --------------------------------------------------------------------------------------------
@@ -365,15 +363,14 @@ def test_open3d_reads_our_pcd(tmp_path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def learn0() -> Cloud:
-    return read_cloud(OSD_LEARN0)
+    return read_cloud(require(OSD_LEARN0))
 
 
 @pytest.fixture(scope="module")
 def mug() -> Cloud:
-    return read_cloud(MUG)
+    return read_cloud(require(MUG))
 
 
-@needs_osd
 def test_osd_learn0_loads(learn0: Cloud) -> None:
     assert learn0.points.shape == (307200, 3)
     assert (learn0.width, learn0.height, learn0.is_organized) == (640, 480, True)
@@ -386,7 +383,6 @@ def test_osd_learn0_loads(learn0: Cloud) -> None:
     np.testing.assert_array_equal(finite, learn0.fields["label"] != 0)
 
 
-@needs_mug
 def test_mug_loads_with_known_finite_count(mug: Cloud) -> None:
     assert mug.points.shape == (307200, 3)
     assert (mug.width, mug.height) == (640, 480)
@@ -399,8 +395,8 @@ def test_mug_loads_with_known_finite_count(mug: Cloud) -> None:
 @pytest.mark.parametrize(
     ("fixture", "path"),
     [
-        pytest.param("learn0", OSD_LEARN0, marks=needs_osd),
-        pytest.param("mug", MUG, marks=needs_mug),
+        pytest.param("learn0", OSD_LEARN0),
+        pytest.param("mug", MUG),
     ],
 )
 def test_real_pcd_matches_open3d(request: pytest.FixtureRequest, fixture: str, path: Path) -> None:
@@ -415,9 +411,8 @@ def test_real_pcd_matches_open3d(request: pytest.FixtureRequest, fixture: str, p
     np.testing.assert_allclose(rgb, np.asarray(pcd.colors), atol=1e-12)
 
 
-@needs_osd
 def test_load_osd_maps_labels_to_object_ids() -> None:
-    points, labels = load_osd(OSD_LEARN0)
+    points, labels = load_osd(require(OSD_LEARN0))
     assert points.shape == (307200, 3) and points.dtype == np.float64
     assert labels.shape == (307200,) and labels.dtype == np.int64
     ids, counts = np.unique(labels, return_counts=True)
@@ -592,10 +587,9 @@ def test_mutated_files_raise_only_cloud_file_error(tmp_path: Path) -> None:
                 pass
 
 
-@needs_mug
 def test_truncated_real_compressed_file(tmp_path: Path) -> None:
     path = tmp_path / "mug_cut.pcd"
-    path.write_bytes(MUG.read_bytes()[:100_000])
+    path.write_bytes(require(MUG).read_bytes()[:100_000])
     with pytest.raises(CloudFileError, match=r"mug_cut.pcd: truncated PCD: binary_compressed says"):
         read_pcd(path)
 

@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from data_helpers import require
+
 from geomodel_ros.tools.benchmark import OSD_GROUPS, data_dir
 from geomodel_ros.tools.evaluation import dimension_errors, segmentation_scores
 from geomodel_ros.core.params import ModelingParams, load_params_file
@@ -276,9 +278,7 @@ OSD_CASES = [
 
 @pytest.mark.parametrize("group, k", OSD_CASES)
 def test_osd_learn_objects_iou(group, k):
-    path = _osd(k)
-    if not path.exists():
-        pytest.skip(f"{path} not present (osd_learn data folder missing)")
+    path = require(_osd(k))
     from geomodel_ros.tools.io import load_osd
 
     assert k in OSD_GROUPS[group]
@@ -298,10 +298,8 @@ def test_osd_learn_objects_iou(group, k):
 def _modeled_osd_object(k: int, gt_id: int):
     """learn<k> segmented and modeled with config/kinect.yaml: the labelled object's own
     finite points, the primitive of the segment that holds most of them, and the whole
-    result (skips when the data folder is missing)."""
-    path = _osd(k)
-    if not path.exists():
-        pytest.skip(f"{path} not present (osd_learn data folder missing)")
+    result (see data_helpers.require when the data folder is missing)."""
+    path = require(_osd(k))
     from geomodel_ros.tools.io import load_osd
 
     points, gt = load_osd(path)
