@@ -10,7 +10,8 @@
 and stores every object (type, centre, rotation, dimensions, point count, rmse, faces,
 reason) and every segmentation (labels as a digest, support planes), without timings.
 ``python -m geomodel_ros.tools.regression compare A.json B.json`` lists every difference
-(floats compared to ``--atol``, default 0: identical) and exits 1 when there is any.
+(floats compared to ``--atol``, default 0: identical) and exits 1 when there is any;
+with ``--ignore-timing`` it compares two ``geomodel bench --json`` reports the same way.
 """
 
 from __future__ import annotations
@@ -108,18 +109,31 @@ def snapshot(parts: Sequence[str] = ("synthetic", "osd", "real")) -> dict:
     return out
 
 
-def compare(a: Any, b: Any, atol: float = 0.0, path: str = "") -> list[str]:
-    """Differences between two snapshots, one line each (empty when they agree)."""
+def _is_timing(key: str) -> bool:
+    """Keys of ``geomodel bench`` JSON that hold times (``*_s``, ``time*``, peak RSS)."""
+    return key.endswith("_s") or key.startswith("time") or key == "peak_rss_mb"
+
+
+def compare(a: Any, b: Any, atol: float = 0.0, path: str = "",
+            ignore_timing: bool = False) -> list[str]:
+    """Differences between two snapshots, one line each (empty when they agree).
+
+    With ``ignore_timing`` the timing keys of ``geomodel bench`` JSON files are skipped, so
+    two benchmark reports can be compared for identical results.
+    """
     if isinstance(a, dict) and isinstance(b, dict):
-        diffs = [f"{path}/{k}: only in the first" for k in a.keys() - b.keys()]
-        diffs += [f"{path}/{k}: only in the second" for k in b.keys() - a.keys()]
-        for k in sorted(a.keys() & b.keys()):
-            diffs += compare(a[k], b[k], atol, f"{path}/{k}")
+        keys_a = {k for k in a if not (ignore_timing and _is_timing(k))}
+        keys_b = {k for k in b if not (ignore_timing and _is_timing(k))}
+        diffs = [f"{path}/{k}: only in the first" for k in sorted(keys_a - keys_b)]
+        diffs += [f"{path}/{k}: only in the second" for k in sorted(keys_b - keys_a)]
+        for k in sorted(keys_a & keys_b):
+            diffs += compare(a[k], b[k], atol, f"{path}/{k}", ignore_timing)
         return diffs
     if isinstance(a, list) and isinstance(b, list):
         if len(a) != len(b):
             return [f"{path}: {len(a)} vs {len(b)} entries"]
-        return [d for i, (x, y) in enumerate(zip(a, b)) for d in compare(x, y, atol, f"{path}[{i}]")]
+        return [d for i, (x, y) in enumerate(zip(a, b))
+                for d in compare(x, y, atol, f"{path}[{i}]", ignore_timing)]
     if isinstance(a, float) and isinstance(b, float):
         same = (math.isnan(a) and math.isnan(b)) or abs(a - b) <= atol
         return [] if same else [f"{path}: {a!r} vs {b!r}"]
@@ -138,12 +152,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("first")
     p.add_argument("second")
     p.add_argument("--atol", type=float, default=0.0, help="float tolerance (default: identical)")
+    p.add_argument("--ignore-timing", action="store_true",
+                   help="skip timing keys (to compare two `geomodel bench --json` reports)")
     args = ap.parse_args(argv)
     if args.cmd == "snapshot":
         Path(args.out).write_text(json.dumps(snapshot(args.parts), indent=1, default=float))
         return 0
     diffs = compare(json.loads(Path(args.first).read_text()),
-                    json.loads(Path(args.second).read_text()), args.atol)
+                    json.loads(Path(args.second).read_text()), args.atol,
+                    ignore_timing=args.ignore_timing)
     print("\n".join(diffs[:200]) if diffs else "identical")
     if len(diffs) > 200:
         print(f"... {len(diffs) - 200} more")
