@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-DATA = Path(os.environ.get("GEOMODEL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+DATA = Path(os.environ.get("GEOMODEL_DATA",
+                          Path(__file__).resolve().parents[2] / "shared" / "data"))
 
 
 def require(path: Path) -> Path:

@@ -71,7 +71,7 @@ def _shape_points(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
 
 @st.composite
 def clouds(draw: Any) -> tuple[np.ndarray, tuple[int, int] | None]:
-    """A fuzzed cloud: ``(points (N, 3) or (H, W, 3), organized shape or None)``."""
+    """Draw a fuzzed cloud: ``(points (N, 3) or (H, W, 3), organized shape or None)``."""
     seed = draw(st.integers(0, 2**32 - 1))
     rng = np.random.default_rng(seed)
     n = draw(st.integers(0, MAX_POINTS))

@@ -1,4 +1,4 @@
-"""Mutation spot-check: does the test suite catch plausible bugs in the core?
+"""Mutation spot-check: whether the test suite catches plausible bugs in the core.
 
 ``python -m geomodel_ros.tools.mutation_check --repo CLONE`` applies one mutant at a time
 (a plausible one-line bug, listed in :data:`MUTANTS`) to a *clone* of the repository, runs the
