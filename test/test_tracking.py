@@ -11,11 +11,14 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from geomodel_ros.core.errors import InputError
 from geomodel_ros.core.params import ParameterError
 from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.core.tracking import (TRACKER_PARAMETERS, Tracker, TrackerConfig,
@@ -227,6 +230,19 @@ def test_other_type_of_another_size_at_the_same_place_gets_a_new_id():
     assert [o.id for o in res.objects] == [1]
 
 
+@pytest.mark.parametrize("ratio, same_id", [(1.05, True), (1.15, False)])
+def test_type_change_needs_the_overall_size_to_agree_tightly(ratio, same_id):
+    # Type change allowed for a size ratio up to 1.5 ** 0.25 = 1.107 (a quarter of the
+    # log-size gate); a cylinder whose diagonal is `ratio` times the box's, at its centre.
+    kind, center, dims = SCENE[0]
+    diagonal = ratio * math.sqrt(sum(v * v for v in dims.values()))
+    cyl = {"radius": 0.03, "height": math.sqrt(diagonal ** 2 - 0.06 ** 2)}
+    tracker = Tracker()
+    tracker.update([prim(kind, center, dims)])
+    assert [o.id for o in tracker.update([prim("cylinder", center, cyl)]).objects] == [
+        0 if same_id else 1]
+
+
 def test_other_type_a_little_away_gets_a_new_id():
     # Type change allowed within a quarter of the centre gate, 0.5 * 0.1166 + 0.03 = 8.8 cm.
     tracker = Tracker()
@@ -342,3 +358,26 @@ def test_config_has_one_definition_and_validates():
 
 def test_measure_update_cost_runs():
     assert measure_update_cost(n_objects=4, frames=5) > 0.0
+
+
+@pytest.mark.parametrize("bad", [
+    {"center": np.array([0.0, np.nan, 1.0])},
+    {"center": np.zeros(2)},
+    {"rotation": np.full((3, 3), np.inf)},
+    {"dimensions": {"radius": float("nan")}},
+])
+def test_invalid_primitives_raise_and_leave_the_tracker_unchanged(bad):
+    tracker = Tracker()
+    tracker.update([prim(*SCENE[2])])
+    broken = dataclasses.replace(prim(*SCENE[2]), **bad)
+    with pytest.raises(InputError, match="primitive 1"):
+        tracker.update([prim(*SCENE[2]), broken])
+    assert tracker.active_ids == (0,)
+    assert [o.id for o in tracker.update([prim(*SCENE[2])]).objects] == [0]
+
+
+def test_tracking_imports_without_ros():
+    code = ("import sys, geomodel_ros.core.tracking; "
+            "ros = ('rclpy', 'std_msgs', 'geometry_msgs', 'visualization_msgs', 'sensor_msgs'); "
+            "sys.exit(any(m.split('.')[0] in ros for m in sys.modules))")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0

@@ -4,8 +4,8 @@ Every frame's primitives are matched to the tracks of the previous frames with o
 optimal assignment (:func:`scipy.optimize.linear_sum_assignment`), so that an object keeps its
 id while it persists. The rules:
 
-* **Cost of a pair** (track, new object) of the same type: the mean of the squared
-  normalised errors
+* **Cost of a pair** (track, new object) of the same type: the mean of the four squared
+  normalised errors (the plane terms are 0 for other types)
 
   - centre distance / (``center_gate_scale`` * size + ``center_gate_abs``), where size is the
     larger characteristic size (diagonal of the extents) of the two;
@@ -50,6 +50,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
+from geomodel_ros.core.errors import InputError
 from geomodel_ros.core.geometry import EPS
 from geomodel_ros.core.params import ParamSpec
 from geomodel_ros.core.primitives import Primitive
@@ -316,6 +317,17 @@ def _blend_rotation(track_rot: NDArray[np.float64], rot: NDArray[np.float64], we
     return track_rot @ (np.eye(3) + math.sin(phi) * kx + (1.0 - math.cos(phi)) * (kx @ kx))
 
 
+def _check(dets: list[tuple[str, NDArray, NDArray, NDArray | None]]) -> None:
+    """Raise :class:`InputError` unless every centre is finite (3,) and rotation (3, 3)."""
+    for i, (_, center, rot, ext) in enumerate(dets):
+        if center.shape != (3,) or rot.shape != (3, 3):
+            raise InputError(f"primitive {i}: center must have shape (3,) and rotation (3, 3), "
+                             f"got {center.shape} and {rot.shape}")
+        if not (np.isfinite(center).all() and np.isfinite(rot).all()
+                and (ext is None or np.isfinite(ext).all())):
+            raise InputError(f"primitive {i}: center, rotation and dimensions must be finite")
+
+
 class Tracker:
     """Keeps object ids stable across frames (see the module docstring for the rules).
 
@@ -360,9 +372,16 @@ class Tracker:
         -------
         TrackingResult
             The primitives with track ids in input order, the ids retired and created.
+
+        Raises
+        ------
+        InputError
+            A centre, rotation or dimension is not finite or has the wrong shape (the
+            tracker's state is left unchanged).
         """
         dets = [(_type_name(p.type), np.asarray(p.center, float), np.asarray(p.rotation, float),
                  _extents(_type_name(p.type), p.dimensions)) for p in primitives]
+        _check(dets)
         tracks = list(self._tracks.values())
         pairs = _assign(_pair_costs(tracks, dets, self.config)) if tracks and dets else []
         out: list[Primitive | None] = [None] * len(dets)
