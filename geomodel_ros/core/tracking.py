@@ -24,15 +24,17 @@ id while it persists. The rules:
 * **Unmatched** new objects get fresh ids (monotonic, never reused). A track not matched for
   more than ``max_missed`` consecutive frames is retired and its id reported as deleted in
   that frame's :class:`TrackingResult` (so that its marker can be deleted).
-* **Smoothing** (``smoothing`` > 0) of static objects: when a same-type object moved less
-  than ``static_motion`` since the track's estimate, centre and dimensions are an
-  exponential moving average ``s = a * s_prev + (1 - a) * x`` with ``a = smoothing``
-  (stationary noise std shrinks by ``sqrt((1 - a) / (1 + a))``). Before averaging, the new
-  axes are expressed in the symmetry-equivalent form closest to the track's (any proper
-  signed permutation for cuboids, dimensions permuted alike; x, y -> -x, -y for planes;
-  z -> -z for cylinders), so a cuboid's pose does not jump by 90 degrees between frames;
-  within ``rotation_gate`` the rotation is averaged on SO(3) with the same weight, beyond it
-  the aligned new rotation is taken. Moving objects are never smoothed (no lag).
+* **Smoothing** (``smoothing`` > 0). The axes of every same-type match are first expressed
+  in the symmetry-equivalent form closest to the track's (any proper signed permutation for
+  cuboids, dimensions permuted alike; x, y -> -x, -y for planes; y, z -> -y, -z for
+  cylinders), so a cuboid's pose does not jump by 90 degrees between frames. When the object
+  moved less than ``static_motion`` from the track's estimate, centre and dimensions become
+  the exponential moving average ``s = a * s_prev + (1 - a) * x`` with ``a = smoothing``
+  (the std of stationary noise shrinks by ``sqrt((1 - a) / (1 + a))``), and the rotation the
+  same average on SO(3) when it is within ``rotation_gate`` of the track's (else the aligned
+  new rotation). Objects that move more are passed through (no lag); a slow drift of ``v``
+  per frame lags by ``a * v / (1 - a)`` as long as that stays below ``static_motion``.
+  Without smoothing the geometry is passed through unchanged; only the id is replaced.
 
 Matching works on plain type strings (``str`` enums compare and convert alike).
 """
