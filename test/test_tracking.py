@@ -381,3 +381,19 @@ def test_tracking_imports_without_ros():
             "ros = ('rclpy', 'std_msgs', 'geometry_msgs', 'visualization_msgs', 'sensor_msgs'); "
             "sys.exit(any(m.split('.')[0] in ros for m in sys.modules))")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+@pytest.mark.parametrize("index, flip", [
+    (1, np.diag([1.0, -1.0, -1.0])),   # cylinder: the axis has no direction
+    (4, np.diag([-1.0, -1.0, 1.0])),   # plane: the in-plane axes have no direction
+])
+def test_flipped_axes_of_symmetric_shapes_keep_the_tracks_axes_with_smoothing(index, flip):
+    kind, center, dims = SCENE[index]
+    base = Rotation.from_euler("zyx", [0.5, 0.1, 0.2]).as_matrix()
+    tracker = Tracker(TrackerConfig(smoothing=0.8))
+    for frame in range(6):
+        rot = base @ flip if frame % 2 else base
+        (obj,) = tracker.update([prim(kind, center, dims, rot)]).objects
+        assert obj.id == 0
+        assert np.allclose(obj.rotation, base, atol=1e-9)
+        assert np.allclose(np.abs(obj.rotation.T @ rot), np.eye(3), atol=1e-9)  # same shape
