@@ -183,6 +183,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
 )
 
 _SPECS: dict[str, ParamSpec] = {p.name: p for p in PARAMETERS}
+#: Eq. 6 takes the noise amplitude t in millimetres.
+_MM_PER_M = 1000.0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -277,7 +279,7 @@ class ModelingParams:
     @property
     def cf_weights(self) -> tuple[float, float, float]:
         """Weights w1, w2, w3 of eq. 6 with t = noise amplitude in millimetres."""
-        e = math.exp(-self.noise_amplitude * 1000.0)
+        e = math.exp(-self.noise_amplitude * _MM_PER_M)
         return (e, 1.0 - e, 2.0 * (1.0 - e))
 
     @classmethod

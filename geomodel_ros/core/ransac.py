@@ -31,7 +31,7 @@ __all__ = [
     "PlaneModel", "SphereModel", "CylinderModel", "ConeModel", "FitResult",
     "PlaneBatch", "SphereBatch", "CylinderBatch", "ConeBatch",
     "RansacModel", "RefinableModel", "SurfaceModel",
-    "fit_plane_svd", "ransac", "refine", "MODELS", "MAX_EVALUATIONS",
+    "fit_plane_svd", "ransac", "refine", "MODELS", "MAX_EVALUATIONS", "HYPOTHESES_PER_BATCH",
 ]
 
 Array = NDArray[np.float64]
@@ -59,6 +59,11 @@ _REFINE_EXTRA_POINTS = 3
 #: Relative tolerances of MINPACK's Levenberg-Marquardt, as in
 #: :func:`scipy.optimize.least_squares`.
 _LSQ_TOLERANCE = 1e-8
+
+#: Hypotheses solved and scored together by :func:`ransac`: large enough that numpy's
+#: per-call overhead is small, small enough that early termination wastes few. Part of
+#: the random-number order: changing it changes every fit.
+HYPOTHESES_PER_BATCH = 64
 
 #: Evaluations per least-squares refinement. With exact Jacobians a well-posed fit
 #: converges in well under this (synthetic scenes: 1-11); an ill-posed one (a cone whose
@@ -620,7 +625,7 @@ def _support(model: ModelT, points: Array, threshold: float) -> FitResult[ModelT
 
 def ransac(model_cls: type[ModelT], points: Array, normals: Array, threshold: float,
            normal_threshold: float, max_iterations: int, confidence: float,
-           rng: np.random.Generator, batch: int = 64,
+           rng: np.random.Generator, batch: int = HYPOTHESES_PER_BATCH,
            accept: Callable[[ModelT], bool] | None = None,
            max_score_points: int | None = None) -> FitResult[ModelT] | None:
     """Find the model with the most inliers.
