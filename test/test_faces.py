@@ -66,7 +66,7 @@ def test_split_faces_finds_the_three_box_faces_and_their_adjacency():
     for f in range(3):
         n = cloud.normals[faces.labels == f].mean(axis=0)
         n /= np.linalg.norm(n)
-        assert np.abs(n).max() > 0.99
+        assert np.abs(n).max() > 0.995   # 0.9962 measured (normals turn at the edges)
 
 
 def test_normals_point_to_the_viewpoint():
@@ -162,7 +162,8 @@ def test_two_perpendicular_planes_grown_into_one_face_are_taken_apart():
     # Each new face is one side: its points lie on one of the two planes.
     for f in range(2):
         q = cloud.points[out.labels == f]
-        assert min(np.abs(q[:, 2] - 0.6).max(), np.abs(q[:, 0]).max()) < 0.004
+        # Within 1 mm measured: voxel centroids next to the edge average both sides.
+        assert min(np.abs(q[:, 2] - 0.6).max(), np.abs(q[:, 0]).max()) < 0.0015
 
 
 def test_a_curved_face_is_not_taken_apart_into_planes():
@@ -203,5 +204,5 @@ def test_a_face_plane_is_not_tilted_by_strays_behind_it():
     lsq = fit_plane_svd(pts)
     assert robust_sigma(lsq.distance(pts)) > 0.003  # what made the face curved
     plane, spread = face_plane(pts, normals, 0.006)
-    assert abs(plane.normal @ normal) >= np.cos(np.radians(2.0))
-    assert spread < 0.001
+    assert abs(plane.normal @ normal) >= np.cos(np.radians(0.5))   # 0.15 deg measured
+    assert spread < 0.0007   # the face's own noise, sigma 0.5 mm

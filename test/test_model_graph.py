@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import inspect
 import math
 
 import numpy as np
 import pytest
 
 from geomodel_ros.core.model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
+from geomodel_ros.core.params import ModelingParams
 
 TOL = 0.14  # angle tolerance [rad] (the default)
 COPLANAR = 0.006  # coplanarity tolerance [m] (3 x the default RANSAC threshold)
@@ -168,7 +170,7 @@ def test_wedge_gives_no_candidate():
 
 
 def _ring_normals(axis, angle_to_plane, m=200):
-    """Normals around ``axis`` at ``angle_to_plane`` [rad] to the plane perpendicular to it."""
+    """Return normals around ``axis`` at ``angle_to_plane`` [rad] to its perpendicular plane."""
     a = _unit(axis)
     helper = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0])
     x = _unit(np.cross(helper, a))
@@ -287,3 +289,47 @@ def test_a_curved_sliver_on_a_box_does_not_make_it_mixed():
     # A larger curved part keeps the mixed rules (the box-with-rounded-side is no cuboid).
     big = faces[:3] + [curved(np.tile([[0.7, 0, -0.7]], (200, 1)))]
     assert decide(big).category == "mixed"
+
+
+# ---------------------------------------------------------------------------------------
+# Mixed objects: an oblique planar face vetoes the cylinder/cone rules only when it is
+# large. Rule (worked out by hand): it vetoes iff its size > 10 % of all working points
+# (2 x the 5 % sliver share). With a curved face of 300 points and a cap of 200, an
+# oblique face of s points vetoes iff s > 0.1 (500 + s), i.e. s > 55.6.
+# ---------------------------------------------------------------------------------------
+
+
+def _cap_ring_and_oblique(oblique_size):
+    axis = np.array([0.0, 0.0, -1.0])
+    return [curved(_ring_normals(axis, 0.0, 300)), planar(axis, [0, 0, 0.5], 200),
+            planar(_unit([1, 0, -1]), [0.03, 0, 0.5], oblique_size)]
+
+
+@pytest.mark.parametrize("size", [10, 50])   # 2 % and 9.1 % of the object
+def test_small_oblique_planar_sliver_does_not_veto_the_cylinder(size):
+    d = decide(_cap_ring_and_oblique(size))
+    assert d.category == "mixed"
+    assert d.candidates == ("cylinder", "cone")
+    assert d.main_face == 1
+
+
+@pytest.mark.parametrize("size", [60, 150])   # 10.7 % and 23 % of the object
+def test_large_oblique_planar_face_vetoes_the_cylinder(size):
+    d = decide(_cap_ring_and_oblique(size))
+    assert d.category == "mixed"
+    assert d.candidates == ()
+    assert d.reason == "several non-parallel planar faces with curved faces"
+
+
+def test_decide_type_defaults_are_the_parameter_defaults():
+    """decide_type repeats no default: its curvature ratios are ModelingParams'."""
+    defaults = ModelingParams()
+    sig = inspect.signature(decide_type).parameters
+    assert sig["sphere_ratio"].default == defaults.sphere_curvature_ratio
+    assert sig["developable_ratio"].default == defaults.developable_curvature_ratio
+    assert sig["cone_variation"].default == defaults.cone_curvature_variation
+    # A ratio of 0.4 lies between the default developable (0.35) and sphere (0.45) ratios.
+    faces = [curved(_unit(np.random.default_rng(4).normal(size=(100, 3))))]
+    k1 = np.full(100, 10.0)
+    d = decide_type(faces, all_adjacent(1), TOL, COPLANAR, curvature=(k1, 0.4 * k1))
+    assert d.candidates == ()

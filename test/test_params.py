@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pickle
+import typing
 from pathlib import Path
 
 import pytest
@@ -18,13 +20,6 @@ from geomodel_ros.core.params import (
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 SPECS = {p.name: p for p in PARAMETERS}
-
-# ModelingParams derives from a dataclass made by dataclasses.make_dataclass without a
-# __post_init__; the generated __init__ therefore never calls ModelingParams.__post_init__
-# (dataclasses only wires __post_init__ when the decorated class has it), so no value is
-# ever checked: ModelingParams(voxel_size=-1), ModelingParams(voxel_size="a"),
-# ModelingParams(min_radius=3.0, max_radius=2.0) and from_mapping / load_params_file /
-# `geomodel --set voxel_size=-1` all accept invalid values.
 
 # ---------------------------------------------------------------------------------------
 # The definitions themselves
@@ -45,6 +40,31 @@ def test_names_are_unique_and_match_the_dataclass():
     assert len(names) == len(set(names))
     assert [f.name for f in dataclasses.fields(ModelingParams)] == names
     assert list(ModelingParams().to_dict()) == names
+
+
+def test_dataclass_fields_repeat_the_definition_exactly():
+    """Name, order, annotated type and default of every field equal those of PARAMETERS."""
+    hints = typing.get_type_hints(ModelingParams)
+    fields = dataclasses.fields(ModelingParams)
+    assert [(f.name, hints[f.name], f.default) for f in fields] == \
+        [(p.name, p.type, p.default) for p in PARAMETERS]
+    for f, spec in zip(fields, PARAMETERS):
+        # 1 == 1.0 == True: the default must also have the parameter's exact type.
+        assert type(f.default) is spec.type, f.name
+        assert f.kw_only and f.init, f.name
+
+
+def test_constructor_rejects_positional_arguments():
+    with pytest.raises(ParameterError, match="parameters are keyword-only; known: .*voxel_size"):
+        ModelingParams(0.003)  # type: ignore[misc]
+
+
+def test_params_survive_pickle_and_replace():
+    p = ModelingParams(voxel_size=0.004, seed=3)
+    assert pickle.loads(pickle.dumps(p)) == p
+    assert dataclasses.replace(p, seed=4).seed == 4
+    with pytest.raises(ParameterError, match="seed"):
+        dataclasses.replace(p, seed=-1)
 
 
 def test_every_numeric_parameter_has_a_range_unit_and_description():

@@ -32,6 +32,35 @@ __all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_wor
 #: point, are counted in a dense table (sorting is used for sparser boxes).
 DENSE_CELLS = 1 << 22
 DENSE_CELLS_PER_POINT = 8
+#: Eigenvectors from cross products of rows of A - lambda I (scaled to entries <= 1) whose
+#: norm is below this are ill-determined (a repeated smallest eigenvalue): those matrices
+#: go to :func:`numpy.linalg.eigh` instead.
+_MIN_CROSS_NORM = 1e-8
+#: Floor of the scale that normalises a matrix's entries (all-zero matrices stay finite).
+_TINY_SCALE = 1e-300
+#: Faces touch when at least this many neighbour links join them (one stray link between
+#: two faces is noise).
+MIN_ADJACENCY_LINKS = 2
+#: An object whose voxelization fills more than this many times ``max_points`` voxels is
+#: voxelized once more, coarser (the estimate of :func:`working_voxel_size` missed).
+REVOXELIZE_FACTOR = 1.5
+#: :func:`working_voxel_size` voxelizes a regular subset of about this many times
+#: ``max_points`` points.
+SUBSET_POINTS_FACTOR = 4
+#: The Poisson occupancy estimate is iterated until it changes by less than this share
+#: (or at most _OCCUPANCY_ITERATIONS times; it converges in a few).
+_OCCUPANCY_TOLERANCE = 1e-3
+_OCCUPANCY_ITERATIONS = 50
+#: A face whose plane spread (robust sigma) is at most this share of the RANSAC threshold
+#: is flat whatever its CF.
+FLAT_SPREAD_SHARE = 0.5
+#: A face taken apart into planes must hold at least two (and, like a box's visible
+#: sides, at most three) mutually perpendicular planes.
+MIN_UNION_PLANES = 2
+MAX_UNION_PLANES = 3
+#: Point normals of a face whose mean is shorter than this cancel out (no direction to
+#: fall back on).
+_MIN_MEAN_NORMAL = 1e-9
 
 
 def voxelize(points: NDArray[np.float64], voxel_size: float,
@@ -112,8 +141,9 @@ def smallest_eigenpairs(cov: NDArray[np.float64]
 
 def smallest_eigenpairs_sym(xx: NDArray, xy: NDArray, xz: NDArray, yy: NDArray, yz: NDArray,
                             zz: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """:func:`smallest_eigenpairs` of the matrices [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]
-    given as six (M,) arrays of their distinct entries.
+    """Return :func:`smallest_eigenpairs` of matrices given by their six distinct entries.
+
+    The matrices are [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]], each entry an (M,) array.
 
     Closed form (trigonometric solution of the characteristic cubic, eigenvector from the
     largest cross product of two rows of A - lambda I), on flat arrays only; falls back to
@@ -122,7 +152,7 @@ def smallest_eigenpairs_sym(xx: NDArray, xy: NDArray, xz: NDArray, yy: NDArray, 
     scale = np.abs(xx)
     for v in (xy, xz, yy, yz, zz):
         scale = np.maximum(scale, np.abs(v))
-    scale = np.maximum(scale, 1e-300)
+    scale = np.maximum(scale, _TINY_SCALE)
     a, b, c, d, e, f = (v / scale for v in (xx, xy, xz, yy, yz, zz))
     q = (a + d + f) / 3.0
     a0, d0, f0 = a - q, d - q, f - q
@@ -143,7 +173,7 @@ def smallest_eigenpairs_sym(xx: NDArray, xy: NDArray, xz: NDArray, yy: NDArray, 
     nrm = np.maximum(n01, n02)
     vec = np.where(n12 > nrm, c12, vec)
     nrm = np.sqrt(np.maximum(nrm, n12))
-    bad = nrm < 1e-8
+    bad = nrm < _MIN_CROSS_NORM
     vec = (vec / np.where(bad, 1.0, nrm)).T.copy()
     if bad.any():
         sel = np.flatnonzero(bad)
@@ -159,8 +189,10 @@ def smallest_eigenpairs_sym(xx: NDArray, xy: NDArray, xz: NDArray, yy: NDArray, 
 
 def neighborhood_moments(points: NDArray[np.float64], neighbors: NDArray[np.int64]
                          ) -> tuple[NDArray[np.float64], ...]:
-    """Covariance entries (xx, xy, xz, yy, yz, zz), each (M,), of every point's
-    neighbourhood ``points[neighbors[i]]`` (neighbors (M, k) int).
+    """Return the covariance entries of every point's neighbourhood.
+
+    The entries (xx, xy, xz, yy, yz, zz), each (M,), are those of the covariance of
+    ``points[neighbors[i]]`` (neighbors (M, k) int).
 
     Sums over the neighbourhoods are one sparse-matrix product of the neighbour
     incidence matrix with per-point monomials (coordinates taken relative to the cloud's
@@ -242,8 +274,10 @@ SUBSET_ESTIMATE_FACTOR = 8
 
 
 def working_voxel_size(points: NDArray[np.float64], voxel_size: float, max_points: int) -> float:
-    """Voxel edge [m] at which ``points`` (N, 3), a sampled surface, fill about
-    ``max_points`` voxels at most: ``voxel_size`` or, for large objects, coarser.
+    """Return the voxel edge [m] at which ``points`` fill about ``max_points`` voxels.
+
+    ``points`` (N, 3) [m] sample a surface; the result is ``voxel_size`` or, for large
+    objects, coarser.
 
     The occupied voxels of a regular subset estimate the count; on a surface it falls
     with the square of the voxel edge.
@@ -251,15 +285,15 @@ def working_voxel_size(points: NDArray[np.float64], voxel_size: float, max_point
     n = len(points)
     if n <= max_points:
         return voxel_size
-    sub = points[:: max(1, n // (4 * max_points))]
+    sub = points[:: max(1, n // (SUBSET_POINTS_FACTOR * max_points))]
     occupied = len(voxelize(sub, voxel_size)[2])
     # A subset misses sparsely hit voxels: with points spread evenly (Poisson), s points
     # in V voxels occupy V (1 - exp(-s / V)) of them; solve for V (it cannot exceed n).
     s, total = len(sub), float(occupied)
-    for _ in range(50):
+    for _ in range(_OCCUPANCY_ITERATIONS):
         hit = -math.expm1(-s / total)
         nxt = min(occupied / max(hit, 1e-12), float(n))
-        if nxt - total <= 1e-3 * total:
+        if nxt - total <= _OCCUPANCY_TOLERANCE * total:
             total = nxt
             break
         total = nxt
@@ -279,7 +313,7 @@ def build_working_cloud(points: NDArray[np.float64], voxel_size: float, k: int,
         # Large object: choose the voxel from a subset, voxelize once.
         voxel_size = working_voxel_size(points, voxel_size, max_points)
     centroids, inverse, counts = voxelize(points, voxel_size, groups)
-    if max_points is not None and len(counts) > 1.5 * max_points:
+    if max_points is not None and len(counts) > REVOXELIZE_FACTOR * max_points:
         # An object that fills far more voxels than expected: once more, coarser.
         voxel_size *= math.sqrt(len(counts) / max_points)
         centroids, inverse, counts = voxelize(points, voxel_size, groups)
@@ -308,8 +342,10 @@ class FaceSet:
 
 
 def _pair_dot(v: NDArray[np.float64], neighbors: NDArray[np.int64]) -> NDArray[np.float64]:
-    """(M, k) dot products of every row of ``v`` (M, 3) with its neighbours' rows
-    (column by column: one gather per coordinate instead of two (M*k, 3) gathers)."""
+    """Return (M, k) dot products of every row of ``v`` (M, 3) with its neighbours' rows.
+
+    Column by column: one gather per coordinate instead of two (M*k, 3) gathers.
+    """
     out = np.zeros(neighbors.shape)
     for a in range(v.shape[1]):
         col = np.ascontiguousarray(v[:, a])
@@ -318,7 +354,7 @@ def _pair_dot(v: NDArray[np.float64], neighbors: NDArray[np.int64]) -> NDArray[n
 
 
 def _pair_sqdist(p: NDArray[np.float64], neighbors: NDArray[np.int64]) -> NDArray[np.float64]:
-    """(M, k) squared distances of every point of ``p`` (M, 3) to its neighbours."""
+    """Return (M, k) squared distances of every point of ``p`` (M, 3) to its neighbours."""
     out = np.zeros(neighbors.shape)
     for a in range(p.shape[1]):
         col = np.ascontiguousarray(p[:, a])
@@ -328,9 +364,11 @@ def _pair_sqdist(p: NDArray[np.float64], neighbors: NDArray[np.int64]) -> NDArra
 
 
 def link_graph(neighbors: NDArray[np.int64], keep: NDArray[np.bool_], n: int) -> csr_matrix:
-    """(M, n) sparse graph of the links ``i -> neighbors[i, j]`` where ``keep[i, j]``
-    (both (M, k)); links are grouped by their first point, so it is built in CSR form
-    directly."""
+    """Return the (M, n) sparse graph of the links ``i -> neighbors[i, j]`` kept.
+
+    ``keep[i, j]`` (both (M, k)) selects the links; they are grouped by their first
+    point, so the graph is built in CSR form directly.
+    """
     indptr = np.zeros(len(neighbors) + 1, dtype=np.int64)
     np.cumsum(keep.sum(axis=1), out=indptr[1:])
     return csr_matrix((np.ones(int(indptr[-1])), neighbors[keep], indptr),
@@ -338,7 +376,7 @@ def link_graph(neighbors: NDArray[np.int64], keep: NDArray[np.bool_], n: int) ->
 
 
 def _adjacency(labels: NDArray[np.int64], neighbors: NDArray[np.int64], n_faces: int,
-               min_links: int = 2) -> NDArray[np.bool_]:
+               min_links: int = MIN_ADJACENCY_LINKS) -> NDArray[np.bool_]:
     a = np.repeat(labels, neighbors.shape[1])
     b = labels[neighbors.ravel()]
     cross = a != b
@@ -406,8 +444,9 @@ UNION_CANDIDATES = 64
 def _plane_parts(points: NDArray[np.float64], normals: NDArray[np.float64], threshold: float,
                  perpendicular_tolerance: float, min_points: int
                  ) -> list[NDArray[np.int64]] | None:
-    """Indices of two or three mutually perpendicular planes that hold most of a face,
-    or None.
+    """Return indices of two or three perpendicular planes that hold most of a face.
+
+    None when there are no such planes.
 
     The plane of each step is the direction most normals agree with (within
     UNION_NORMAL_ANGLE), refitted to those points; its members are the points within
@@ -420,7 +459,7 @@ def _plane_parts(points: NDArray[np.float64], normals: NDArray[np.float64], thre
     rest = np.arange(m)
     parts: list[NDArray[np.int64]] = []
     axes: list[NDArray[np.float64]] = []
-    for _ in range(3):
+    for _ in range(MAX_UNION_PLANES):
         if len(rest) < min_points:
             break
         nr = normals[rest]
@@ -440,15 +479,16 @@ def _plane_parts(points: NDArray[np.float64], normals: NDArray[np.float64], thre
         parts.append(rest[on])
         axes.append(plane.normal)
         rest = rest[~on]
-    if len(parts) < 2 or sum(len(p) for p in parts) < UNION_COVERAGE * m:
+    if len(parts) < MIN_UNION_PLANES or sum(len(p) for p in parts) < UNION_COVERAGE * m:
         return None
     return parts
 
 
 def face_plane(points: NDArray[np.float64], normals: NDArray[np.float64], threshold: float
                 ) -> tuple[PlaneModel, float]:
-    """Plane of a face's working points (M, 3) and its robust spread [m] (MAD-based, so
-    that a few flying pixels do not make a flat face curved).
+    """Return the plane of a face's working points (M, 3) and its robust spread [m].
+
+    The spread is MAD-based, so that a few flying pixels do not make a flat face curved.
 
     Least squares first; when its spread exceeds half of ``threshold`` [m] (strays far
     off the face, e.g. flying pixels behind a small box, can tilt the least-squares
@@ -459,11 +499,11 @@ def face_plane(points: NDArray[np.float64], normals: NDArray[np.float64], thresh
         return PlaneModel(np.array([0, 0, 1.0]), 0.0), 0.0
     plane = fit_plane_svd(points)
     spread = robust_sigma(plane.distance(points))
-    if spread <= threshold / 2.0:
+    if spread <= threshold * FLAT_SPREAD_SHARE:
         return plane, spread
     mean = centroid(normals)
     norm = float(np.linalg.norm(mean))
-    if norm <= 1e-9:
+    if norm <= _MIN_MEAN_NORMAL:
         return plane, spread
     mean /= norm
     alt = refine(PlaneModel(mean, -float(np.median(points @ mean))), points, threshold)
@@ -488,10 +528,10 @@ def split_plane_unions(cloud: WorkingCloud, faces: FaceSet, threshold: float,
     changed = False
     for f in range(faces.count):
         w = np.flatnonzero(labels == f)
-        if len(w) < 2 * min_face_points:
+        if len(w) < MIN_UNION_PLANES * min_face_points:
             continue
         pts = cloud.points[w]
-        if face_plane(pts, cloud.normals[w], threshold)[1] <= threshold / 2.0:
+        if face_plane(pts, cloud.normals[w], threshold)[1] <= threshold * FLAT_SPREAD_SHARE:
             continue  # the spread that makes a face planar whatever its CF
         parts = _plane_parts(pts, cloud.normals[w], threshold, perpendicular_tolerance,
                              min_face_points)

@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from geomodel_ros.core.params import ModelingParams
+
 __all__ = ["FaceInfo", "GraphDecision", "curvature_candidates", "decide_type"]
 
 
@@ -75,6 +77,15 @@ class GraphDecision:
 #: Faces smaller than this share of an object's working points that fit no relation are
 #: slivers (contact rims, noise) and do not veto the object's type.
 SLIVER_SHARE = 0.05
+#: A planar face at an angle to the auxiliary plane of a planar + curved object vetoes
+#: the cylinder/cone rules only above this share of the object's working points; smaller
+#: ones are taken as flat-looking slivers of the curved surface. Twice
+#: :data:`SLIVER_SHARE`, the value the method's results were obtained with.
+MIXED_VETO_SHARE = 2 * SLIVER_SHARE
+#: Curved normals at a constant angle to the plane (a cone with its base): their
+#: interquartile spread is at most this many angle tolerances (+- one tolerance about
+#: the median).
+CONE_ANGLE_SPREAD = 2
 
 
 def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
@@ -124,7 +135,7 @@ def _mixed_decision(faces: list[FaceInfo], tol: float) -> GraphDecision:
     total = sum(f.size for f in faces)
     others = [i for i in planar if i != main]
     # Small planar pieces at an angle to the main plane are slivers of the curved surface.
-    if any(abs(faces[i].normal @ n0) < math.cos(tol) and faces[i].size > 2 * SLIVER_SHARE * total
+    if any(abs(faces[i].normal @ n0) < math.cos(tol) and faces[i].size > MIXED_VETO_SHARE * total
            for i in others):
         return GraphDecision("mixed", (), main, (),
                              "several non-parallel planar faces with curved faces")
@@ -135,16 +146,33 @@ def _mixed_decision(faces: list[FaceInfo], tol: float) -> GraphDecision:
     if median <= tol:
         return GraphDecision("mixed", ("cylinder", "cone"), main, (),
                              "curved normals perpendicular to the plane normal")
-    if q3 - q1 <= 2 * tol:
+    if q3 - q1 <= CONE_ANGLE_SPREAD * tol:
         return GraphDecision("mixed", ("cone", "cylinder"), main, (),
-                             f"curved normals at a constant {math.degrees(median):.1f} deg to the plane")
+                             f"curved normals at a constant {math.degrees(median):.1f} deg "
+                             "to the plane")
     return GraphDecision("mixed", (), main, (), "curved normals at varying angles to the plane")
 
 
 def curvature_candidates(k_max: NDArray[np.float64], k_min: NDArray[np.float64],
                          sphere_ratio: float, developable_ratio: float,
                          cone_variation: float) -> tuple[tuple[str, ...], str]:
-    """Candidates of an all-curved object from its principal curvatures [1/m]."""
+    """Propose the candidates of an all-curved object from its principal curvatures.
+
+    Parameters
+    ----------
+    k_max, k_min : (M,) float64 arrays [1/m]
+        Curvatures of largest and smallest magnitude per point (NaN: unknown).
+    sphere_ratio : float
+        Median |k_min| / median |k_max| at or above which the object is a sphere.
+    developable_ratio : float
+        Ratio at or below which it is a cylinder or cone.
+    cone_variation : float
+        Relative spread of |k_max| (IQR / median) above which cone is tried first.
+
+    Returns
+    -------
+    (candidates, reason) : (tuple[str, ...], str)
+    """
     a_max = np.abs(k_max[np.isfinite(k_max)])
     a_min = np.abs(k_min[np.isfinite(k_min)])
     if a_max.size == 0 or np.median(a_max) <= 0:
@@ -163,8 +191,10 @@ def curvature_candidates(k_max: NDArray[np.float64], k_min: NDArray[np.float64],
 
 def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
                 coplanar_tol: float, curvature: tuple[NDArray, NDArray] | None = None,
-                sphere_ratio: float = 0.45, developable_ratio: float = 0.35,
-                cone_variation: float = 0.25) -> GraphDecision:
+                sphere_ratio: float = ModelingParams.sphere_curvature_ratio,
+                developable_ratio: float = ModelingParams.developable_curvature_ratio,
+                cone_variation: float = ModelingParams.cone_curvature_variation
+                ) -> GraphDecision:
     """Apply the model graph.
 
     Parameters
@@ -175,7 +205,17 @@ def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
         Angle tolerance for parallel / perpendicular.
     coplanar_tol : float [m]
         Largest offset difference of parallel faces merged into one plane.
-    curvature : (k_max, k_min) arrays [1/m], required for all-curved objects.
+    curvature : (k_max, k_min) arrays [1/m], optional
+        Principal curvatures of the working points; without them an all-curved object
+        gets every curved candidate.
+    sphere_ratio, developable_ratio, cone_variation : float
+        See :func:`curvature_candidates`; defaults: the :class:`ModelingParams` defaults
+        ``sphere_curvature_ratio``, ``developable_curvature_ratio`` and
+        ``cone_curvature_variation``.
+
+    Returns
+    -------
+    GraphDecision
     """
     if not faces:
         return GraphDecision("empty", (), -1, (), "no faces")

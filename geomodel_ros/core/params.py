@@ -118,7 +118,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("sphere_curvature_ratio", 0.45, "1", 0.0, 1.0,
               "Median |k2|/|k1| at or above which an all-curved object is a sphere candidate."),
     ParamSpec("developable_curvature_ratio", 0.35, "1", 0.0, 1.0,
-              "Median |k2|/|k1| at or below which an all-curved object is a cylinder/cone candidate."),
+              "Median |k2|/|k1| at or below which an all-curved object is a cylinder/cone "
+              "candidate."),
     ParamSpec("cone_curvature_variation", 0.25, "1", 0.0, 10.0,
               "Relative spread of k1 (IQR/median) above which cone is tried before cylinder."),
     # --- RANSAC and verification ----------------------------------------------------------
@@ -156,7 +157,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("seg_voxel_size", 0.004, "m", 0.0005, 0.2,
               "Voxel edge of the working cloud used to segment the scene."),
     ParamSpec("seg_plane_threshold", 0.004, "m", 1e-5, 0.5,
-              "Distance from a support plane (desk, floor, wall) within which points belong to it."),
+              "Distance from a support plane (desk, floor, wall) within which points belong to "
+              "it."),
     ParamSpec("seg_plane_normal_angle", 0.5, "rad", 0.01, 1.5,
               "Largest normal deviation of a support-plane point."),
     ParamSpec("seg_min_support_area", 0.1, "m^2", 0.0, 1000.0,
@@ -164,13 +166,16 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("seg_max_supports", 3, "count", 0, 20,
               "Most support planes extracted before objects are clustered."),
     ParamSpec("seg_concavity_tolerance", 0.1, "1", 0.0, 2.0,
-              "Neighbours are not linked where (n_i - n_j).(p_i - p_j)/|p_i - p_j| is below minus this (a concave crease)."),
+              "Neighbours are not linked where (n_i - n_j).(p_i - p_j)/|p_i - p_j| is below minus "
+              "this (a concave crease)."),
     ParamSpec("seg_max_edge_factor", 2.5, "1", 1.0, 20.0,
               "Neighbours farther apart than this many voxels are not linked (depth jumps)."),
     ParamSpec("seg_max_occlusion_gap", 0.15, "m", 0.0, 5.0,
-              "Largest gap across which two parts of one surface hidden in the middle by a nearer object are joined (0 = never)."),
+              "Largest gap across which two parts of one surface hidden in the middle by a nearer "
+              "object are joined (0 = never)."),
     ParamSpec("seg_join_contained", True, "", None, None,
-              "Join a segment lying inside the footprint of a round segment (the inner wall of an open bowl or cup)."),
+              "Join a segment lying inside the footprint of a round segment (the inner wall of an "
+              "open bowl or cup)."),
     ParamSpec("seg_min_cluster_points", 150, "count", 1, 10000000,
               "Clusters with fewer input points are noise (label -1)."),
     ParamSpec("seed", 0, "count", 0, 2**31 - 1,
@@ -178,34 +183,82 @@ PARAMETERS: tuple[ParamSpec, ...] = (
 )
 
 _SPECS: dict[str, ParamSpec] = {p.name: p for p in PARAMETERS}
+#: Eq. 6 takes the noise amplitude t in millimetres.
+_MM_PER_M = 1000.0
 
 
-def _make_dataclass() -> type:
-    fields = [(p.name, p.type, dataclasses.field(default=p.default)) for p in PARAMETERS]
-    # The generated __init__ calls __post_init__ only if the dataclass itself has one:
-    # delegate to the subclass's _validate.
-    return dataclasses.make_dataclass("_ModelingParamsBase", fields, frozen=True,
-                                      namespace={"__post_init__": lambda self: self._validate()})
+@dataclass(frozen=True, kw_only=True)
+class ModelingParams:
+    """Frozen set of modeling parameters (see :data:`PARAMETERS` for units and ranges).
 
+    Construct with keyword arguments (unknown names, positional arguments, wrong types,
+    out-of-range or inconsistent values raise :class:`ParameterError`) or
+    :meth:`from_mapping`. The fields repeat the names, types and defaults of
+    :data:`PARAMETERS` so that editors and type checkers see them; a test keeps the two
+    identical.
+    """
 
-class _ModelingParamsMeta(type):
-    def __call__(cls, *args: Any, **kwargs: Any) -> Any:
+    # --- working resolution and faces -----------------------------------------------------
+    voxel_size: float = 0.003
+    max_working_points: int = 5000
+    normal_neighbors: int = 16
+    face_angle_threshold: float = 0.2
+    edge_variation_threshold: float = 0.04
+    min_face_points: int = 12
+    min_object_points: int = 60
+
+    # --- surface type (paper eqs. 1-6) ----------------------------------------------------
+    cf_threshold: float = 0.82
+    noise_amplitude: float = 0.0005
+    cf_radius_fraction: float = 0.5
+
+    # --- model graph ----------------------------------------------------------------------
+    angle_tolerance: float = 0.14
+    sphere_curvature_ratio: float = 0.45
+    developable_curvature_ratio: float = 0.35
+    cone_curvature_variation: float = 0.25
+
+    # --- RANSAC and verification ----------------------------------------------------------
+    ransac_threshold: float = 0.002
+    ransac_normal_threshold: float = 0.5
+    ransac_max_iterations: int = 500
+    ransac_confidence: float = 0.995
+    min_inlier_ratio: float = 0.8
+    refine_max_points: int = 5000
+    min_radius: float = 0.002
+    max_radius: float = 2.0
+    min_cone_half_angle: float = 0.05
+    min_arc: float = 0.785
+
+    # --- sizing and reconstruction --------------------------------------------------------
+    edge_correction: bool = True
+    reproject_along_rays: bool = True
+    reconstruction_spacing: float = 0.002
+
+    # --- scene segmentation ---------------------------------------------------------------
+    seg_voxel_size: float = 0.004
+    seg_plane_threshold: float = 0.004
+    seg_plane_normal_angle: float = 0.5
+    seg_min_support_area: float = 0.1
+    seg_max_supports: int = 3
+    seg_concavity_tolerance: float = 0.1
+    seg_max_edge_factor: float = 2.5
+    seg_max_occlusion_gap: float = 0.15
+    seg_join_contained: bool = True
+    seg_min_cluster_points: int = 150
+    seed: int = 0
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> ModelingParams:
+        """Reject positional arguments and unknown names with a :class:`ParameterError`."""
         unknown = sorted(set(kwargs) - set(_SPECS))
         if unknown or args:
             what = f"unknown parameter(s) {', '.join(unknown)}" if unknown else \
                 "parameters are keyword-only"
             raise ParameterError(f"{what}; known: {', '.join(sorted(_SPECS))}")
-        return super().__call__(**kwargs)
+        return super().__new__(cls)
 
-
-class ModelingParams(_make_dataclass(), metaclass=_ModelingParamsMeta):  # type: ignore[misc]
-    """Frozen set of modeling parameters (see :data:`PARAMETERS` for names and units).
-
-    Construct with keyword arguments (unknown names, wrong types, out-of-range or
-    inconsistent values raise :class:`ParameterError`) or :meth:`from_mapping`.
-    """
-
-    def _validate(self) -> None:
+    def __post_init__(self) -> None:
+        """Convert every value to its parameter's type and check ranges and consistency."""
         for spec in PARAMETERS:
             object.__setattr__(self, spec.name, spec.check(getattr(self, spec.name)))
         self.check_consistency()
@@ -214,7 +267,8 @@ class ModelingParams(_make_dataclass(), metaclass=_ModelingParamsMeta):  # type:
         """Raise :class:`ParameterError` when parameters contradict each other."""
         if self.min_radius >= self.max_radius:
             raise ParameterError(
-                f"min_radius ({self.min_radius}) must be smaller than max_radius ({self.max_radius})"
+                f"min_radius ({self.min_radius}) must be smaller than "
+                f"max_radius ({self.max_radius})"
             )
         if self.developable_curvature_ratio >= self.sphere_curvature_ratio:
             raise ParameterError(
@@ -225,7 +279,7 @@ class ModelingParams(_make_dataclass(), metaclass=_ModelingParamsMeta):  # type:
     @property
     def cf_weights(self) -> tuple[float, float, float]:
         """Weights w1, w2, w3 of eq. 6 with t = noise amplitude in millimetres."""
-        e = math.exp(-self.noise_amplitude * 1000.0)
+        e = math.exp(-self.noise_amplitude * _MM_PER_M)
         return (e, 1.0 - e, 2.0 * (1.0 - e))
 
     @classmethod
@@ -260,7 +314,8 @@ def load_params_file(path: str | Path) -> ModelingParams:
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise ParameterError(f"parameter file {path} must hold a mapping, got {type(data).__name__}")
+        raise ParameterError(
+            f"parameter file {path} must hold a mapping, got {type(data).__name__}")
     # ROS 2 params-file layout: {node_name: {ros__parameters: {...}}}, node may be '/**'.
     for value in data.values():
         if isinstance(value, dict) and "ros__parameters" in value:

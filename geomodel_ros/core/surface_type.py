@@ -25,7 +25,24 @@ from numpy.typing import NDArray
 
 from geomodel_ros.core.geometry import perpendicular_bases
 
-__all__ = ["FaceFeature", "covariance_features", "face_feature", "principal_curvatures"]
+__all__ = ["FaceFeature", "covariance_features", "face_feature", "principal_curvatures",
+           "MIN_NEIGHBOURHOOD_POINTS"]
+
+#: A neighbourhood needs this many points for its cf (fewer: NaN, and its weight is left
+#: out of the normalisation): the covariance of 3 or 4 points is planar or degenerate
+#: whatever the surface.
+MIN_NEIGHBOURHOOD_POINTS = 5
+#: The face's principal axes (for its minimum width) are estimated from at most about
+#: this many points (every k-th point): plenty for three axes, and the SVD of large
+#: faces stays cheap.
+_WIDTH_SAMPLE_POINTS = 20000
+#: The three CF radii are uniformly spaced up to the largest (paper section 3.1): these
+#: multiples of the largest radius / 3.
+_RADIUS_STEPS = np.array([1.0, 2.0, 3.0])
+#: Ridge added to the quadric normal equations (in scaled units, where the design
+#: matrix entries are of order 1): keeps neighbourhoods with repeated points solvable
+#: without changing well-posed fits measurably.
+_QUADRIC_RIDGE = 1e-9
 
 
 def covariance_features(points: NDArray[np.float64], mass: NDArray[np.float64] | None = None
@@ -67,7 +84,8 @@ class FaceFeature:
         Extent of the face along its second principal axis.
     radii : (3,) float64 [m]
     cf : (3,) float64
-        cf_i per radius (NaN where the neighbourhood had fewer than 5 points).
+        cf_i per radius (NaN where the neighbourhood had fewer than
+        :data:`MIN_NEIGHBOURHOOD_POINTS` points).
     cf_total : float
         Normalised CF = sum w_i cf_i / sum w_i over the valid radii.
     planar : bool
@@ -106,15 +124,16 @@ def face_feature(points: NDArray[np.float64], weights: tuple[float, float, float
     centered = points - centroid
     d2c = np.einsum("ij,ij->i", centered, centered)
     center = points[int(np.argmin(d2c))]
-    _, _, vt = np.linalg.svd(centered[:: max(1, len(points) // 20000)], full_matrices=False)
+    _, _, vt = np.linalg.svd(centered[:: max(1, len(points) // _WIDTH_SAMPLE_POINTS)],
+                             full_matrices=False)
     proj = centered @ vt[1]
     min_width = float(proj.max() - proj.min()) if len(points) else 0.0
-    radii = min_width * radius_fraction * np.array([1.0, 2.0, 3.0]) / 3.0
+    radii = min_width * radius_fraction * _RADIUS_STEPS / len(_RADIUS_STEPS)
     dist2 = np.einsum("ij,ij->i", points - center, points - center)
     cf = np.full(3, np.nan)
     for i, r in enumerate(radii):
         inside = dist2 <= r * r
-        if inside.sum() >= 5:
+        if inside.sum() >= MIN_NEIGHBOURHOOD_POINTS:
             cf[i] = covariance_features(points[inside], w_pts[inside])[2]
     w = np.asarray(weights, dtype=np.float64)
     valid = np.isfinite(cf) & (w > 0)
@@ -155,7 +174,7 @@ def principal_curvatures(points: NDArray[np.float64], normals: NDArray[np.float6
     scale = np.where(scale > 0, scale, 1.0)
     xs, ys, zs = x / scale, y / scale, z / scale
     design = np.stack([xs * xs, xs * ys, ys * ys, xs, ys, np.ones_like(xs)], axis=2)
-    ata = np.einsum("mki,mkj->mij", design, design) + 1e-9 * np.eye(6)
+    ata = np.einsum("mki,mkj->mij", design, design) + _QUADRIC_RIDGE * np.eye(6)
     atb = np.einsum("mki,mk->mi", design, zs)
     coef = np.linalg.solve(ata, atb[..., None])[..., 0]
     a, b, c = coef[:, 0], coef[:, 1], coef[:, 2]
