@@ -11,7 +11,7 @@ import pytest
 
 from geomodel_ros.tools.evaluation import score_objects
 from geomodel_ros.core.params import ModelingParams, load_params_file
-from geomodel_ros.core.pipeline import InputError, model_objects
+from geomodel_ros.core.modeling import InputError, model_objects
 from geomodel_ros.core.primitives import DIMENSION_NAMES, PRIMITIVE_TYPES, ModelingResult
 from geomodel_ros.tools.synth import SENSOR_NOISE, PinholeCamera, Rectangle, render_scene
 from geomodel_ros.tools.synth.scenes import scene_geometry
@@ -439,7 +439,7 @@ def test_a_lid_grown_into_the_side_is_taken_as_the_cylinders_cap():
 
 
 def test_an_inner_cap_is_only_taken_where_the_side_is_told_apart_from_it():
-    from geomodel_ros.core.pipeline import _inner_cap
+    from geomodel_ros.core.fitting.curved import inner_cap as _inner_cap
     from geomodel_ros.core.ransac import ConeModel, CylinderModel
 
     rng = np.random.default_rng(2)
@@ -481,7 +481,7 @@ def test_a_frustum_is_not_modeled_as_a_cone():
 
 @pytest.mark.parametrize("top", [5, 40_000])
 def test_points_are_grouped_by_label_in_input_order(top):
-    from geomodel_ros.core.pipeline import _group_by_label
+    from geomodel_ros.core.modeling import _group_by_label
 
     rng = np.random.default_rng(top)
     lab = rng.integers(0, top, 2000)
@@ -519,7 +519,7 @@ def test_sizing_ignores_strays_beyond_the_bulk_of_a_projection():
     # A box's points projected on one of its axes: 100 mm of them, plus 1 % strays
     # 0.2-0.5 m beyond (flying pixels along the extension of a side face seen at a
     # grazing angle). The strays go; a clean projection is returned as it is.
-    from geomodel_ros.core.pipeline import _without_strays
+    from geomodel_ros.core.fitting.measure import without_strays as _without_strays
 
     rng = np.random.default_rng(3)
     bulk = rng.uniform(0.0, 0.1, 20000)
@@ -535,7 +535,7 @@ def test_sizing_drops_small_groups_beyond_a_gap_but_keeps_occluded_parts():
     # Flying pixels come in clusters too: 3 % of a small box's points 0.2 m beyond it
     # (inside the 1st-99th percentile, so only the gap tells them apart). An occluded
     # object's two visible parts, 40 % and 60 % of its points 50 mm apart, stay whole.
-    from geomodel_ros.core.pipeline import _without_strays
+    from geomodel_ros.core.fitting.measure import without_strays as _without_strays
 
     rng = np.random.default_rng(4)
     bulk = rng.uniform(0.0, 0.07, 5000)
