@@ -390,10 +390,12 @@ def test_a_shallow_arc_is_not_a_cylinder_unless_min_arc_allows_it():
 
 def _lidded_container(rng: np.random.Generator, radius=0.08, height=0.10, fillet=0.015,
                       n_points=40000):
-    """A container standing on the paper's tilted desk, its flat lid meeting the side in
-    a rounded edge (a quarter torus of radius ``fillet``), as a camera at the origin sees
-    it: side, fillet and lid points (area-proportional) facing the camera, 0.3 mm depth
-    noise. Returns the points, the desk's normal and offset (n . x + d = 0)."""
+    """Sample a container standing on the paper's tilted desk, its lid on a rounded edge.
+
+    The flat lid meets the side in a quarter torus of radius ``fillet``; side, fillet
+    and lid points (area-proportional) as a camera at the origin sees them, 0.3 mm depth
+    noise. Returns the points, the desk's normal and offset (n . x + d = 0).
+    """
     up = np.array([0.0, -0.766, -0.643])
     up /= np.linalg.norm(up)
     e1 = np.array([1.0, 0.0, 0.0])

@@ -60,7 +60,7 @@ def _check_labels(labels: NDArray, n: int, what: str) -> NDArray[np.int64]:
 
 def _unknown(oid: int, points: NDArray[np.float64], reason: str,
              faces: tuple[FaceSummary, ...] = ()) -> Primitive:
-    """An ``unknown`` object at the centroid of its ``points`` (n, 3)."""
+    """Return an ``unknown`` object at the centroid of its ``points`` (n, 3)."""
     return Primitive(oid, PrimitiveType.UNKNOWN, centroid(points), np.eye(3), {}, len(points),
                      0.0, faces, reason)
 

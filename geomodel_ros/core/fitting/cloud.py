@@ -118,24 +118,24 @@ class ObjectCloud:
         return take_rows(self.points, idx)
 
     def face_points(self, which: list[int]) -> NDArray[np.int64]:
-        """Indices into ``points`` of the faces ``which``."""
+        """Return the indices into ``points`` of the faces ``which``."""
         return np.concatenate([self.faces[i].points for i in which]) if which else \
             np.zeros(0, dtype=np.int64)
 
     def face_working(self, which: list[int]) -> NDArray[np.int64]:
-        """Indices into the working cloud of the faces ``which``."""
+        """Return the indices into the working cloud of the faces ``which``."""
         return np.concatenate([self.faces[i].working for i in which]) if which else \
             np.zeros(0, dtype=np.int64)
 
     def curved_and_planar(self) -> tuple[list[int], list[int]]:
-        """Indices of the curved faces and of the planar faces."""
+        """Return the indices of the curved faces and of the planar faces."""
         curved = [i for i, f in enumerate(self.faces) if not f.info.planar]
         planar = [i for i, f in enumerate(self.faces) if f.info.planar]
         return curved, planar
 
 
 def _checked_planar(cf_planar: bool, plane_rmse: float, threshold: float) -> bool:
-    """The CF decision verified by a plane fit (paper 3.2: a fit that fails rejects the type).
+    """Verify the CF decision by a plane fit (paper 3.2: a fit that fails rejects the type).
 
     A "planar" face no plane fits within ``threshold`` [m] is curved; a "curved" face a
     plane fits within PLANAR_RMSE_SHARE of it is planar.
@@ -171,7 +171,7 @@ def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.i
 
 def _grouped(labels: NDArray[np.int64], count: int) -> tuple[NDArray[np.int64],
                                                              NDArray[np.int64]]:
-    """Indices sorted by label and the bounds of each label 0..count-1 in them."""
+    """Return indices sorted by label and the bounds of each label 0..count-1 in them."""
     order = np.argsort(labels, kind="stable")
     return order, np.searchsorted(labels[order], np.arange(count + 1))
 

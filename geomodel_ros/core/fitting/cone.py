@@ -56,7 +56,7 @@ def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | 
 
 
 def _sized(task: FitTask, model: ConeModel, lo: float, hi: float) -> float | Rejected:
-    """Base radius [m] of the cone whose points run from ``lo`` to ``hi`` from its apex."""
+    """Size the base radius [m] of a cone whose points run from ``lo`` to ``hi`` from its apex."""
     cloud = task.cloud
     bad = check_bulk_length(hi - lo, bulk_extent(cloud.points, model.axis), CONE)
     if bad:

@@ -21,7 +21,7 @@ CUBOID = PrimitiveType.CUBOID
 
 
 def _face_planes(cloud: ObjectCloud, faces: list[int]) -> tuple[list[PlaneModel], float]:
-    """A plane refined on each of ``faces`` and the inlier ratio over all of them."""
+    """Refine a plane on each of ``faces``; return them and the inlier ratio over all."""
     thr = cloud.params.ransac_threshold
     planes, inlier_ok, inlier_all = [], 0, 0
     for i in faces:
@@ -43,14 +43,14 @@ def _projections(cloud: ObjectCloud, planes: list[PlaneModel], nearest: NDArray[
     With ``reproject_along_rays`` each point first moves along its viewing ray onto the
     plane of its ``nearest`` face.
     """
-    p = cloud.params
+    params = cloud.params
     q = cloud.points.copy()
     per_face = []
     for fi, model in enumerate(planes):
         sel = nearest == fi
-        if p.reproject_along_rays:
+        if params.reproject_along_rays:
             q[sel] = obb.ray_to_plane(take_rows(cloud.points, sel), model.normal, model.d,
-                                      RAY_SHIFT_FACTOR * p.ransac_threshold)
+                                      RAY_SHIFT_FACTOR * params.ransac_threshold)
         per_face.append(take_rows(q, sel) @ rot)
     return take_rows(q, nearest >= 0) @ rot, per_face
 

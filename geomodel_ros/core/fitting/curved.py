@@ -129,27 +129,27 @@ def fit_curved(cloud: ObjectCloud, kind: PrimitiveType, model_cls: type,
     with_caps : bool
         Look for an inner cap (:func:`inner_cap`) among the points off the side.
     """
-    p = cloud.params
+    params = cloud.params
     curved, planar = cloud.curved_and_planar()
     if not curved:
         return Rejected(kind, f"{kind}: no curved face")
     cw = cloud.face_working(curved)
     wp, wn = cloud.wc.points[cw], cloud.wc.normals[cw]
-    fit = ransac(model_cls, wp, wn, p.ransac_threshold, p.ransac_normal_threshold,
-                 p.ransac_max_iterations, p.ransac_confidence, cloud.rng, accept=accept)
+    fit = ransac(model_cls, wp, wn, params.ransac_threshold, params.ransac_normal_threshold,
+                 params.ransac_max_iterations, params.ransac_confidence, cloud.rng, accept=accept)
     if fit is None:
         return Rejected(kind, f"{kind}: no valid RANSAC hypothesis")
-    model = refine(fit.model, wp, p.ransac_threshold, rounds=WORKING_REFINE_ROUNDS)
+    model = refine(fit.model, wp, params.ransac_threshold, rounds=WORKING_REFINE_ROUNDS)
     full = cloud.sample(cloud.face_points(curved))
-    model = refine(model, full, p.ransac_threshold, rounds=FULL_REFINE_ROUNDS)
-    on_model = np.abs(model.distance(wp)) <= p.ransac_threshold
+    model = refine(model, full, params.ransac_threshold, rounds=FULL_REFINE_ROUNDS)
+    on_model = np.abs(model.distance(wp)) <= params.ransac_threshold
     caps: tuple[Plane, ...] = ()
     if with_caps and not on_model.all():
-        cap = inner_cap(wp, wn, model, on_model, p)
+        cap = inner_cap(wp, wn, model, on_model, params)
         if cap is not None:
             caps = ((cap[0], cap[1]),)
             on_model |= cap[2]
-    bad = check_inlier_ratio(float(np.mean(on_model)), p, kind)
+    bad = check_inlier_ratio(float(np.mean(on_model)), params, kind)
     if bad:
         return bad
     return CurvedFit(model, planar, caps, rms(model.distance(full)))

@@ -60,10 +60,10 @@ def fit_cylinder(task: FitTask) -> FitOutcome:
     The axis follows ``task.axis_prior`` or else the main planar face's normal, if any.
     Returns a cylinder whose z (its axis) points towards the sensor, or the rejection.
     """
-    cloud, p = task.cloud, task.cloud.params
+    cloud, params = task.cloud, task.cloud.params
     prior = axis_prior(task)
     side = fit_curved(cloud, CYLINDER, CylinderModel,
-                      partial(cylinder_hypothesis_ok, params=p, prior=prior), with_caps=True)
+                      partial(cylinder_hypothesis_ok, params=params, prior=prior), with_caps=True)
     if not isinstance(side, CurvedFit):
         return side
     checked = _verified_side(task, side, prior)
@@ -71,9 +71,9 @@ def fit_cylinder(task: FitTask) -> FitOutcome:
         return checked
     caps, nearest, side_points = checked
     model, axis = side.model, side.model.axis
-    if p.reproject_along_rays:
+    if params.reproject_along_rays:
         side_points = obb.ray_to_cylinder(side_points, model.point, axis, model.radius,
-                                          CYLINDER_RAY_SHIFT_FACTOR * p.ransac_threshold)
+                                          CYLINDER_RAY_SHIFT_FACTOR * params.ransac_threshold)
     lo, hi = axial_extent(cloud, side_points, caps, nearest, model.point, axis)
     bad = check_bulk_length(hi - lo, bulk_extent(cloud.points, axis), CYLINDER)
     if bad:

@@ -53,8 +53,11 @@ def bulk_extent(points: NDArray[np.float64], axis: NDArray[np.float64]) -> float
 
 def bulk_reach(points: NDArray[np.float64], origin: NDArray[np.float64],
                axis: NDArray[np.float64]) -> float:
-    """Distance [m] from the axis line (``origin``, unit ``axis``) within which the bulk
-    (REACH_PERCENTILE) of ``points`` (N, 3) lie."""  # noqa: D205, D209
+    """Return the distance [m] from an axis line within which the bulk of ``points`` lie.
+
+    The line passes through ``origin`` (3,) along unit ``axis`` (3,); the bulk is the
+    REACH_PERCENTILE of the distances of ``points`` (N, 3).
+    """
     v = every_kth(points) - origin
     radial = v - np.outer(v @ axis, axis)
     return float(np.percentile(np.sqrt(np.einsum("ij,ij->i", radial, radial)),

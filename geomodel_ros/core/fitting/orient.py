@@ -9,7 +9,7 @@ __all__ = ["toward_sensor", "axis_toward_sensor", "longer_side_first"]
 
 
 def toward_sensor(normal: NDArray[np.float64], at: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Return ``normal`` (3,) or its opposite, whichever points from ``at`` (3,) [m] to the origin."""
+    """Return ``normal`` (3,) or its opposite, whichever points from ``at`` [m] to the origin."""
     return -normal if normal @ at > 0 else normal
 
 

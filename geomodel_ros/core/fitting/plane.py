@@ -59,13 +59,13 @@ def _rectangle(cloud: ObjectCloud, frame: NDArray[np.float64], d: float,
     ``frame`` (3, 3) has the plane's normal (towards the sensor) as its third column,
     ``coords`` the points' (x, y, h) in it, ``d`` the plane's offset.
     """
-    p = cloud.params
+    params = cloud.params
     x, y, h = coords
     n = frame[:, 2]
-    if p.reproject_along_rays:
+    if params.reproject_along_rays:
         # Moving a point along its ray scales all its coordinates alike.
         scale = obb.ray_scale_to_plane(h, np.sqrt(x * x + y * y + h * h), d,
-                                       RAY_SHIFT_FACTOR * p.ransac_threshold)
+                                       RAY_SHIFT_FACTOR * params.ransac_threshold)
         x *= scale
         y *= scale
     # Rectangle direction from the (re-projected) full-resolution outline.
@@ -73,9 +73,9 @@ def _rectangle(cloud: ObjectCloud, frame: NDArray[np.float64], d: float,
     u = frame[:, :2] @ direction
     v = np.cross(n, u)  # = frame[:, :2] @ (-direction[1], direction[0])
     span_u = obb.interval(x * direction[0] + y * direction[1], cloud.spacing,
-                          correct=p.edge_correction)
+                          correct=params.edge_correction)
     span_v = obb.interval(y * direction[0] - x * direction[1], cloud.spacing,
-                          correct=p.edge_correction)
+                          correct=params.edge_correction)
     u, v, (lo_u, hi_u), (lo_v, hi_v) = longer_side_first(u, v, span_u, span_v)
     center = u * (lo_u + hi_u) / 2 + v * (lo_v + hi_v) / 2 + n * float(-d)  # n . x = -d
     return center, u, v, hi_u - lo_u, hi_v - lo_v

@@ -88,9 +88,10 @@ def curved_faces_alone(cloud: ObjectCloud) -> GraphDecision:
     for f in cloud.faces:
         if not f.info.planar:
             mask[f.working] = True
-    p = cloud.params
-    cands, why = curvature_candidates(*curvatures(cloud, mask), p.sphere_curvature_ratio,
-                                      p.developable_curvature_ratio, p.cone_curvature_variation)
+    params = cloud.params
+    cands, why = curvature_candidates(*curvatures(cloud, mask), params.sphere_curvature_ratio,
+                                      params.developable_curvature_ratio,
+                                      params.cone_curvature_variation)
     return GraphDecision("curved", cands, -1, (), why)
 
 
@@ -185,7 +186,7 @@ def _flat(info: FaceInfo) -> bool:
 
 
 def flat_faces(cloud: ObjectCloud) -> list[int]:
-    """Indices of the curved faces whose normals are flat (:data:`FLAT_FACE_ANGLE`)."""
+    """Return the curved faces whose normals are flat (:data:`FLAT_FACE_ANGLE`)."""
     return [i for i, f in enumerate(cloud.faces) if not f.info.planar and _flat(f.info)]
 
 
@@ -217,14 +218,14 @@ class FlatCurvedFacesAsPlanar:
 
 
 def support_below(cloud: ObjectCloud) -> NDArray[np.float64] | None:
-    """Normal (3,) of a support plane that ``cloud`` stands above, or None.
+    """Return the normal (3,) of a support plane that ``cloud`` stands above, or None.
 
     Its bulk above the plane by more than SUPPORT_TOLERANCE_FACTOR ``seg_plane_threshold``
     plus the RANSAC threshold, nothing of it below by more than that. Objects stacked on
     others count too.
     """
-    p = cloud.params
-    tol = SUPPORT_TOLERANCE_FACTOR * p.seg_plane_threshold + p.ransac_threshold
+    params = cloud.params
+    tol = SUPPORT_TOLERANCE_FACTOR * params.seg_plane_threshold + params.ransac_threshold
     sub = every_kth(cloud.points)
     for n, d in cloud.supports:
         h = sub @ n + d

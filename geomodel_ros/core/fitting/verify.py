@@ -44,7 +44,7 @@ BULK_MARGIN = 0.02
 
 def axis_within(axis: NDArray[np.float64], prior: NDArray[np.float64] | None,
                 tolerance: float) -> bool:
-    """Return True without a prior, else when unit ``axis`` is within ``tolerance`` [rad] of ±prior."""
+    """Return True without a prior, else when ``axis`` is within ``tolerance`` [rad] of ±prior."""
     return prior is None or abs(float(axis @ prior)) >= math.cos(tolerance)
 
 
