@@ -42,9 +42,9 @@ CORE = BLOCKER + textwrap.dedent("""
     import geomodel_ros
     import geomodel_ros.tools.cli
     import geomodel_ros.tools.io
-    import geomodel_ros.core.pipeline
+    import geomodel_ros.core.modeling
     import geomodel_ros.tools.synth
-    from geomodel_ros.core.pipeline import model_objects
+    from geomodel_ros.core.modeling import model_objects
     from geomodel_ros.tools.synth import render_scene
 
     scene = render_scene("tiny_box")

@@ -24,7 +24,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from geomodel_ros.core import pipeline
+from geomodel_ros.core import modeling as pipeline
 from geomodel_ros.ros.node import NODE_PARAMETERS, ModelerNode
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError
 from geomodel_ros.tools.synth import render_scene

@@ -1,5 +1,7 @@
-"""Bounding-box helpers (geomodel_ros.core.obb) and the fast reductions they use
-(geomodel_ros.core.fastmath)."""
+"""Bounding-box helpers (geomodel_ros.core.obb) and the fast reductions they use.
+
+The reductions are those of geomodel_ros.core.fastmath.
+"""
 
 from __future__ import annotations
 

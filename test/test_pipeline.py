@@ -11,7 +11,7 @@ import pytest
 
 from geomodel_ros.tools.evaluation import score_objects
 from geomodel_ros.core.params import ModelingParams, load_params_file
-from geomodel_ros.core.pipeline import InputError, model_objects
+from geomodel_ros.core.modeling import InputError, model_objects
 from geomodel_ros.core.primitives import DIMENSION_NAMES, PRIMITIVE_TYPES, ModelingResult
 from geomodel_ros.tools.synth import SENSOR_NOISE, PinholeCamera, Rectangle, render_scene
 from geomodel_ros.tools.synth.scenes import scene_geometry
@@ -89,7 +89,8 @@ def test_tiny_shapes_types():
         assert o.point_count == counts[o.id]
 
 
-def test_tiny_shapes_sizes_within_a_millimetre():
+def test_tiny_shapes_sizes_within_half_a_millimetre():
+    # Measured: 0.33 mm at most (the box seen at a grazing angle).
     scene, result = _tiny_shapes()
     scores = score_objects(result.objects, scene.objects)
     for s in scores:
@@ -98,27 +99,29 @@ def test_tiny_shapes_sizes_within_a_millimetre():
             continue
         assert len(s.errors) == len(DIMENSION_NAMES[s.expected])
         for e in s.errors:
-            assert abs(e.error) < 1.0 * MM, (s.gt_id, e)
+            assert abs(e.error) < 0.5 * MM, (s.gt_id, e)
 
 
 def test_tiny_shapes_poses():
+    # Measured: centres within 0.18 mm, the cylinder's axis within 0.07 deg, the cone's,
+    # the desk's and the box's axes within 0.04 deg (1 - cos < 2e-7).
     scene, result = _tiny_shapes()
     objs = _by_id(result)
     for oid in (1, 2, 3, 4):
-        assert np.linalg.norm(objs[oid].center - _gt(scene, oid).center) < 1.0 * MM, oid
+        assert np.linalg.norm(objs[oid].center - _gt(scene, oid).center) < 0.3 * MM, oid
     # Cylinder: z = axis (either direction); cone: z = axis from the base to the apex.
     cyl_z, cyl_gt = objs[3].rotation[:, 2], _gt(scene, 3).rotation[:, 2]
-    assert abs(cyl_z @ cyl_gt) > math.cos(math.radians(1.0))
+    assert abs(cyl_z @ cyl_gt) > math.cos(math.radians(0.2))
     cone_z, cone_gt = objs[4].rotation[:, 2], _gt(scene, 4).rotation[:, 2]
-    assert cone_z @ cone_gt > math.cos(math.radians(1.0))
+    assert cone_z @ cone_gt > math.cos(math.radians(0.1))
     # Cuboid axes coincide with the box axes up to a permutation and signs.
     cos = np.abs(objs[1].rotation.T @ _gt(scene, 1).rotation)
-    np.testing.assert_allclose(np.sort(cos.max(axis=1)), 1.0, atol=1e-3)
+    np.testing.assert_allclose(np.sort(cos.max(axis=1)), 1.0, atol=1e-6)
     assert sorted(np.argmax(cos, axis=1)) == [0, 1, 2]
     # Plane (desk): z = normal towards the sensor at the origin.
     desk = objs[0]
     assert desk.rotation[:, 2] @ desk.center < 0
-    assert desk.rotation[:, 2] @ _gt(scene, 0).rotation[:, 2] > math.cos(math.radians(0.5))
+    assert desk.rotation[:, 2] @ _gt(scene, 0).rotation[:, 2] > math.cos(math.radians(0.05))
     # Sphere: identity rotation.
     np.testing.assert_array_equal(objs[2].rotation, np.eye(3))
 
@@ -130,18 +133,18 @@ def test_tiny_shapes_result_schema_and_finite():
     assert _all_finite(d)
     assert {o["id"] for o in d["objects"]} == set(EXPECTED_TINY)
     assert [o["id"] for o in d["objects"]] == sorted(EXPECTED_TINY)   # ordered by id
-    for o in result.objects:
-        assert o.type == "unknown" or 0.0 <= o.rmse < 1.0 * MM
+    for o in result.objects:  # measured: 0.56 mm at most (the cylinder with its cap)
+        assert o.type == "unknown" or 0.0 <= o.rmse < 0.7 * MM
 
 
 def test_tiny_shapes_with_sensor_noise():
-    """Sensor noise + config/sensor_noise.yaml: objects keep their type, sizes within 1.5 mm."""
+    """Sensor noise + config/sensor_noise.yaml: objects keep their type, sizes within 0.6 mm."""
     scene, result = _tiny_shapes(noisy=True, seed=1)
     objs = _by_id(result)
     assert {oid: objs[oid].type for oid in EXPECTED_TINY} == EXPECTED_TINY
     for s in score_objects(result.objects, scene.objects):
-        for e in s.errors:
-            assert abs(e.error) < 1.5 * MM, (s.gt_id, e)
+        for e in s.errors:  # measured: 0.40 mm at most
+            assert abs(e.error) < 0.6 * MM, (s.gt_id, e)
 
 
 def test_noisy_desk_is_a_plane():
@@ -164,12 +167,14 @@ def test_plane_sizes(yaw_deg):
     result = model_objects(organized[valid], labels[valid].astype(np.int64))
     (obj,) = result.objects
     assert (obj.id, obj.type) == (7, "plane")
-    assert obj.dimensions["length"] == pytest.approx(0.12, abs=1.0 * MM)
-    assert obj.dimensions["width"] == pytest.approx(0.08, abs=1.0 * MM)
-    assert np.linalg.norm(obj.center - rect.center) < 1.0 * MM
-    assert obj.rotation[:, 2] @ rot[:, 2] > math.cos(math.radians(0.5))
+    # Measured: sizes within 0.71 mm (yaw 0: the width ends on pixel rows), centre within
+    # 0.39 mm, normal exact, x within 0.04 deg.
+    assert obj.dimensions["length"] == pytest.approx(0.12, abs=0.8 * MM)
+    assert obj.dimensions["width"] == pytest.approx(0.08, abs=0.8 * MM)
+    assert np.linalg.norm(obj.center - rect.center) < 0.5 * MM
+    assert obj.rotation[:, 2] @ rot[:, 2] > math.cos(math.radians(0.05))
     # x along the longer side
-    assert abs(obj.rotation[:, 0] @ rot[:, 0]) > math.cos(math.radians(1.0))
+    assert abs(obj.rotation[:, 0] @ rot[:, 0]) > math.cos(math.radians(0.1))
 
 
 def test_paper_size_torus_scene():
@@ -179,8 +184,8 @@ def test_paper_size_torus_scene():
     assert [o.type for o in result.objects] == ["plane", "unknown", "cuboid"]
     assert "rejected" in result.objects[1].reason
     for s in score_objects(result.objects, scene.objects):
-        for e in s.errors:
-            assert abs(e.error) < 0.3 * MM, (s.gt_id, e)
+        for e in s.errors:  # measured: 0.02 mm at most
+            assert abs(e.error) < 0.05 * MM, (s.gt_id, e)
 
 
 def _box_face_labels(scene_name="tiny_box"):
@@ -207,8 +212,8 @@ def test_face_labels_path():
         sorted(np.count_nonzero(faces == f) for f in box_faces)
     assert all(f.surface == "planar" for f in objs[1].faces)
     for s in score_objects(result.objects, scene.objects):
-        for e in s.errors:
-            assert abs(e.error) < 1.0 * MM, (s.gt_id, e)
+        for e in s.errors:  # measured: 0.77 mm at most
+            assert abs(e.error) < 0.9 * MM, (s.gt_id, e)
 
 
 def test_face_labels_of_wrong_length():
@@ -350,18 +355,18 @@ def test_one_flying_pixel_keeps_the_cuboid():
 def test_one_flying_pixel_does_not_change_the_cone_size():
     scene, _, result = _with_flying_pixel(4, 0.2)
     cone = _by_id(result)[4]
-    assert cone.type == "cone"
-    assert cone.dimensions["radius"] == pytest.approx(0.045, abs=1.0 * MM)
-    assert cone.dimensions["height"] == pytest.approx(0.070, abs=1.0 * MM)
+    assert cone.type == "cone"  # measured: radius and height within 0.06 mm
+    assert cone.dimensions["radius"] == pytest.approx(0.045, abs=0.1 * MM)
+    assert cone.dimensions["height"] == pytest.approx(0.070, abs=0.1 * MM)
 
 
 def test_one_close_flying_pixel_keeps_the_cylinder():
     """A stray point 50 mm behind the cylinder is tolerated (cf. the box above)."""
     scene, _, result = _with_flying_pixel(3, 0.05)
     cyl = _by_id(result)[3]
-    assert cyl.type == "cylinder"
-    assert cyl.dimensions["radius"] == pytest.approx(0.040, abs=1.0 * MM)
-    assert cyl.dimensions["height"] == pytest.approx(0.070, abs=1.0 * MM)
+    assert cyl.type == "cylinder"  # measured: radius within 0.01 mm, height 0.33 mm
+    assert cyl.dimensions["radius"] == pytest.approx(0.040, abs=0.05 * MM)
+    assert cyl.dimensions["height"] == pytest.approx(0.070, abs=0.5 * MM)
 
 
 def _camera_facing(points: np.ndarray, rng: np.random.Generator, sigma: float) -> np.ndarray:
@@ -385,15 +390,17 @@ def test_a_shallow_arc_is_not_a_cylinder_unless_min_arc_allows_it():
     loose = ModelingParams.from_mapping({"min_arc": math.radians(15)}, base=params)
     obj = model_objects(pts, labels, loose).objects[0]
     assert obj.type == "cylinder", obj.reason
-    assert obj.dimensions["radius"] == pytest.approx(1.0, rel=0.05)
+    assert obj.dimensions["radius"] == pytest.approx(1.0, rel=0.005)  # measured: 0.14 %
 
 
 def _lidded_container(rng: np.random.Generator, radius=0.08, height=0.10, fillet=0.015,
                       n_points=40000):
-    """A container standing on the paper's tilted desk, its flat lid meeting the side in
-    a rounded edge (a quarter torus of radius ``fillet``), as a camera at the origin sees
-    it: side, fillet and lid points (area-proportional) facing the camera, 0.3 mm depth
-    noise. Returns the points, the desk's normal and offset (n . x + d = 0)."""
+    """Sample a container standing on the paper's tilted desk, its lid on a rounded edge.
+
+    The flat lid meets the side in a quarter torus of radius ``fillet``; side, fillet
+    and lid points (area-proportional) as a camera at the origin sees them, 0.3 mm depth
+    noise. Returns the points, the desk's normal and offset (n . x + d = 0).
+    """
     up = np.array([0.0, -0.766, -0.643])
     up /= np.linalg.norm(up)
     e1 = np.array([1.0, 0.0, 0.0])
@@ -432,14 +439,15 @@ def test_a_lid_grown_into_the_side_is_taken_as_the_cylinders_cap():
     obj = result.objects[0]
     assert [f.surface for f in obj.faces] == ["curved"]
     assert obj.type == "cylinder", obj.reason
-    assert abs(obj.rotation[:, 2] @ up) >= math.cos(math.radians(2.0))
-    assert obj.dimensions["radius"] == pytest.approx(0.080, abs=1.0 * MM)
+    # Measured: axis within 0.21 deg, radius within 0.15 mm, height within 0.11 mm.
+    assert abs(obj.rotation[:, 2] @ up) >= math.cos(math.radians(0.5))
+    assert obj.dimensions["radius"] == pytest.approx(0.080, abs=0.3 * MM)
     # Closed by the lid above and by the desk below.
-    assert obj.dimensions["height"] == pytest.approx(0.100, abs=2.0 * MM)
+    assert obj.dimensions["height"] == pytest.approx(0.100, abs=0.3 * MM)
 
 
 def test_an_inner_cap_is_only_taken_where_the_side_is_told_apart_from_it():
-    from geomodel_ros.core.pipeline import _inner_cap
+    from geomodel_ros.core.fitting.curved import inner_cap as _inner_cap
     from geomodel_ros.core.ransac import ConeModel, CylinderModel
 
     rng = np.random.default_rng(2)
@@ -481,7 +489,7 @@ def test_a_frustum_is_not_modeled_as_a_cone():
 
 @pytest.mark.parametrize("top", [5, 40_000])
 def test_points_are_grouped_by_label_in_input_order(top):
-    from geomodel_ros.core.pipeline import _group_by_label
+    from geomodel_ros.core.modeling import _group_by_label
 
     rng = np.random.default_rng(top)
     lab = rng.integers(0, top, 2000)
@@ -511,15 +519,16 @@ def test_strays_on_the_extended_surface_do_not_stretch_a_cylinder():
     # Without the strays the same can is a cylinder of the right size.
     clean = pts[n // 100:]
     obj = model_objects(clean, np.zeros(len(clean), dtype=np.int64), ModelingParams()).objects[0]
-    assert obj.type == "cylinder", obj.reason
-    assert obj.dimensions["height"] == pytest.approx(0.08, abs=2 * MM)
+    assert obj.type == "cylinder", obj.reason  # measured: radius and height within 0.02 mm
+    assert obj.dimensions["radius"] == pytest.approx(0.04, abs=0.05 * MM)
+    assert obj.dimensions["height"] == pytest.approx(0.08, abs=0.1 * MM)
 
 
 def test_sizing_ignores_strays_beyond_the_bulk_of_a_projection():
     # A box's points projected on one of its axes: 100 mm of them, plus 1 % strays
     # 0.2-0.5 m beyond (flying pixels along the extension of a side face seen at a
     # grazing angle). The strays go; a clean projection is returned as it is.
-    from geomodel_ros.core.pipeline import _without_strays
+    from geomodel_ros.core.fitting.measure import without_strays as _without_strays
 
     rng = np.random.default_rng(3)
     bulk = rng.uniform(0.0, 0.1, 20000)
@@ -535,7 +544,7 @@ def test_sizing_drops_small_groups_beyond_a_gap_but_keeps_occluded_parts():
     # Flying pixels come in clusters too: 3 % of a small box's points 0.2 m beyond it
     # (inside the 1st-99th percentile, so only the gap tells them apart). An occluded
     # object's two visible parts, 40 % and 60 % of its points 50 mm apart, stay whole.
-    from geomodel_ros.core.pipeline import _without_strays
+    from geomodel_ros.core.fitting.measure import without_strays as _without_strays
 
     rng = np.random.default_rng(4)
     bulk = rng.uniform(0.0, 0.07, 5000)

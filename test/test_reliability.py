@@ -43,7 +43,7 @@ from visualization_msgs.msg import Marker
 
 from geomodel_ros.tools.cli import main as cli_main
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError, load_params_file
-from geomodel_ros.core.pipeline import model_scene
+from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.primitives import DIMENSION_NAMES, PRIMITIVE_TYPES, Primitive
 from geomodel_ros.core.reconstruction import reconstruct
 from msg_adapters.markers import primitives_to_markers, reconstruction_cloud, segments_cloud

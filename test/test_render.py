@@ -10,7 +10,7 @@ import pytest
 
 from geomodel_ros.core.errors import InputError
 from geomodel_ros.core.params import ModelingParams
-from geomodel_ros.core.pipeline import model_scene
+from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.core.reconstruction import reconstruct
 from geomodel_ros.tools.render import (

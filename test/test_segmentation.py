@@ -22,7 +22,7 @@ from data_helpers import require
 from geomodel_ros.tools.benchmark import OSD_GROUPS, data_dir
 from geomodel_ros.tools.evaluation import dimension_errors, segmentation_scores
 from geomodel_ros.core.params import ModelingParams, load_params_file
-from geomodel_ros.core.pipeline import InputError, model_scene
+from geomodel_ros.core.modeling import InputError, model_scene
 from geomodel_ros.core.segmentation import segment_scene
 from geomodel_ros.tools.synth import SENSOR_NOISE, Box, Cylinder, Sphere, render_scene, scene_geometry
 from geomodel_ros.tools.synth.scenes import (DESK_CENTER, DESK_NORMAL, SCENE_NAMES,

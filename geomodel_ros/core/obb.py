@@ -21,6 +21,21 @@ from geomodel_ros.core.fastmath import row_norms
 __all__ = ["ray_to_plane", "ray_scale_to_plane", "ray_to_cylinder", "hull_candidates",
            "min_area_rectangle", "orthonormalize_axes", "interval", "edge_gap"]
 
+#: A ray that meets a plane at a cosine below this (more obliquely than about 78 deg)
+#: moves a point ill-conditioned (a small depth error becomes a large shift): such points
+#: stay where they are.
+MIN_RAY_COS = 0.2
+#: The sampling gap at an edge is judged from the projections within this many point
+#: spacings of the extreme (a few sampling rows).
+EDGE_BAND = 4.0
+#: The expected gap between the last sample and the true edge: this share of the
+#: largest step between samples near the edge (uniform position within one step).
+EDGE_GAP_SHARE = 0.5
+#: Clouds of fewer points go to qhull whole: the Akl-Toussaint filter would save nothing.
+HULL_FILTER_MIN_POINTS = 64
+#: Extreme directions of the Akl-Toussaint filter (an octagon inside the hull).
+HULL_DIRECTIONS = 8
+
 
 def _shift_ok(s: NDArray[np.float64], dist: NDArray[np.float64], max_shift: float
               ) -> NDArray[np.bool_]:
@@ -28,7 +43,7 @@ def _shift_ok(s: NDArray[np.float64], dist: NDArray[np.float64], max_shift: floa
 
 
 def ray_to_plane(points: NDArray[np.float64], normal: NDArray[np.float64], d: float,
-                 max_shift: float, min_cos: float = 0.2) -> NDArray[np.float64]:
+                 max_shift: float, min_cos: float = MIN_RAY_COS) -> NDArray[np.float64]:
     """Move points along their rays from the origin onto the plane n . x + d = 0.
 
     Points that would move by more than ``max_shift`` [m] (points of another surface) or
@@ -40,10 +55,12 @@ def ray_to_plane(points: NDArray[np.float64], normal: NDArray[np.float64], d: fl
 
 
 def ray_scale_to_plane(height: NDArray[np.float64], dist: NDArray[np.float64], d: float,
-                       max_shift: float, min_cos: float = 0.2) -> NDArray[np.float64]:
-    """Factors that move points onto the plane n . x + d = 0 along their rays
-    (:func:`ray_to_plane`), from the points' ``height`` n . x and distance |x| from the
-    origin; 1 where a point stays."""
+                       max_shift: float, min_cos: float = MIN_RAY_COS) -> NDArray[np.float64]:
+    """Return factors that move points onto the plane n . x + d = 0 along their rays.
+
+    As :func:`ray_to_plane`, from the points' ``height`` n . x (n,) and distance |x|
+    (n,) [m] from the origin; 1 where a point stays.
+    """
     with np.errstate(divide="ignore", invalid="ignore"):
         s = -d / height
     ok = _shift_ok(s, dist, max_shift) & (np.abs(height) >= min_cos * dist)
@@ -53,8 +70,12 @@ def ray_scale_to_plane(height: NDArray[np.float64], dist: NDArray[np.float64], d
 def ray_to_cylinder(points: NDArray[np.float64], point: NDArray[np.float64],
                     axis: NDArray[np.float64], radius: float, max_shift: float
                     ) -> NDArray[np.float64]:
-    """Move points along their rays from the origin onto a cylinder (nearest root), at
-    most ``max_shift`` [m]."""
+    """Move points (n, 3) along their rays from the origin onto a cylinder.
+
+    Of the two crossings of a ray with the cylinder the one nearest the point is taken
+    (scale closest to 1); points that would move more than ``max_shift`` [m], or whose
+    ray misses the cylinder, stay.
+    """
     pp = points - (points @ axis)[:, None] * axis
     p0 = point - (point @ axis) * axis
     a = np.einsum("ij,ij->i", pp, pp)
@@ -71,21 +92,21 @@ def ray_to_cylinder(points: NDArray[np.float64], point: NDArray[np.float64],
 
 
 def edge_gap(values: NDArray[np.float64], spacing: float) -> float:
-    """Expected distance [m] between the largest of ``values`` and the true edge beyond it.
+    """Return the expected distance [m] from the largest of ``values`` to the edge beyond it.
 
     Near a sampled edge the projections of the last samples are either spread almost
     continuously (edge oblique to the sampling grid: the extreme sample sits nearly on
     the edge) or fall into discrete rows (edge parallel to the grid: the gap is uniform
-    over one row step). Half the largest step between consecutive projections within
-    ``2 * spacing`` of the extreme covers both cases.
+    over one row step). Half (EDGE_GAP_SHARE) the largest step between consecutive
+    projections within EDGE_BAND spacings of the extreme covers both cases.
     """
     if values.size < 2 or spacing <= 0:
         return 0.0
     top = values.max()
-    band = np.sort(values[values >= top - 4.0 * spacing])
+    band = np.sort(values[values >= top - EDGE_BAND * spacing])
     if band.size < 2:
-        return 0.5 * spacing
-    return 0.5 * float(np.max(np.diff(band)))
+        return EDGE_GAP_SHARE * spacing
+    return EDGE_GAP_SHARE * float(np.max(np.diff(band)))
 
 
 def interval(values: NDArray[np.float64], spacing: float, closed_low: float | None = None,
@@ -112,14 +133,15 @@ def interval(values: NDArray[np.float64], spacing: float, closed_low: float | No
     return lo, hi
 
 
-def hull_candidates(xy: NDArray[np.float64], directions: int = 8) -> NDArray[np.float64]:
+def hull_candidates(xy: NDArray[np.float64], directions: int = HULL_DIRECTIONS
+                    ) -> NDArray[np.float64]:
     """Points of ``xy`` (n, 2) that may be convex-hull vertices (Akl-Toussaint filter).
 
     The extreme points in ``directions`` evenly spaced directions span a convex polygon
     inside the hull; points strictly inside it cannot be hull vertices and are dropped,
     which leaves qhull a small fraction of a dense cloud.
     """
-    if len(xy) < 64:
+    if len(xy) < HULL_FILTER_MIN_POINTS:
         return xy
     ang = np.arange(directions) * (2.0 * np.pi / directions)
     dirs = np.stack([np.cos(ang), np.sin(ang)], axis=1)

@@ -3,24 +3,54 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["PRIMITIVE_TYPES", "DIMENSION_NAMES", "FaceSummary", "Primitive", "ModelingResult"]
+__all__ = ["PrimitiveType", "PRIMITIVE_TYPES", "DIMENSION_NAMES", "FaceSummary", "Primitive",
+           "ModelingResult"]
 
-#: Types an object can be given; ``unknown`` when no rule of the model graph accepts it.
-PRIMITIVE_TYPES = ("plane", "cuboid", "cylinder", "cone", "sphere", "unknown")
+
+class PrimitiveType(str, Enum):
+    """Type of a modeled object; ``UNKNOWN`` when no rule of the model graph accepts it.
+
+    A ``str`` whose value is the type's name: it compares and hashes equal to that name
+    (``PrimitiveType.CONE == "cone"``), and prints, formats and serialises to JSON as it,
+    so consumers that know the types by name keep working.
+    """
+
+    PLANE = "plane"
+    CUBOID = "cuboid"
+    CYLINDER = "cylinder"
+    CONE = "cone"
+    SPHERE = "sphere"
+    UNKNOWN = "unknown"
+
+    def __str__(self) -> str:
+        """Return the type's name (``"cone"``, not ``"PrimitiveType.CONE"``)."""
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        """Format the type's name (f-strings and tables show ``cone``)."""
+        return format(self.value, spec)
+
+
+#: Types an object can be given, in the order of :class:`PrimitiveType`.
+PRIMITIVE_TYPES: tuple[PrimitiveType, ...] = tuple(PrimitiveType)
 
 #: Dimension names per type, all in metres.
-DIMENSION_NAMES: dict[str, tuple[str, ...]] = {
-    "plane": ("length", "width"),
-    "cuboid": ("length", "width", "height"),
-    "cylinder": ("radius", "height"),
-    "cone": ("radius", "height"),
-    "sphere": ("radius",),
-    "unknown": (),
+DIMENSION_NAMES: dict[PrimitiveType, tuple[str, ...]] = {
+    PrimitiveType.PLANE: ("length", "width"),
+    PrimitiveType.CUBOID: ("length", "width", "height"),
+    PrimitiveType.CYLINDER: ("radius", "height"),
+    PrimitiveType.CONE: ("radius", "height"),
+    PrimitiveType.SPHERE: ("radius",),
+    PrimitiveType.UNKNOWN: (),
 }
+
+
+_TYPE_BY_NAME: dict[str, PrimitiveType] = {t.value: t for t in PrimitiveType}
 
 
 @dataclass(frozen=True)
@@ -56,8 +86,10 @@ class Primitive:
     ----------
     id : int
         Object id (the segmentation label).
-    type : str
-        One of :data:`PRIMITIVE_TYPES`.
+    type : PrimitiveType
+        The object's type. A string that names a type is converted to it on
+        construction; any other value is kept as given (input from outside the modeling,
+        e.g. markers read back, which consumers must guard against).
     center : (3,) float64 array [m]
         Box centre (plane, cuboid), midpoint of the axis segment (cylinder, cone), centre
         (sphere); for ``unknown`` the centroid of the points.
@@ -78,7 +110,7 @@ class Primitive:
     """
 
     id: int
-    type: str
+    type: PrimitiveType
     center: NDArray[np.float64]
     rotation: NDArray[np.float64]
     dimensions: dict[str, float]
@@ -87,11 +119,17 @@ class Primitive:
     faces: tuple[FaceSummary, ...] = ()
     reason: str = ""
 
+    def __post_init__(self) -> None:
+        """Hold a known type name as its :class:`PrimitiveType`."""
+        if isinstance(self.type, str) and not isinstance(self.type, PrimitiveType) and \
+                self.type in _TYPE_BY_NAME:
+            object.__setattr__(self, "type", _TYPE_BY_NAME[self.type])
+
     def to_dict(self) -> dict:
         """JSON-ready dictionary (the CLI's output schema)."""
         return {
             "id": int(self.id),
-            "type": self.type,
+            "type": str(self.type),
             "center": [float(v) for v in self.center],
             "rotation": [[float(v) for v in row] for row in self.rotation],
             "dimensions": {k: float(v) for k, v in self.dimensions.items()},

@@ -11,63 +11,91 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from geomodel_ros.core.primitives import Primitive
+from geomodel_ros.core.primitives import Primitive, PrimitiveType
 
 __all__ = ["sample_primitive", "reconstruct", "surface_area"]
+
+#: Fewest samples along a side of a grid (both of its ends).
+MIN_GRID_SAMPLES = 2
+#: Fewest samples round a circle (a disc's rim, a cylinder's or cone's side): an octagon.
+MIN_CIRCLE_SAMPLES = 8
+#: Fewest samples of a sphere, however small.
+MIN_SPHERE_SAMPLES = 20
+#: Seed of the thinning that keeps a cone side's density uniform towards the apex: the
+#: same primitive always gives the same samples (no caller's random stream is used up).
+CONE_THINNING_SEED = 0
+#: Default budget of samples per object.
+MAX_POINTS_PER_OBJECT = 2_000_000
+#: Factor by which the spacing grows while an object's samples exceed the budget.
+SPACING_GROWTH = 1.5
 
 
 def _grid(a: float, b: float, spacing: float) -> NDArray[np.float64]:
     """(n, 2) grid covering [-a/2, a/2] x [-b/2, b/2] including the borders."""
-    na = max(2, int(math.ceil(a / spacing)) + 1)
-    nb = max(2, int(math.ceil(b / spacing)) + 1)
+    na = max(MIN_GRID_SAMPLES, int(math.ceil(a / spacing)) + 1)
+    nb = max(MIN_GRID_SAMPLES, int(math.ceil(b / spacing)) + 1)
     u, v = np.meshgrid(np.linspace(-a / 2, a / 2, na), np.linspace(-b / 2, b / 2, nb))
     return np.stack([u.ravel(), v.ravel()], axis=1)
 
 
 def _disc(radius: float, spacing: float) -> NDArray[np.float64]:
+    """(n, 2) grid points inside a disc of ``radius`` [m] and samples on its rim."""
     g = _grid(2 * radius, 2 * radius, spacing)
     g = g[np.einsum("ij,ij->i", g, g) <= radius * radius]
-    n = max(8, int(math.ceil(2 * math.pi * radius / spacing)))
+    n = max(MIN_CIRCLE_SAMPLES, int(math.ceil(2 * math.pi * radius / spacing)))
     t = np.linspace(0, 2 * math.pi, n, endpoint=False)
     return np.vstack([g, radius * np.stack([np.cos(t), np.sin(t)], axis=1)])
 
 
-def _local_surface(kind: str, dims: dict[str, float], spacing: float) -> NDArray[np.float64]:
-    if kind == "plane":
+def _box(dims: dict[str, float], spacing: float) -> NDArray[np.float64]:
+    """Sample the six faces of a box centred at the origin, in its axes."""
+    lx, ly, lz = dims["length"], dims["width"], dims["height"]
+    parts = []
+    for (a, b, c, axes) in ((lx, ly, lz, (0, 1, 2)), (lx, lz, ly, (0, 2, 1)),
+                            (ly, lz, lx, (1, 2, 0))):
+        g = _grid(a, b, spacing)
+        for sign in (-1.0, 1.0):
+            face = np.empty((len(g), 3))
+            face[:, axes[0]], face[:, axes[1]] = g[:, 0], g[:, 1]
+            face[:, axes[2]] = sign * c / 2
+            parts.append(face)
+    return np.vstack(parts)
+
+
+def _round(kind: PrimitiveType, dims: dict[str, float], spacing: float) -> NDArray[np.float64]:
+    """Sample a cylinder or cone (apex at +height/2 on z) with its base(s): (n, 3)."""
+    cone = kind == PrimitiveType.CONE
+    r, h = dims["radius"], dims["height"]
+    nt = max(MIN_CIRCLE_SAMPLES, int(math.ceil(2 * math.pi * r / spacing)))
+    slant = math.hypot(r, h) if cone else h
+    nz = max(MIN_GRID_SAMPLES, int(math.ceil(slant / spacing)) + 1)
+    t, z = np.meshgrid(np.linspace(0, 2 * math.pi, nt, endpoint=False), np.linspace(0, 1, nz))
+    t, z = t.ravel(), z.ravel()
+    rr = r * (1 - z) if cone else np.full_like(z, r)
+    side = np.stack([rr * np.cos(t), rr * np.sin(t), -h / 2 + h * z], axis=1)
+    if cone:  # keep roughly uniform density towards the apex
+        thin = np.random.default_rng(CONE_THINNING_SEED).random(len(side))
+        side = side[thin <= np.maximum(1 - z, 1.0 / nt)]
+    base = _disc(r, spacing)
+    caps = [np.c_[base, np.full(len(base), -h / 2)]]
+    if not cone:
+        caps.append(np.c_[base, np.full(len(base), h / 2)])
+    return np.vstack([side] + caps)
+
+
+def _local_surface(kind: PrimitiveType, dims: dict[str, float], spacing: float
+                   ) -> NDArray[np.float64]:
+    """Sample a primitive's surface in its own frame (centre at the origin): (n, 3)."""
+    if kind == PrimitiveType.PLANE:
         g = _grid(dims["length"], dims["width"], spacing)
         return np.c_[g, np.zeros(len(g))]
-    if kind == "cuboid":
-        lx, ly, lz = dims["length"], dims["width"], dims["height"]
-        parts = []
-        for (a, b, c, axes) in ((lx, ly, lz, (0, 1, 2)), (lx, lz, ly, (0, 2, 1)),
-                                (ly, lz, lx, (1, 2, 0))):
-            g = _grid(a, b, spacing)
-            for sign in (-1.0, 1.0):
-                face = np.empty((len(g), 3))
-                face[:, axes[0]], face[:, axes[1]] = g[:, 0], g[:, 1]
-                face[:, axes[2]] = sign * c / 2
-                parts.append(face)
-        return np.vstack(parts)
-    if kind in ("cylinder", "cone"):
-        r, h = dims["radius"], dims["height"]
-        nt = max(8, int(math.ceil(2 * math.pi * r / spacing)))
-        slant = math.hypot(r, h) if kind == "cone" else h
-        nz = max(2, int(math.ceil(slant / spacing)) + 1)
-        t, z = np.meshgrid(np.linspace(0, 2 * math.pi, nt, endpoint=False), np.linspace(0, 1, nz))
-        t, z = t.ravel(), z.ravel()
-        rr = r * (1 - z) if kind == "cone" else np.full_like(z, r)
-        side = np.stack([rr * np.cos(t), rr * np.sin(t), -h / 2 + h * z], axis=1)
-        if kind == "cone":  # keep roughly uniform density towards the apex
-            keep = np.random.default_rng(0).random(len(side)) <= np.maximum(1 - z, 1.0 / nt)
-            side = side[keep]
-        base = _disc(r, spacing)
-        caps = [np.c_[base, np.full(len(base), -h / 2)]]
-        if kind == "cylinder":
-            caps.append(np.c_[base, np.full(len(base), h / 2)])
-        return np.vstack([side] + caps)
-    if kind == "sphere":
+    if kind == PrimitiveType.CUBOID:
+        return _box(dims, spacing)
+    if kind in (PrimitiveType.CYLINDER, PrimitiveType.CONE):
+        return _round(kind, dims, spacing)
+    if kind == PrimitiveType.SPHERE:
         r = dims["radius"]
-        n = max(20, int(math.ceil(4 * math.pi * r * r / (spacing * spacing))))
+        n = max(MIN_SPHERE_SAMPLES, int(math.ceil(4 * math.pi * r * r / (spacing * spacing))))
         i = np.arange(n) + 0.5
         phi = np.arccos(1 - 2 * i / n)
         theta = math.pi * (1 + 5 ** 0.5) * i
@@ -105,7 +133,7 @@ def sample_primitive(primitive: Primitive, spacing: float) -> NDArray[np.float64
 
 
 def reconstruct(primitives: list[Primitive], spacing: float,
-                max_points_per_object: int = 2_000_000
+                max_points_per_object: int = MAX_POINTS_PER_OBJECT
                 ) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
     """Sample all primitives.
 
@@ -115,17 +143,17 @@ def reconstruct(primitives: list[Primitive], spacing: float,
     ids : (n,) int32, the object id of every sample
     """
     pts, ids = [], []
-    for p in primitives:
+    for prim in primitives:
         # Coarsen the spacing before sampling so that no object exceeds the budget (a
         # 20 m wall at 2 mm would otherwise need 10^8 samples).
-        area = surface_area(p)
+        area = surface_area(prim)
         s = max(spacing, math.sqrt(area / max_points_per_object)) if area > 0 else spacing
-        local = sample_primitive(p, s)
+        local = sample_primitive(prim, s)
         while len(local) > max_points_per_object:
-            s *= 1.5
-            local = sample_primitive(p, s)
+            s *= SPACING_GROWTH
+            local = sample_primitive(prim, s)
         pts.append(local)
-        ids.append(np.full(len(local), p.id, dtype=np.int32))
+        ids.append(np.full(len(local), prim.id, dtype=np.int32))
     if not pts:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
     return np.vstack(pts), np.concatenate(ids)

@@ -18,7 +18,7 @@ import numpy as np
 from sensor_msgs.msg import PointCloud2
 from visualization_msgs.msg import MarkerArray
 
-from geomodel_ros.core import pipeline
+from geomodel_ros.core import modeling as pipeline
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import ModelingResult
 from geomodel_ros.core.reconstruction import reconstruct

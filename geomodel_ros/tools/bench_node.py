@@ -41,7 +41,7 @@ from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from msg_adapters.pointcloud2 import xyz_to_cloud  # noqa: E402
 
-from geomodel_ros.core import pipeline  # noqa: E402
+from geomodel_ros.core import modeling as pipeline  # noqa: E402
 from geomodel_ros.core.fastmath import retain_freed_memory  # noqa: E402
 from geomodel_ros.ros.node import ModelerNode  # noqa: E402
 from geomodel_ros.core.params import ModelingParams  # noqa: E402

@@ -52,7 +52,7 @@ def figure9_table(scene, result) -> str:
 def run_benchmark(scenes: Sequence[str], repeats: int, noisy_params: ModelingParams,
                   clean_params: ModelingParams, seed: int = 1) -> dict:
     """Accuracy and parameter-extraction time over scenes, noise-free and noisy."""
-    from geomodel_ros.core.pipeline import model_objects
+    from geomodel_ros.core.modeling import model_objects
     from geomodel_ros.tools.synth import SENSOR_NOISE, render_scene
 
     report: dict = {"runs": []}
@@ -115,7 +115,7 @@ def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(45
                   model: bool = True) -> list[dict]:
     """Segment (and model) osd_learn scenes; per-scene IoU scores and timings."""
     from geomodel_ros.tools.io import load_osd
-    from geomodel_ros.core.pipeline import model_objects
+    from geomodel_ros.core.modeling import model_objects
     from geomodel_ros.core.segmentation import segment_scene
 
     rows = []
@@ -230,7 +230,7 @@ MUG_SELECT_HEIGHT = (0.01, 0.2)
 def mug_benchmark(params: ModelingParams) -> dict:
     """Model the PCL mug scene (points with 0 <= z <= 1.5 m) and compare with the tutorial."""
     from geomodel_ros.tools.io import read_cloud
-    from geomodel_ros.core.pipeline import model_scene
+    from geomodel_ros.core.modeling import model_scene
 
     cloud = read_cloud(data_dir() / "pcl_mug" / "table_scene_mug_stereo_textured.pcd")
     pts = cloud.points
@@ -329,7 +329,7 @@ def synthetic_segmentation(scenes: Sequence[str], params: ModelingParams, repeat
                            noise=None, seed: int = 1) -> list[dict]:
     """End-to-end (segmentation + modeling) on synthetic scenes: IoU, types, sizes, time."""
     from geomodel_ros.tools.evaluation import dimension_errors, expected_type
-    from geomodel_ros.core.pipeline import model_scene
+    from geomodel_ros.core.modeling import model_scene
     from geomodel_ros.tools.synth import render_scene
 
     rows = []

@@ -211,7 +211,7 @@ def cmd_play(args: argparse.Namespace, bags) -> int:
 
 
 def cmd_model(args: argparse.Namespace) -> int:
-    from geomodel_ros.core.pipeline import model_objects, model_scene
+    from geomodel_ros.core.modeling import model_objects, model_scene
     from geomodel_ros.core.reconstruction import reconstruct
 
     params = _params(args)
@@ -318,7 +318,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from geomodel_ros.core.pipeline import model_objects
+    from geomodel_ros.core.modeling import model_objects
     from geomodel_ros.tools.synth import render_scene
 
     params = _params(args)
@@ -426,7 +426,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from geomodel_ros.tools.io import CloudFileError
-    from geomodel_ros.core.pipeline import InputError
+    from geomodel_ros.core.modeling import InputError
 
     parser = build_parser()
     args = parser.parse_args(argv)

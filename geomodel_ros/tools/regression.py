@@ -45,7 +45,7 @@ def _labels_digest(labels: np.ndarray) -> dict:
 
 
 def _synthetic(clean: ModelingParams, noisy: ModelingParams) -> dict:
-    from geomodel_ros.core.pipeline import model_objects, model_scene
+    from geomodel_ros.core.modeling import model_objects, model_scene
     from geomodel_ros.tools.synth import SCENE_NAMES, SENSOR_NOISE, render_scene
 
     out = {}
@@ -61,7 +61,7 @@ def _synthetic(clean: ModelingParams, noisy: ModelingParams) -> dict:
 
 
 def _osd(params: ModelingParams) -> dict:
-    from geomodel_ros.core.pipeline import model_objects
+    from geomodel_ros.core.modeling import model_objects
     from geomodel_ros.core.segmentation import segment_scene
     from geomodel_ros.tools.io import load_osd
 
@@ -79,7 +79,7 @@ def _osd(params: ModelingParams) -> dict:
 
 
 def _real_scenes(params_by_name: dict[str, ModelingParams]) -> dict:
-    from geomodel_ros.core.pipeline import model_scene
+    from geomodel_ros.core.modeling import model_scene
     from geomodel_ros.tools.io import read_cloud
 
     files = [data_dir() / "pcl_mug" / "table_scene_mug_stereo_textured.pcd",

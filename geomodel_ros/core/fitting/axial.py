@@ -1,0 +1,85 @@
+"""Steps shared by the cylinder and cone units: caps, surface assignment, axial extent."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from geomodel_ros.core import obb
+from geomodel_ros.core.fastmath import take_rows
+from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane
+from geomodel_ros.core.fitting.curved import CurvedFit
+from geomodel_ros.core.fitting.measure import nearest_surface
+from geomodel_ros.core.fitting.plane import RAY_SHIFT_FACTOR
+from geomodel_ros.core.fitting.result import Rejected
+from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR, check_coverage
+from geomodel_ros.core.primitives import PrimitiveType
+
+__all__ = ["end_caps", "assign_to_surfaces", "axial_extent"]
+
+
+def end_caps(cloud: ObjectCloud, side: CurvedFit) -> list[Plane]:
+    """Planes that may close the side's ends.
+
+    The object's planar faces perpendicular to the axis (within ``angle_tolerance``),
+    then the side's inner caps.
+    """
+    axis = side.model.axis
+    cos_tol = math.cos(cloud.params.angle_tolerance)
+    return [(cloud.faces[i].info.normal, cloud.faces[i].info.offset) for i in side.planar
+            if abs(cloud.faces[i].info.normal @ axis) >= cos_tol] + list(side.inner_caps)
+
+
+def assign_to_surfaces(cloud: ObjectCloud, side: CurvedFit, caps: list[Plane],
+                       kind: PrimitiveType) -> NDArray[np.int64] | Rejected:
+    """Surface of each of the object's points (N,): 0 the side, i the i-th cap, -1 none.
+
+    Each point goes to its nearest surface; points farther than OUTLIER_FACTOR RANSAC
+    thresholds from all are outliers. Rejected when too few points lie on the surfaces.
+    """
+    dists = [np.abs(side.model.distance(cloud.points))] + \
+        [np.abs(cloud.points @ normal + offset) for normal, offset in caps]
+    nearest, nearest_dist = nearest_surface(dists)
+    nearest[nearest_dist > OUTLIER_FACTOR * cloud.params.ransac_threshold] = -1
+    bad = check_coverage(nearest >= 0, kind)
+    return bad if bad else nearest
+
+
+def _cap_positions(cloud: ObjectCloud, caps: list[Plane], nearest: NDArray[np.int64],
+                   origin: NDArray[np.float64], axis: NDArray[np.float64]
+                   ) -> tuple[list[NDArray[np.float64]], list[float]]:
+    """Axial coordinates of the caps' points and each cap's median position [m]."""
+    parts, closed = [], []
+    for ci, (normal, offset) in enumerate(caps, start=1):
+        q = take_rows(cloud.points, nearest == ci)
+        if len(q) == 0:
+            continue
+        if cloud.params.reproject_along_rays:
+            q = obb.ray_to_plane(q, normal, offset,
+                                 RAY_SHIFT_FACTOR * cloud.params.ransac_threshold)
+        t_cap = (q - origin) @ axis
+        parts.append(t_cap)
+        closed.append(float(np.median(t_cap)))
+    return parts, closed
+
+
+def axial_extent(cloud: ObjectCloud, side_points: NDArray[np.float64], caps: list[Plane],
+                 nearest: NDArray[np.int64], origin: NDArray[np.float64],
+                 axis: NDArray[np.float64]) -> tuple[float, float]:
+    """Extent [lo, hi] [m] of the object along ``axis`` (3,) from ``origin`` (3,).
+
+    From the side's points (n, 3) and those of its caps (re-projected onto them along
+    their rays); a cap closes the end it is nearer to, a support plane an end no cap
+    closes, and open ends get the edge correction.
+    """
+    parts, closed = _cap_positions(cloud, caps, nearest, origin, axis)
+    t_all = np.concatenate([(side_points - origin) @ axis] + parts)
+    tmin, tmax = float(t_all.min()), float(t_all.max())
+    closed_lo = [c for c in closed if c - tmin < tmax - c]
+    closed_hi = [c for c in closed if c - tmin >= tmax - c]
+    s_lo, s_hi = cloud.support_ends(axis, origin, tmin, tmax)
+    return obb.interval(t_all, cloud.spacing, min(closed_lo) if closed_lo else s_lo,
+                        max(closed_hi) if closed_hi else s_hi,
+                        correct=cloud.params.edge_correction)

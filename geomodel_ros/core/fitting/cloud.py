@@ -1,0 +1,211 @@
+"""An object prepared for fitting: its points, working cloud, faces and support planes."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from geomodel_ros.core.faces import (WorkingCloud, build_working_cloud, face_plane,
+                                     faces_from_labels, split_faces, split_plane_unions)
+from geomodel_ros.core.fastmath import centroid, take_rows
+from geomodel_ros.core.fitting.orient import toward_sensor
+from geomodel_ros.core.model_graph import FaceInfo
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import FaceSummary
+from geomodel_ros.core.surface_type import face_feature
+
+__all__ = ["Plane", "ObjectFace", "ObjectCloud", "build_faces", "as_planar"]
+
+#: A plane n . x + d = 0: (unit normal (3,), offset d [m]).
+Plane = tuple[NDArray[np.float64], float]
+
+#: A support plane closes an object's extent at an end when it crosses the object's axis
+#: line within this many ``seg_plane_threshold`` of that end (the segmentation's own
+#: tolerance for points on the plane, on either side).
+SUPPORT_END_FACTOR = 2.0
+#: A face that the surface-type test calls curved is planar after all when a plane fits
+#: its points with an RMS error of at most this share of ``ransac_threshold`` (well
+#: inside the inlier band: noise, not curvature).
+PLANAR_RMSE_SHARE = 0.5
+#: Smallest norm of a curved face's mean normal that is divided by (guards a face whose
+#: normals cancel, which no real face has).
+MIN_MEAN_NORMAL = 1e-12
+
+
+@dataclass(frozen=True)
+class ObjectFace:
+    """One face of an object: its model-graph description and its points.
+
+    Attributes
+    ----------
+    info : FaceInfo
+    summary : FaceSummary
+    working : (m,) int64, indices into the working cloud
+    points : (n,) int64, indices into the object's points
+    """
+
+    info: FaceInfo
+    summary: FaceSummary
+    working: NDArray[np.int64]
+    points: NDArray[np.int64]
+
+
+@dataclass
+class ObjectCloud:
+    """One segmented object with everything its fitting units need.
+
+    Attributes
+    ----------
+    oid : int
+    points : (N, 3) float64 [m], finite
+    wc : WorkingCloud
+    faces : list of ObjectFace
+    adjacency : (F, F) bool
+    spacing : float [m], median point spacing
+    params : ModelingParams
+    rng : numpy Generator (the object's own stream)
+    supports : tuple of Plane, support planes the object may rest on
+    center : (3,) float64 [m], centroid of ``points``
+    """
+
+    oid: int
+    points: NDArray[np.float64]
+    wc: WorkingCloud
+    faces: list[ObjectFace]
+    adjacency: NDArray[np.bool_]
+    spacing: float
+    params: ModelingParams
+    rng: np.random.Generator
+    supports: tuple[Plane, ...] = ()
+    center: NDArray[np.float64] = field(init=False)
+
+    def __post_init__(self) -> None:
+        """Compute the centroid."""
+        self.center = centroid(self.points)
+
+    def support_ends(self, axis: NDArray[np.float64], origin: NDArray[np.float64],
+                     vmin: float, vmax: float) -> tuple[float | None, float | None]:
+        """Where support planes (desk, floor) close the extent [vmin, vmax] along ``axis``.
+
+        Extents are coordinates ``(x - origin) . axis`` [m]. An object resting on a
+        support plane has its hidden end on that plane: when a support plane
+        perpendicular to ``axis`` (within ``angle_tolerance``) crosses the object's axis
+        line (through its centroid) within SUPPORT_END_FACTOR ``seg_plane_threshold`` of
+        an end, that crossing is the end. None where no plane closes an end.
+        """
+        ref = self.center
+        lo = hi = None
+        tol = SUPPORT_END_FACTOR * self.params.seg_plane_threshold
+        for n, d in self.supports:
+            c = float(n @ axis)
+            if abs(c) < math.cos(self.params.angle_tolerance):
+                continue
+            t = float((ref - origin) @ axis) - (d + float(n @ ref)) / c
+            if abs(t - vmin) <= tol:
+                lo = t
+            elif abs(t - vmax) <= tol:
+                hi = t
+        return lo, hi
+
+    def sample(self, idx: NDArray[np.int64]) -> NDArray[np.float64]:
+        """Full-resolution points (n, 3) of ``idx``, a random ``refine_max_points`` at most."""
+        cap = self.params.refine_max_points
+        if len(idx) > cap:
+            idx = idx[self.rng.choice(len(idx), size=cap, replace=False, shuffle=False)]
+        return take_rows(self.points, idx)
+
+    def face_points(self, which: list[int]) -> NDArray[np.int64]:
+        """Return the indices into ``points`` of the faces ``which``."""
+        return np.concatenate([self.faces[i].points for i in which]) if which else \
+            np.zeros(0, dtype=np.int64)
+
+    def face_working(self, which: list[int]) -> NDArray[np.int64]:
+        """Return the indices into the working cloud of the faces ``which``."""
+        return np.concatenate([self.faces[i].working for i in which]) if which else \
+            np.zeros(0, dtype=np.int64)
+
+    def curved_and_planar(self) -> tuple[list[int], list[int]]:
+        """Return the indices of the curved faces and of the planar faces."""
+        curved = [i for i, f in enumerate(self.faces) if not f.info.planar]
+        planar = [i for i, f in enumerate(self.faces) if f.info.planar]
+        return curved, planar
+
+
+def _checked_planar(cf_planar: bool, plane_rmse: float, threshold: float) -> bool:
+    """Verify the CF decision by a plane fit (paper 3.2: a fit that fails rejects the type).
+
+    A "planar" face no plane fits within ``threshold`` [m] is curved; a "curved" face a
+    plane fits within PLANAR_RMSE_SHARE of it is planar.
+    """
+    if cf_planar and plane_rmse > threshold:
+        return False
+    if not cf_planar and plane_rmse <= threshold * PLANAR_RMSE_SHARE:
+        return True
+    return cf_planar
+
+
+def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.int64],
+                   params: ModelingParams) -> ObjectFace:
+    """Surface type, normal and plane of the face with working points ``widx``."""
+    # Eqs. 1-6 on the face's voxel centroids weighted by the points each stands for
+    # (the full-resolution covariance at a fraction of the cost).
+    feat = face_feature(wc.points[widx], params.cf_weights, params.cf_threshold,
+                        params.cf_radius_fraction, wc.counts[widx])
+    plane, plane_rmse = face_plane(wc.points[widx], wc.normals[widx], params.ransac_threshold)
+    planar = _checked_planar(feat.planar, plane_rmse, params.ransac_threshold)
+    center = wc.counts[widx] @ wc.points[widx] / max(int(wc.counts[widx].sum()), 1)
+    if planar:
+        normal = toward_sensor(plane.normal, center)
+        offset = float(-normal @ center)
+    else:
+        mn = wc.normals[widx].mean(axis=0)
+        normal = mn / max(np.linalg.norm(mn), MIN_MEAN_NORMAL)
+        offset = 0.0
+    info = FaceInfo(planar, normal, offset, len(widx), wc.normals[widx], center)
+    summary = FaceSummary("planar" if planar else "curved", feat.cf_total, len(pidx), normal)
+    return ObjectFace(info, summary, widx, pidx)
+
+
+def _grouped(labels: NDArray[np.int64], count: int) -> tuple[NDArray[np.int64],
+                                                             NDArray[np.int64]]:
+    """Return indices sorted by label and the bounds of each label 0..count-1 in them."""
+    order = np.argsort(labels, kind="stable")
+    return order, np.searchsorted(labels[order], np.arange(count + 1))
+
+
+def build_faces(points: NDArray[np.float64], params: ModelingParams,
+                face_labels: NDArray[np.int64] | None
+                ) -> tuple[WorkingCloud, list[ObjectFace], NDArray[np.bool_]]:
+    """Working cloud, described faces and face adjacency (F, F) of an object's ``points``.
+
+    Faces come from ``face_labels`` (N,) when given, else from region growing.
+    """
+    wc = build_working_cloud(points, params.voxel_size, params.normal_neighbors, face_labels,
+                             params.max_working_points)
+    if face_labels is not None:
+        fs = faces_from_labels(wc, face_labels)
+    else:
+        fs = split_faces(wc, params.face_angle_threshold, params.edge_variation_threshold,
+                         params.min_face_points)
+        fs = split_plane_unions(wc, fs, params.ransac_threshold, params.angle_tolerance,
+                                params.min_face_points)
+    order, bounds = _grouped(fs.labels[wc.point_to_working], fs.count)
+    worder, wbounds = _grouped(fs.labels, fs.count)
+    faces = [_describe_face(wc, worder[wbounds[f]:wbounds[f + 1]],
+                            order[bounds[f]:bounds[f + 1]], params) for f in range(fs.count)]
+    return wc, faces, fs.adjacency
+
+
+def as_planar(wc: WorkingCloud, face: ObjectFace, threshold: float) -> ObjectFace:
+    """Return ``face`` re-described as a plane (:func:`~geomodel_ros.core.faces.face_plane`)."""
+    info = face.info
+    plane, _ = face_plane(wc.points[face.working], wc.normals[face.working], threshold)
+    normal = toward_sensor(plane.normal, info.center)
+    flat = FaceInfo(True, normal, float(-normal @ info.center), info.size,
+                    info.point_normals, info.center)
+    s = face.summary
+    return ObjectFace(flat, FaceSummary("planar", s.cf, s.point_count, normal), face.working,
+                      face.points)

@@ -1,0 +1,100 @@
+"""Fitting unit of a cone: side by RANSAC, verified up to its apex, sized from the apex."""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+
+import numpy as np
+from numpy.typing import NDArray
+
+from geomodel_ros.core.fastmath import take_rows
+from geomodel_ros.core.fitting.axial import assign_to_surfaces, axial_extent, end_caps
+from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
+from geomodel_ros.core.fitting.measure import arc_span, bulk_extent, bulk_reach
+from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
+from geomodel_ros.core.fitting.verify import (axis_within, check_apex, check_arc, check_axis,
+                                              check_bulk_length, check_bulk_reach, check_radius)
+from geomodel_ros.core.geometry import frame_with_z
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import Primitive, PrimitiveType
+from geomodel_ros.core.ransac import ConeModel
+
+__all__ = ["MAX_CONE_HALF_ANGLE", "cone_hypothesis_ok", "fit_cone"]
+
+CONE = PrimitiveType.CONE
+#: RANSAC takes no cone hypothesis flatter than this half-angle [rad] (80 deg).
+MAX_CONE_HALF_ANGLE = 1.4
+
+
+def cone_hypothesis_ok(model: ConeModel, params: ModelingParams,
+                       prior: NDArray[np.float64] | None) -> bool:
+    """Return True for a RANSAC cone of allowed half-angle whose axis follows ``prior``."""
+    return (params.min_cone_half_angle <= model.half_angle <= MAX_CONE_HALF_ANGLE
+            and axis_within(model.axis, prior, params.angle_tolerance))
+
+
+def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None
+                   ) -> tuple[list, NDArray[np.int64], NDArray[np.float64]] | Rejected:
+    """Caps, each point's surface and the side's points, once axis, coverage, arc, angle pass."""
+    cloud, model = task.cloud, side.model
+    bad = check_axis(model.axis, prior, cloud.params, CONE)
+    if bad:
+        return bad
+    caps = end_caps(cloud, side)
+    nearest = assign_to_surfaces(cloud, side, caps, CONE)
+    if isinstance(nearest, Rejected):
+        return nearest
+    side_points = take_rows(cloud.points, nearest == 0)
+    bad = check_arc(arc_span(side_points, model.apex, model.axis), cloud.params, CONE)
+    if bad:
+        return bad
+    if model.half_angle < cloud.params.min_cone_half_angle:
+        return Rejected(CONE, f"cone half-angle {math.degrees(model.half_angle):.1f} deg too "
+                              "small")
+    return caps, nearest, side_points
+
+
+def _sized(task: FitTask, model: ConeModel, lo: float, hi: float) -> float | Rejected:
+    """Size the base radius [m] of a cone whose points run from ``lo`` to ``hi`` from its apex."""
+    cloud = task.cloud
+    bad = check_bulk_length(hi - lo, bulk_extent(cloud.points, model.axis), CONE)
+    if bad:
+        return bad
+    height = hi if hi > 0 else 0.0  # apex at t = 0, base at the far end
+    bad = check_apex(lo, height)
+    if bad:
+        return bad
+    radius = height * math.tan(model.half_angle)
+    bad = check_radius(radius, cloud.params, CONE) or \
+        check_bulk_reach(radius, bulk_reach(cloud.points, model.apex, model.axis))
+    return bad if bad else radius
+
+
+def fit_cone(task: FitTask) -> FitOutcome:
+    """Fit a cone to the curved faces of ``task.cloud``; a planar face may close its base.
+
+    The axis follows ``task.axis_prior`` or else the main planar face's normal, if any.
+    Returns a cone whose z points from the base to the apex, or the rejection.
+    """
+    cloud = task.cloud
+    prior = axis_prior(task)
+    side = fit_curved(cloud, CONE, ConeModel,
+                      partial(cone_hypothesis_ok, params=cloud.params, prior=prior),
+                      with_caps=True)
+    if not isinstance(side, CurvedFit):
+        return side
+    checked = _verified_side(task, side, prior)
+    if isinstance(checked, Rejected):
+        return checked
+    caps, nearest, side_points = checked
+    model = side.model
+    lo, hi = axial_extent(cloud, side_points, caps, nearest, model.apex, model.axis)
+    radius = _sized(task, model, lo, hi)
+    if isinstance(radius, Rejected):
+        return radius
+    height = hi if hi > 0 else 0.0
+    prim = Primitive(cloud.oid, CONE, model.apex + model.axis * height / 2,
+                     frame_with_z(-model.axis), {"radius": float(radius), "height": float(height)},
+                     len(cloud.points), side.rmse)
+    return Fitted(prim, "cone verified")

@@ -1,0 +1,122 @@
+"""Fitting unit of a cuboid (paper 3.2.2): face planes, box axes, extents per axis."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from geomodel_ros.core import obb
+from geomodel_ros.core.fastmath import take_rows
+from geomodel_ros.core.fitting.cloud import ObjectCloud
+from geomodel_ros.core.fitting.measure import nearest_surface, rms, without_strays
+from geomodel_ros.core.fitting.plane import RAY_SHIFT_FACTOR, plane_from_face
+from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted
+from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR, check_coverage, check_inlier_ratio
+from geomodel_ros.core.primitives import Primitive, PrimitiveType
+from geomodel_ros.core.ransac import PlaneModel, refine
+
+__all__ = ["fit_cuboid"]
+
+CUBOID = PrimitiveType.CUBOID
+
+
+def _face_planes(cloud: ObjectCloud, faces: list[int]) -> tuple[list[PlaneModel], float]:
+    """Refine a plane on each of ``faces``; return them and the inlier ratio over all."""
+    thr = cloud.params.ransac_threshold
+    planes, inlier_ok, inlier_all = [], 0, 0
+    for i in faces:
+        f = cloud.faces[i]
+        w = cloud.wc.points[f.working]
+        model = refine(plane_from_face(f, w), w, thr)
+        model = refine(model, cloud.sample(f.points), thr)
+        inlier_ok += int((np.abs(model.distance(w)) <= thr).sum())
+        inlier_all += len(w)
+        planes.append(model)
+    return planes, inlier_ok / max(inlier_all, 1)
+
+
+def _projections(cloud: ObjectCloud, planes: list[PlaneModel], nearest: NDArray[np.int64],
+                 rot: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], list[NDArray[np.float64]]]:
+    """Box coordinates of the points on the faces, all (n, 3) and per face.
+
+    With ``reproject_along_rays`` each point first moves along its viewing ray onto the
+    plane of its ``nearest`` face.
+    """
+    params = cloud.params
+    q = cloud.points.copy()
+    per_face = []
+    for fi, model in enumerate(planes):
+        sel = nearest == fi
+        if params.reproject_along_rays:
+            q[sel] = obb.ray_to_plane(take_rows(cloud.points, sel), model.normal, model.d,
+                                      RAY_SHIFT_FACTOR * params.ransac_threshold)
+        per_face.append(take_rows(q, sel) @ rot)
+    return take_rows(q, nearest >= 0) @ rot, per_face
+
+
+def _axis_interval(cloud: ObjectCloud, values: NDArray[np.float64], axis: NDArray[np.float64],
+                   face_values: list[NDArray[np.float64]]) -> tuple[float, float]:
+    """Extent [m] of the box along one ``axis`` (3,) from the points' ``values`` (n,).
+
+    ``face_values`` are the coordinates along it of the points of the faces
+    perpendicular to it; their median closes the nearer end (unless they lie beyond the
+    bulk: strays). A support plane closes an end no face closes.
+    """
+    reach = OUTLIER_FACTOR * cloud.params.ransac_threshold
+    vals = without_strays(values)
+    vmin, vmax = float(vals.min()), float(vals.max())
+    closed_lo, closed_hi = [], []
+    for fv in face_values:
+        pos = float(np.median(fv))
+        if not vmin - reach <= pos <= vmax + reach:
+            continue  # a face of strays beyond the bulk closes nothing
+        (closed_hi if vmax - pos < pos - vmin else closed_lo).append(pos)
+    s_lo, s_hi = cloud.support_ends(axis, np.zeros(3), vmin, vmax)
+    return obb.interval(vals, cloud.spacing,
+                        float(np.min(closed_lo)) if closed_lo else s_lo,
+                        float(np.max(closed_hi)) if closed_hi else s_hi,
+                        correct=cloud.params.edge_correction)
+
+
+def _box_extent(cloud: ObjectCloud, planes: list[PlaneModel], assign: NDArray[np.int64],
+                rot: NDArray[np.float64], nearest: NDArray[np.int64]
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Low and high ends (3,) [m] of the box in its axes ``rot`` (columns)."""
+    proj, proj_faces = _projections(cloud, planes, nearest, rot)
+    lo, hi = np.empty(3), np.empty(3)
+    for a in range(3):
+        face_values = [pf[:, a] for fi, pf in enumerate(proj_faces)
+                       if assign[fi] == a and len(pf) > 0]
+        lo[a], hi[a] = _axis_interval(cloud, np.ascontiguousarray(proj[:, a]), rot[:, a],
+                                      face_values)
+    return lo, hi
+
+
+def fit_cuboid(task: FitTask) -> FitOutcome:
+    """Fit a box to the faces of ``task.cloud`` whose axes ``task.axis_of_face`` gives.
+
+    Sliver faces (axis -1) fit no axis; their points join the nearest real face. Every
+    point goes to its nearest face plane (edge points may sit in the wrong face); points
+    far from every face (flying pixels, strays) take no part in the sizing.
+    """
+    cloud, axis_of_face = task.cloud, task.axis_of_face
+    keep = [i for i, a in enumerate(axis_of_face) if a >= 0]
+    planes, ratio = _face_planes(cloud, keep)
+    bad = check_inlier_ratio(ratio, cloud.params, CUBOID)
+    if bad:
+        return bad
+    assign = np.asarray([axis_of_face[i] for i in keep], dtype=np.int64)
+    weights = np.array([float(len(cloud.faces[i].working)) for i in keep])
+    rot = obb.orthonormalize_axes(np.array([m.normal for m in planes]), weights, assign)
+    nearest, nearest_dist = nearest_surface([np.abs(m.distance(cloud.points)) for m in planes])
+    nearest[nearest_dist > OUTLIER_FACTOR * cloud.params.ransac_threshold] = -1
+    bad = check_coverage(nearest >= 0, CUBOID)
+    if bad:
+        return bad
+    lo, hi = _box_extent(cloud, planes, assign, rot, nearest)
+    ext = hi - lo
+    prim = Primitive(cloud.oid, CUBOID, rot @ ((lo + hi) / 2), rot,
+                     {"length": float(ext[0]), "width": float(ext[1]), "height": float(ext[2])},
+                     len(cloud.points), rms(nearest_dist))
+    return Fitted(prim, "cuboid verified")

@@ -1,0 +1,87 @@
+"""Fitting unit of a cylinder: side by RANSAC, verified, closed by caps or supports, sized."""
+
+from __future__ import annotations
+
+from functools import partial
+
+import numpy as np
+from numpy.typing import NDArray
+
+from geomodel_ros.core import obb
+from geomodel_ros.core.fastmath import take_rows
+from geomodel_ros.core.fitting.axial import assign_to_surfaces, axial_extent, end_caps
+from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
+from geomodel_ros.core.fitting.measure import arc_span, bulk_extent
+from geomodel_ros.core.fitting.orient import axis_toward_sensor
+from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
+from geomodel_ros.core.fitting.verify import (axis_within, check_arc, check_axis,
+                                              check_bulk_length, check_radius)
+from geomodel_ros.core.geometry import frame_with_z
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import Primitive, PrimitiveType
+from geomodel_ros.core.ransac import CylinderModel
+
+__all__ = ["CYLINDER_RAY_SHIFT_FACTOR", "cylinder_hypothesis_ok", "fit_cylinder"]
+
+CYLINDER = PrimitiveType.CYLINDER
+#: Re-projection moves a side point along its viewing ray onto the cylinder by at most
+#: this many RANSAC thresholds (rays graze the side near its silhouette, where a larger
+#: move would take a point across to the far side).
+CYLINDER_RAY_SHIFT_FACTOR = 1.0
+
+
+def cylinder_hypothesis_ok(model: CylinderModel, params: ModelingParams,
+                           prior: NDArray[np.float64] | None) -> bool:
+    """Return True for a RANSAC cylinder of allowed radius whose axis follows ``prior``."""
+    return (params.min_radius <= model.radius <= params.max_radius
+            and axis_within(model.axis, prior, params.angle_tolerance))
+
+
+def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None
+                   ) -> tuple[list, NDArray[np.int64], NDArray[np.float64]] | Rejected:
+    """Caps, each point's surface and the side's points, once axis, coverage, arc, radius pass."""
+    cloud, model = task.cloud, side.model
+    bad = check_axis(model.axis, prior, cloud.params, CYLINDER)
+    if bad:
+        return bad
+    caps = end_caps(cloud, side)
+    nearest = assign_to_surfaces(cloud, side, caps, CYLINDER)
+    if isinstance(nearest, Rejected):
+        return nearest
+    side_points = take_rows(cloud.points, nearest == 0)
+    bad = check_arc(arc_span(side_points, model.point, model.axis), cloud.params, CYLINDER) or \
+        check_radius(model.radius, cloud.params, CYLINDER)
+    return bad if bad else (caps, nearest, side_points)
+
+
+def fit_cylinder(task: FitTask) -> FitOutcome:
+    """Fit a cylinder to the curved faces of ``task.cloud``; planar faces may close its ends.
+
+    The axis follows ``task.axis_prior`` or else the main planar face's normal, if any.
+    Returns a cylinder whose z (its axis) points towards the sensor, or the rejection.
+    """
+    cloud, params = task.cloud, task.cloud.params
+    prior = axis_prior(task)
+    side = fit_curved(cloud, CYLINDER, CylinderModel,
+                      partial(cylinder_hypothesis_ok, params=params, prior=prior), with_caps=True)
+    if not isinstance(side, CurvedFit):
+        return side
+    checked = _verified_side(task, side, prior)
+    if isinstance(checked, Rejected):
+        return checked
+    caps, nearest, side_points = checked
+    model, axis = side.model, side.model.axis
+    if params.reproject_along_rays:
+        side_points = obb.ray_to_cylinder(side_points, model.point, axis, model.radius,
+                                          CYLINDER_RAY_SHIFT_FACTOR * params.ransac_threshold)
+    lo, hi = axial_extent(cloud, side_points, caps, nearest, model.point, axis)
+    bad = check_bulk_length(hi - lo, bulk_extent(cloud.points, axis), CYLINDER)
+    if bad:
+        return bad
+    if hi - lo <= 0:
+        return Rejected(CYLINDER, "cylinder has no height")
+    axis, lo, hi = axis_toward_sensor(axis, model.point, lo, hi)
+    prim = Primitive(cloud.oid, CYLINDER, model.point + axis * (lo + hi) / 2, frame_with_z(axis),
+                     {"radius": float(model.radius), "height": float(hi - lo)},
+                     len(cloud.points), side.rmse)
+    return Fitted(prim, "cylinder verified")

@@ -1,0 +1,129 @@
+"""Robust measurements on an object's points that verification and sizing share."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from geomodel_ros.core.geometry import frame_with_z
+
+__all__ = ["STATS_SAMPLE", "every_kth", "bulk_extent", "bulk_reach", "arc_span",
+           "without_strays", "nearest_surface", "rms"]
+
+#: Percentile statistics over an object's points (bulk reach, strays, support test,
+#: degeneracy) use every k-th point, k chosen so that about this many remain: a robust
+#: percentile needs a few thousand samples, not the hundreds of thousands a near object
+#: has.
+STATS_SAMPLE = 5000
+#: The arc a curved side spans is measured on about this many of its points: enough that
+#: no real gap between them is missed.
+ARC_SAMPLE = 20000
+#: Fewest points for which an arc around an axis is measured (fewer span none).
+MIN_ARC_POINTS = 3
+#: The bulk of an object along an axis lies between these percentiles of its projections.
+BULK_PERCENTILES = (2.0, 98.0)
+#: The bulk of an object round an axis lies within this percentile of its distances.
+REACH_PERCENTILE = 98.0
+
+#: Sizing ignores projections farther than STRAY_PAD times the bulk's extent plus
+#: STRAY_MARGIN [m] beyond the bulk (STRAY_PERCENTILES) of an object's points. A side
+#: must hold more than about 2 % of the points not to be cut (a box seen almost face on
+#: whose sides hold less may come out too thin along the view).
+STRAY_PAD = 0.25
+STRAY_MARGIN = 0.01
+STRAY_PERCENTILES = (1.0, 99.0)
+#: ... and groups of at most STRAY_GROUP_SHARE of the points beyond an empty gap of
+#: STRAY_GAP [m] at either end (an occluded object's parts are larger).
+STRAY_GROUP_SHARE = 0.05
+STRAY_GAP = 0.03
+
+
+def every_kth(values: NDArray, target: int = STATS_SAMPLE) -> NDArray:
+    """Every k-th row of ``values``, k = len // ``target`` (at least 1)."""
+    return values[:: max(1, len(values) // target)]
+
+
+def bulk_extent(points: NDArray[np.float64], axis: NDArray[np.float64]) -> float:
+    """Extent [m] of the bulk (BULK_PERCENTILES) of ``points`` (N, 3) along unit ``axis``."""
+    lo, hi = np.percentile(points @ axis, list(BULK_PERCENTILES))
+    return float(hi - lo)
+
+
+def bulk_reach(points: NDArray[np.float64], origin: NDArray[np.float64],
+               axis: NDArray[np.float64]) -> float:
+    """Return the distance [m] from an axis line within which the bulk of ``points`` lie.
+
+    The line passes through ``origin`` (3,) along unit ``axis`` (3,); the bulk is the
+    REACH_PERCENTILE of the distances of ``points`` (N, 3).
+    """
+    v = every_kth(points) - origin
+    radial = v - np.outer(v @ axis, axis)
+    return float(np.percentile(np.sqrt(np.einsum("ij,ij->i", radial, radial)),
+                               REACH_PERCENTILE))
+
+
+def arc_span(points: NDArray[np.float64], origin: NDArray[np.float64],
+             axis: NDArray[np.float64]) -> float:
+    """Angle [rad] that ``points`` (N, 3) span around an axis (2 pi minus the largest gap)."""
+    if len(points) < MIN_ARC_POINTS:
+        return 0.0
+    frame = frame_with_z(axis)
+    v = every_kth(points, ARC_SAMPLE) - origin
+    ang = np.sort(np.arctan2(v @ frame[:, 1], v @ frame[:, 0]))
+    gaps = np.diff(np.r_[ang, ang[0] + 2.0 * math.pi])
+    return float(2.0 * math.pi - gaps.max())
+
+
+def _without_small_end_groups(vals: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``vals`` without groups of at most STRAY_GROUP_SHARE of them beyond a STRAY_GAP gap."""
+    # Flying pixels between an edge and the far background come in such clusters, a few
+    # per cent of a small box's points.
+    ordered = np.sort(vals)
+    n, k = len(ordered), int(STRAY_GROUP_SHARE * len(ordered))
+    if k < 1:
+        return vals
+    gaps = np.diff(ordered)
+    low = np.flatnonzero(gaps[:k] > STRAY_GAP)
+    high = np.flatnonzero(gaps[n - 1 - k:] > STRAY_GAP)
+    if not low.size and not high.size:
+        return vals
+    lo = ordered[low[-1] + 1] if low.size else ordered[0]
+    hi = ordered[n - 1 - k + high[0]] if high.size else ordered[-1]
+    return vals[(vals >= lo) & (vals <= hi)]
+
+
+def without_strays(vals: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Return ``vals`` (n,) [m], one axis's projections of an object, without strays.
+
+    Strays lie beyond the bulk by more than STRAY_PAD, STRAY_MARGIN or form small groups
+    beyond a gap. On depth images these are flying pixels along the viewing rays past
+    an edge, which lie close to the extension of a side face seen at a grazing angle
+    and would stretch the box. ``vals`` itself is returned when nothing is dropped.
+    """
+    lo, hi = np.percentile(every_kth(vals), list(STRAY_PERCENTILES))
+    pad = STRAY_PAD * (hi - lo) + STRAY_MARGIN
+    keep = (vals >= lo - pad) & (vals <= hi + pad)
+    vals = vals if keep.all() else vals[keep]
+    return _without_small_end_groups(vals)
+
+
+def nearest_surface(dists: list[NDArray[np.float64]]
+                    ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Index of the smallest of several per-point distance arrays (n,), and that distance.
+
+    Ties go to the first; no (n, k) array is stacked.
+    """
+    best = dists[0].copy()
+    which = np.zeros(len(best), dtype=np.int64)
+    for i, d in enumerate(dists[1:], start=1):
+        closer = d < best
+        which[closer] = i
+        np.minimum(best, d, out=best)
+    return which, best
+
+
+def rms(d: NDArray[np.float64]) -> float:
+    """Root mean square of distances ``d`` (n,) [m]; 0 for none."""
+    return float(np.sqrt(np.mean(d * d))) if d.size else 0.0

@@ -1,0 +1,42 @@
+"""Fitting unit of a sphere: RANSAC on the curved faces, verified, sized by its radius."""
+
+from __future__ import annotations
+
+from functools import partial
+
+import numpy as np
+
+from geomodel_ros.core.fitting.curved import CurvedFit, fit_curved
+from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted
+from geomodel_ros.core.fitting.verify import check_radius
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import Primitive, PrimitiveType
+from geomodel_ros.core.ransac import SphereModel
+
+__all__ = ["fit_sphere", "sphere_hypothesis_ok"]
+
+SPHERE = PrimitiveType.SPHERE
+
+
+def sphere_hypothesis_ok(model: SphereModel, params: ModelingParams) -> bool:
+    """Return True when a RANSAC sphere's radius is within [min_radius, max_radius]."""
+    return params.min_radius <= model.radius <= params.max_radius
+
+
+def fit_sphere(task: FitTask) -> FitOutcome:
+    """Fit a sphere to the curved faces of ``task.cloud`` (a sphere has no axis).
+
+    Returns a sphere with identity rotation, or the rejection.
+    """
+    cloud = task.cloud
+    side = fit_curved(cloud, SPHERE, SphereModel,
+                      partial(sphere_hypothesis_ok, params=cloud.params), with_caps=False)
+    if not isinstance(side, CurvedFit):
+        return side
+    model = side.model
+    bad = check_radius(model.radius, cloud.params, SPHERE)
+    if bad:
+        return bad
+    prim = Primitive(cloud.oid, SPHERE, model.center.copy(), np.eye(3),
+                     {"radius": float(model.radius)}, len(cloud.points), side.rmse)
+    return Fitted(prim, "sphere verified")

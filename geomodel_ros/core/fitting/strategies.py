@@ -1,0 +1,291 @@
+"""How an object's type is decided and which fallbacks are tried when no candidate fits.
+
+:func:`decide` applies the model graph. :data:`STRATEGIES` is the ordered list of
+attempts :func:`run_strategies` makes until one fits: the model graph's own candidates,
+the curved faces alone (when mixed faces fit no rule), curved faces with flat normals
+taken as planes, and round candidates upright above a support plane.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Protocol, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from geomodel_ros.core.fastmath import centroid
+from geomodel_ros.core.fitting.cloud import ObjectCloud, as_planar
+from geomodel_ros.core.fitting.measure import every_kth
+from geomodel_ros.core.fitting.units import fit_first
+from geomodel_ros.core.model_graph import (FaceInfo, GraphDecision, curvature_candidates,
+                                           decide_type)
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
+from geomodel_ros.core.surface_type import principal_curvatures
+
+__all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
+           "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
+           "UprightAboveSupport", "flat_faces", "support_below"]
+
+#: Parallel planar faces whose offsets differ by at most this many RANSAC thresholds are
+#: one plane (the band within which a plane's own points scatter).
+COPLANAR_FACTOR = 3
+#: Principal curvatures come from the smooth (non-edge) working points when at least
+#: this many are; otherwise from all of them.
+MIN_SMOOTH_POINTS = 10
+#: A curved face whose point normals stay within this angle [rad] of their mean (at the
+#: FLAT_NORMALS_PERCENTILE) may be taken as planar when no model fits it as curved. A
+#: round surface's normals turn with its arc (at least ``min_arc`` for an accepted fit).
+FLAT_FACE_ANGLE = math.radians(20.0)
+FLAT_NORMALS_PERCENTILE = 10.0
+#: Fewest point normals and smallest mean-normal norm for which flatness is judged.
+MIN_FLAT_NORMALS = 3
+MIN_FLAT_MEAN_NORM = 1e-9
+#: An object stands above a support plane when at most SUPPORT_BELOW_PERCENTILE per cent
+#: of its points lie below the plane by more than the tolerance (twice
+#: ``seg_plane_threshold`` plus the RANSAC threshold) and its median lies above it by more.
+SUPPORT_BELOW_PERCENTILE = 1.0
+SUPPORT_TOLERANCE_FACTOR = 2.0
+ROUND_TYPES = (PrimitiveType.CYLINDER, PrimitiveType.CONE)
+FLAT_TYPES = (PrimitiveType.PLANE, PrimitiveType.CUBOID)
+
+
+def graph_decision(infos: list[FaceInfo], adjacency: NDArray[np.bool_],
+                   curvature: tuple[NDArray, NDArray] | None,
+                   params: ModelingParams) -> GraphDecision:
+    """Return the model graph's decision with the thresholds of ``params``."""
+    return decide_type(infos, adjacency, params.angle_tolerance,
+                       COPLANAR_FACTOR * params.ransac_threshold, curvature,
+                       params.sphere_curvature_ratio, params.developable_curvature_ratio,
+                       params.cone_curvature_variation)
+
+
+def curvatures(cloud: ObjectCloud, which: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
+    """Principal curvatures k_max, k_min [1/m] of the working points ``which`` (M,) selects."""
+    wc, params = cloud.wc, cloud.params
+    k_max, k_min = principal_curvatures(wc.points, wc.normals, wc.neighbors)
+    smooth = which & (wc.variation <= params.edge_variation_threshold)
+    sel = smooth if smooth.sum() >= MIN_SMOOTH_POINTS else which
+    return k_max[sel], k_min[sel]
+
+
+def decide(cloud: ObjectCloud) -> GraphDecision:
+    """Apply the model graph to the faces of ``cloud`` (curvatures when all are curved)."""
+    infos = [f.info for f in cloud.faces]
+    curvature = None
+    if not any(i.planar for i in infos):
+        curvature = curvatures(cloud, np.ones(len(cloud.wc.points), dtype=bool))
+    return graph_decision(infos, cloud.adjacency, curvature, cloud.params)
+
+
+def curved_faces_alone(cloud: ObjectCloud) -> GraphDecision:
+    """Decision for the curved faces of ``cloud`` alone, as an all-curved object."""
+    mask = np.zeros(len(cloud.wc.points), dtype=bool)
+    for f in cloud.faces:
+        if not f.info.planar:
+            mask[f.working] = True
+    params = cloud.params
+    cands, why = curvature_candidates(*curvatures(cloud, mask), params.sphere_curvature_ratio,
+                                      params.developable_curvature_ratio,
+                                      params.cone_curvature_variation)
+    return GraphDecision("curved", cands, -1, (), why)
+
+
+@dataclass
+class Situation:
+    """An object and the model graph's decision on it, as the strategies see them."""
+
+    cloud: ObjectCloud
+    decision: GraphDecision
+
+    @property
+    def mixed_without_rule(self) -> bool:
+        """Whether the planar faces fit no rule with the curved ones (no candidate)."""
+        return not self.decision.candidates and self.decision.category == "mixed"
+
+    @cached_property
+    def fit_decision(self) -> GraphDecision:
+        """The decision fits follow: the graph's, or the curved faces' alone if it had no rule."""
+        return curved_faces_alone(self.cloud) if self.mixed_without_rule else self.decision
+
+
+@dataclass(frozen=True)
+class Attempt:
+    """One try of a strategy: fit ``decision``'s candidates to ``cloud``.
+
+    ``note`` (if any) is added to the reasons before the fits', ``prefix`` before each
+    fit's reason; ``axis_prior`` (3,) constrains round fits.
+    """
+
+    cloud: ObjectCloud
+    decision: GraphDecision
+    axis_prior: NDArray[np.float64] | None = None
+    note: str | None = None
+    prefix: str = ""
+
+
+class Strategy(Protocol):
+    """A named way to model an object; :func:`run_strategies` tries them in order."""
+
+    name: str
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True when the strategy has something to try."""
+
+    def attempt(self, situation: Situation) -> Attempt | None:
+        """Return what to fit (None: nothing after all)."""
+
+
+class ModelGraphCandidates:
+    """The candidates of the model graph (paper 3.2.1)."""
+
+    name = "model graph"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True when the model graph proposed a type."""
+        return bool(situation.decision.candidates)
+
+    def attempt(self, situation: Situation) -> Attempt:
+        """Fit the graph's candidates."""
+        return Attempt(situation.cloud, situation.decision)
+
+
+class CurvedFacesAlone:
+    """Judge the curved faces alone when the planar ones fit no rule with them.
+
+    Handles, rims and slivers of noise: the object is taken as all-curved (no axis prior).
+    """
+
+    name = "curved faces alone"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True for mixed faces that fit no rule of the model graph."""
+        return situation.mixed_without_rule
+
+    def attempt(self, situation: Situation) -> Attempt:
+        """Fit the candidates of the curved faces' principal curvatures."""
+        decision = situation.fit_decision
+        return Attempt(situation.cloud, decision, note=f"curved faces alone: {decision.reason}")
+
+
+def _flat(info: FaceInfo) -> bool:
+    """Whether a face's point normals stay within FLAT_FACE_ANGLE of their mean."""
+    n = info.point_normals
+    if len(n) < MIN_FLAT_NORMALS:
+        return False
+    mean = centroid(n)
+    norm = float(np.linalg.norm(mean))
+    if norm <= MIN_FLAT_MEAN_NORM:
+        return False
+    cos = np.abs(n @ (mean / norm))
+    return float(np.percentile(cos, FLAT_NORMALS_PERCENTILE)) >= math.cos(FLAT_FACE_ANGLE)
+
+
+def flat_faces(cloud: ObjectCloud) -> list[int]:
+    """Return the curved faces whose normals are flat (:data:`FLAT_FACE_ANGLE`)."""
+    return [i for i, f in enumerate(cloud.faces) if not f.info.planar and _flat(f.info)]
+
+
+class FlatCurvedFacesAsPlanar:
+    """Take curved faces with flat normals as planes (a box side bent by sensor noise).
+
+    With them as planes the object may be a plane or cuboid after all.
+    """
+
+    name = "flat curved faces as planar"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True when some curved face has flat normals."""
+        return bool(flat_faces(situation.cloud))
+
+    def attempt(self, situation: Situation) -> Attempt | None:
+        """Fit the plane or cuboid the graph proposes for the re-described faces, if any."""
+        cloud, flat = situation.cloud, flat_faces(situation.cloud)
+        faces = [as_planar(cloud.wc, f, cloud.params.ransac_threshold) if i in flat else f
+                 for i, f in enumerate(cloud.faces)]
+        decision = graph_decision([f.info for f in faces], cloud.adjacency, None, cloud.params)
+        decision = dataclasses.replace(
+            decision, candidates=tuple(k for k in decision.candidates if k in FLAT_TYPES))
+        if not decision.candidates:
+            return None
+        note = (f"faces {flat} taken as planar (their normals turn less than "
+                f"{math.degrees(FLAT_FACE_ANGLE):.0f} deg): {decision.reason}")
+        return Attempt(dataclasses.replace(cloud, faces=faces), decision, note=note)
+
+
+def support_below(cloud: ObjectCloud) -> NDArray[np.float64] | None:
+    """Return the normal (3,) of a support plane that ``cloud`` stands above, or None.
+
+    Its bulk above the plane by more than SUPPORT_TOLERANCE_FACTOR ``seg_plane_threshold``
+    plus the RANSAC threshold, nothing of it below by more than that. Objects stacked on
+    others count too.
+    """
+    params = cloud.params
+    tol = SUPPORT_TOLERANCE_FACTOR * params.seg_plane_threshold + params.ransac_threshold
+    sub = every_kth(cloud.points)
+    for n, d in cloud.supports:
+        h = sub @ n + d
+        if np.median(h) < 0:
+            h = -h
+        if float(np.percentile(h, SUPPORT_BELOW_PERCENTILE)) >= -tol and \
+                float(np.median(h)) > tol:
+            return np.asarray(n, dtype=np.float64)
+    return None
+
+
+class UprightAboveSupport:
+    """Fit round candidates with their axis along the normal of the support below.
+
+    A round object standing on the desk (or on another object on it) mostly has its
+    axis along the desk's normal. Without that prior, a large flat lid grown together
+    with the side (over a rounded edge) draws RANSAC to a huge cylinder through the lid.
+    """
+
+    name = "upright above the support"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True when cylinder or cone is a candidate."""
+        return any(k in ROUND_TYPES for k in situation.fit_decision.candidates)
+
+    def attempt(self, situation: Situation) -> Attempt | None:
+        """Fit the round candidates along the support's normal, if the object stands on one."""
+        up = support_below(situation.cloud)
+        if up is None:
+            return None
+        d = situation.fit_decision
+        upright = dataclasses.replace(d, candidates=tuple(k for k in d.candidates
+                                                          if k in ROUND_TYPES))
+        return Attempt(situation.cloud, upright, axis_prior=up,
+                       prefix="upright above the support: ")
+
+
+#: The strategies in the order they are tried.
+STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
+                                    FlatCurvedFacesAsPlanar(), UprightAboveSupport())
+
+
+def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES
+                   ) -> tuple[Primitive | None, tuple[FaceSummary, ...], list[str]]:
+    """Try ``strategies`` in order until one fits.
+
+    Returns the primitive (None if none fits), the face summaries it was fitted with
+    (those of ``situation.cloud`` if none) and every reason on the way.
+    """
+    reasons = [situation.decision.reason]
+    for strategy in strategies:
+        if not strategy.applies(situation):
+            continue
+        attempt = strategy.attempt(situation)
+        if attempt is None:
+            continue
+        if attempt.note:
+            reasons.append(attempt.note)
+        prim, tried = fit_first(attempt.cloud, attempt.decision, attempt.axis_prior)
+        reasons.extend(attempt.prefix + r for r in tried)
+        if prim is not None:
+            return prim, tuple(f.summary for f in attempt.cloud.faces), reasons
+    return None, tuple(f.summary for f in situation.cloud.faces), reasons

@@ -1,0 +1,127 @@
+"""Verification steps shared by the fitting units: each returns a rejection or None.
+
+A model that RANSAC and least squares found is only accepted when it describes the
+object: enough inliers on the fitted faces, enough of the object's points on it, a wide
+enough arc round a curved side, no length or radius beyond the object's bulk, and (for
+a cone) points that reach towards its apex.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from geomodel_ros.core.fitting.result import Rejected
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import PrimitiveType
+
+__all__ = ["OUTLIER_FACTOR", "MIN_COVERAGE", "CONE_APEX_REACH", "CONE_BEHIND_APEX",
+           "BULK_FACTOR", "BULK_MARGIN", "axis_within", "check_inlier_ratio",
+           "check_coverage", "check_radius", "check_axis", "check_arc", "check_bulk_length",
+           "check_apex", "check_bulk_reach"]
+
+#: Points farther than this many RANSAC thresholds from the fitted surfaces are outliers
+#: for sizing.
+OUTLIER_FACTOR = 3.0
+#: A model on whose surfaces (within OUTLIER_FACTOR thresholds) less than this share of
+#: its object's points lie does not describe that object (e.g. a huge cylinder through a
+#: small curved sliver of a box) and is rejected.
+MIN_COVERAGE = 0.5
+#: A cone's points must reach within this share of its height from the apex (a frustum
+#: such as a cup is not a cone).
+CONE_APEX_REACH = 0.5
+#: A cone's points may lie beyond its apex by at most this share of its height (noise
+#: round the tip); farther, they lie on both sides of it and the fit is no cone.
+CONE_BEHIND_APEX = 0.2
+#: A cylinder or cone longer than BULK_FACTOR times the extent of the bulk of its
+#: object's points along its axis plus BULK_MARGIN [m] is rejected; so is a cone wider
+#: than BULK_FACTOR times their reach from its axis plus BULK_MARGIN.
+BULK_FACTOR = 1.5
+BULK_MARGIN = 0.02
+
+
+def axis_within(axis: NDArray[np.float64], prior: NDArray[np.float64] | None,
+                tolerance: float) -> bool:
+    """Return True without a prior, else when ``axis`` is within ``tolerance`` [rad] of ±prior."""
+    return prior is None or abs(float(axis @ prior)) >= math.cos(tolerance)
+
+
+def check_inlier_ratio(ratio: float, params: ModelingParams,
+                       kind: PrimitiveType) -> Rejected | None:
+    """Reject a fit with less than ``min_inlier_ratio`` inliers on its faces."""
+    if ratio < params.min_inlier_ratio:
+        return Rejected(kind, f"{kind} fit rejected: {ratio:.0%} inliers < "
+                              f"{params.min_inlier_ratio:.0%}")
+    return None
+
+
+def check_coverage(on_model: NDArray[np.bool_], kind: PrimitiveType) -> Rejected | None:
+    """Reject a model on which less than MIN_COVERAGE of the object's points (n,) lie."""
+    share = float(np.mean(on_model)) if on_model.size else 0.0
+    if share < MIN_COVERAGE:
+        return Rejected(kind, f"{kind} rejected: only {share:.0%} of the object's points lie "
+                              "on it")
+    return None
+
+
+def check_radius(radius: float, params: ModelingParams, kind: PrimitiveType) -> Rejected | None:
+    """Reject a radius [m] outside [``min_radius``, ``max_radius``]."""
+    if not params.min_radius <= radius <= params.max_radius:
+        return Rejected(kind, f"{kind} radius {radius:.4f} m out of range")
+    return None
+
+
+def check_axis(axis: NDArray[np.float64], prior: NDArray[np.float64] | None,
+               params: ModelingParams, kind: PrimitiveType) -> Rejected | None:
+    """Reject an axis (3,) not within ``angle_tolerance`` of the prior (if any)."""
+    if not axis_within(axis, prior, params.angle_tolerance):
+        return Rejected(kind, f"{kind} axis not aligned with its planar face")
+    return None
+
+
+def check_arc(arc: float, params: ModelingParams, kind: PrimitiveType) -> Rejected | None:
+    """Reject a curved side whose points span less than ``min_arc`` [rad] round the axis."""
+    if arc < params.min_arc:
+        return Rejected(kind, f"{kind} rejected: its points span only {math.degrees(arc):.0f} "
+                              "deg around the axis")
+    return None
+
+
+def check_bulk_length(length: float, bulk: float, kind: PrimitiveType) -> Rejected | None:
+    """Reject a length [m] beyond BULK_FACTOR times the object's ``bulk`` extent + BULK_MARGIN.
+
+    Stray points that happen to lie on the model's surface far from the object (flying
+    pixels, another surface) stretched it.
+    """
+    if length > BULK_FACTOR * bulk + BULK_MARGIN:
+        return Rejected(kind, f"{kind} rejected: {length * 1000:.0f} mm long, the object's "
+                              f"points span {bulk * 1000:.0f} mm along its axis")
+    return None
+
+
+def check_apex(lo: float, height: float) -> Rejected | None:
+    """Reject a cone whose points (from ``lo`` [m] past the apex to ``height``) miss its apex.
+
+    ``lo`` is the near end of the points along the axis from the apex (t = 0).
+    """
+    cone = PrimitiveType.CONE
+    if height <= 0 or (lo < -CONE_BEHIND_APEX * height):
+        return Rejected(cone, "cone points lie on both sides of the apex")
+    if lo > CONE_APEX_REACH * height:
+        return Rejected(cone, f"cone rejected: its points stop {lo * 1000:.0f} mm short of the "
+                              "apex (a frustum)")
+    return None
+
+
+def check_bulk_reach(radius: float, reach: float) -> Rejected | None:
+    """Reject a cone radius [m] beyond BULK_FACTOR times the points' ``reach`` + BULK_MARGIN.
+
+    A nearly flat cone whose points cover only the region round its apex.
+    """
+    if radius > BULK_FACTOR * reach + BULK_MARGIN:
+        return Rejected(PrimitiveType.CONE,
+                        f"cone rejected: radius {radius * 1000:.0f} mm, the object's points "
+                        f"reach {reach * 1000:.0f} mm from its axis")
+    return None

@@ -1,0 +1,259 @@
+"""Modeling of segmented objects: faces -> surface types -> model graph -> RANSAC -> size.
+
+:func:`model_objects` takes a scene's points with per-point object labels (from the
+segmentation or ground truth) and returns one :class:`~geomodel_ros.core.primitives.Primitive`
+per object. Degenerate objects (too few points, fits that fail verification, shapes no
+rule of the model graph accepts) come out as ``unknown``; this never raises for bad
+geometry, only for malformed arguments. The fitting itself is in
+:mod:`geomodel_ros.core.fitting`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from geomodel_ros.core.errors import InputError, as_points
+from geomodel_ros.core.fastmath import centroid, rows_finite, take_rows
+from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane, build_faces
+from geomodel_ros.core.fitting.measure import every_kth
+from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategies
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import FaceSummary, ModelingResult, Primitive, PrimitiveType
+
+__all__ = ["model_objects", "model_object", "model_scene", "estimate_spacing", "InputError"]
+
+#: Fewest points of an object that can be modeled at all, whatever ``min_object_points``
+#: says (three determine a plane; a fourth is needed to verify anything).
+MIN_MODEL_POINTS = 4
+#: An object whose largest singular value (spread) is at most this [m] is one repeated
+#: point; one whose second is at most COLLINEAR_RATIO times the first is a line.
+MIN_SPREAD = 1e-9
+COLLINEAR_RATIO = 1e-6
+#: Fewest distinct working points (voxels) an object needs for normals and faces.
+MIN_WORKING_POINTS = 6
+#: Median point spacing is estimated on a random subset of at most SPACING_SAMPLE points,
+#: from the nearest neighbours of SPACING_QUERIES of them.
+SPACING_SAMPLE = 2000
+SPACING_QUERIES = 500
+#: Labels up to this are grouped by counting and a 16-bit radix sort.
+MAX_INT16_LABEL = int(np.iinfo(np.int16).max)
+
+
+def _check_labels(labels: NDArray, n: int, what: str) -> NDArray[np.int64]:
+    """``labels`` as an (n,) int64 array, or InputError naming ``what``."""
+    arr = np.asarray(labels)
+    if arr.shape != (n,):
+        raise InputError(f"{what} must be an ({n},) integer array aligned with the points, "
+                         f"got shape {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.integer):
+        raise InputError(f"{what} must be integers, got dtype {arr.dtype}")
+    return arr.astype(np.int64, copy=False)
+
+
+def _unknown(oid: int, points: NDArray[np.float64], reason: str,
+             faces: tuple[FaceSummary, ...] = ()) -> Primitive:
+    """Return an ``unknown`` object at the centroid of its ``points`` (n, 3)."""
+    return Primitive(oid, PrimitiveType.UNKNOWN, centroid(points), np.eye(3), {}, len(points),
+                     0.0, faces, reason)
+
+
+def _degenerate(points: NDArray[np.float64], params: ModelingParams) -> str | None:
+    """Why ``points`` (n, 3) cannot be modeled at all, or None."""
+    n = len(points)
+    if n < max(params.min_object_points, MIN_MODEL_POINTS):
+        return f"{n} points < min_object_points"
+    sub = every_kth(points)
+    sv = np.linalg.svd(sub - centroid(sub), compute_uv=False) if np.all(np.isfinite(sub)) \
+        else np.zeros(3)
+    if sv[0] <= MIN_SPREAD or sv[1] <= COLLINEAR_RATIO * sv[0]:
+        return "degenerate point set (collinear or duplicate)"
+    return None
+
+
+def model_object(points: NDArray[np.float64], object_id: int, params: ModelingParams,
+                 rng: np.random.Generator, spacing: float,
+                 face_labels: NDArray[np.int64] | None = None,
+                 supports: tuple[Plane, ...] = ()) -> Primitive:
+    """Model one segmented object.
+
+    Parameters
+    ----------
+    points : (n, 3) float64 array [m], finite
+    object_id : int
+    params : ModelingParams
+    rng : numpy Generator
+    spacing : float [m]
+        Median point spacing of the object (for edge corrections).
+    face_labels : (n,) int64, optional
+        Known faces; when absent faces are found by region growing.
+    supports : tuple of (normal (3,), d) planes n . x + d = 0
+        Support surfaces the object may rest on (they close its hidden bottom end).
+    """
+    why = _degenerate(points, params)
+    if why:
+        return _unknown(object_id, points, why)
+    wc, faces, adjacency = build_faces(points, params, face_labels)
+    if len(wc.points) < MIN_WORKING_POINTS or not faces:
+        return _unknown(object_id, points, "too few distinct points after voxelization")
+    cloud = ObjectCloud(object_id, points, wc, faces, adjacency, spacing, params, rng, supports)
+    prim, summaries, reasons = run_strategies(Situation(cloud, decide(cloud)))
+    if prim is not None:
+        return dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons))
+    return _unknown(object_id, points, "; ".join(reasons), summaries)
+
+
+def _group_by_label(idx: NDArray[np.int64], lab: NDArray[np.int64]
+                    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64],
+                               NDArray[np.int64]]:
+    """Group ``idx`` by their labels ``lab`` (>= 0): (order, ids, starts, ends).
+
+    ``order[starts[k]:ends[k]]`` are the indices labelled ``ids[k]``, in input order.
+    """
+    top = int(lab.max())
+    if top <= MAX_INT16_LABEL:
+        # Few small labels (the usual case): counting, and numpy's radix sort for int16.
+        counts = np.bincount(lab, minlength=top + 1)
+        ids = np.flatnonzero(counts)
+        ends = np.cumsum(counts)[ids]
+        starts = ends - counts[ids]
+        order = idx[np.argsort(lab.astype(np.int16), kind="stable")]
+    else:
+        srt = np.argsort(lab, kind="stable")
+        order = idx[srt]
+        ids, starts = np.unique(lab[srt], return_index=True)
+        ends = np.r_[starts[1:], len(order)]
+    return order, ids, starts, ends
+
+
+def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
+                     max_points: int = SPACING_SAMPLE, queries: int = SPACING_QUERIES) -> float:
+    """Approximate median point spacing [m] of a surface sampled by ``points`` (n, 3).
+
+    Large sets are estimated from a random subset: on a surface the nearest-neighbour
+    distance scales with 1 / sqrt(density), so the subset's median is scaled by
+    sqrt(subset / n).
+    """
+    n = len(points)
+    if n < 2:
+        return 0.0
+    sub = points if n <= max_points else points[rng.choice(n, max_points, replace=False)]
+    d, _ = cKDTree(sub).query(sub[: min(len(sub), queries)], k=2)
+    return float(np.median(d[:, 1]) * math.sqrt(len(sub) / n))
+
+
+def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArray[np.int64],
+                  bounds: tuple[NDArray[np.int64], NDArray[np.int64]],
+                  flab: NDArray[np.int64] | None, params: ModelingParams,
+                  rng: np.random.Generator,
+                  supports: dict[int, Plane] | None) -> list[Primitive]:
+    """Model each group ``order[starts[k]:ends[k]]`` as object ``ids[k]``, in parallel."""
+    starts, ends = bounds
+    # One independent generator per object: results do not depend on the order in
+    # which the worker threads finish (numpy and scipy release the GIL in the heavy
+    # parts, so objects are modeled in parallel).
+    streams = rng.spawn(len(ids))
+
+    def one(k: int) -> Primitive:
+        sel = order[starts[k]:ends[k]]
+        opts = take_rows(pts, sel)
+        orng = streams[k]
+        oid = int(ids[k])
+        planes = tuple(v for key, v in (supports or {}).items() if key != oid)
+        return model_object(opts, oid, params, orng, estimate_spacing(opts, orng),
+                            None if flab is None else flab[sel], planes)
+
+    workers = min(len(ids), os.cpu_count() or 1)
+    if workers <= 1:
+        return [one(k) for k in range(len(ids))]
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        # Largest objects first so that the pool stays balanced.
+        order_k = np.argsort(-(ends - starts), kind="stable").tolist()
+        done = dict(zip(order_k, pool.map(one, order_k)))
+    return [done[k] for k in range(len(ids))]
+
+
+def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | None = None, *,
+                  face_labels: NDArray | None = None,
+                  rng: np.random.Generator | int | None = None,
+                  supports: dict[int, Plane] | None = None) -> ModelingResult:
+    """Model every labelled object of a scene.
+
+    Parameters
+    ----------
+    points : (N, 3) float array [m]
+        Scene points; non-finite rows are ignored.
+    labels : (N,) int array
+        Object id per point; negative = no object.
+    params : ModelingParams, optional
+    face_labels : (N,) int array, optional
+        Known face id per point (faces are then not searched).
+    rng : Generator, seed or None
+        Randomness for RANSAC; defaults to ``params.seed``.
+    supports : dict id -> (normal (3,), d), optional
+        Support planes found by the segmentation; other objects may rest on them.
+
+    Returns
+    -------
+    ModelingResult with objects ordered by id and timings [s].
+
+    Raises
+    ------
+    InputError
+        For malformed arrays (never for bad geometry).
+    """
+    t0 = time.perf_counter()
+    params = params if params is not None else ModelingParams()
+    pts = as_points(points)
+    lab = _check_labels(labels, len(pts), "labels")
+    flab = None if face_labels is None else _check_labels(face_labels, len(pts), "face_labels")
+    rng = np.random.default_rng(params.seed if rng is None else rng)
+    idx_all = np.flatnonzero(rows_finite(pts) & (lab >= 0))
+    objects: list[Primitive] = []
+    if idx_all.size:
+        order, ids, starts, ends = _group_by_label(idx_all, lab[idx_all])
+        objects = _model_groups(pts, order, ids, (starts, ends), flab, params, rng, supports)
+    return ModelingResult(objects, {"modeling_s": time.perf_counter() - t0})
+
+
+def model_scene(points: NDArray, params: ModelingParams | None = None, *,
+                organized_shape: tuple[int, int] | None = None,
+                rng: np.random.Generator | int | None = None
+                ) -> tuple[NDArray[np.int64], ModelingResult]:
+    """Segment a raw scene cloud, then model every segment.
+
+    Parameters
+    ----------
+    points : (N, 3) float array [m]
+        Scene cloud in the sensor frame (non-finite rows allowed, labelled -1).
+    params : ModelingParams, optional
+    organized_shape : (H, W), optional
+        Image shape when ``points`` are the rows of an organized cloud (N = H * W).
+    rng : Generator, seed or None
+
+    Returns
+    -------
+    labels : (N,) int64
+        Object id per input row (-1 = invalid or noise).
+    result : ModelingResult
+        Objects by id; timing has ``segmentation_s`` and ``modeling_s``.
+    """
+    from geomodel_ros.core.segmentation import segment_scene
+
+    params = params if params is not None else ModelingParams()
+    pts = as_points(points)
+    if organized_shape is not None and organized_shape[0] * organized_shape[1] != len(pts):
+        raise InputError(f"organized_shape {organized_shape} does not match {len(pts)} points")
+    rng = np.random.default_rng(params.seed if rng is None else rng)
+    seg = segment_scene(pts, params, rng=rng)
+    result = model_objects(pts, seg.labels, params, rng=rng, supports=seg.support_planes)
+    result.timing.update(seg.timing)
+    result.timing["total_s"] = result.timing["modeling_s"] + seg.timing["segmentation_s"]
+    return seg.labels, result
