@@ -108,7 +108,7 @@ def _finite_result(result: Any) -> bool:
 def run_core_case(points: np.ndarray, organized: tuple[int, int] | None) -> str:
     """Segment + model one cloud; the outcome class (see the module doc)."""
     from geomodel_ros.core.errors import InputError
-    from geomodel_ros.core.pipeline import model_scene
+    from geomodel_ros.core.modeling import model_scene
 
     try:
         labels, result = model_scene(points, organized_shape=organized, rng=0)
