@@ -685,18 +685,18 @@ def write_pcd(
         _Column(axis, xyz[:, k], store, "F", xyz_type.itemsize, 1) for k, axis in enumerate("xyz")
     ]
     columns += [_field_column(k, v, n, width, height) for k, v in (fields or {}).items()]
-    header = _pcd_header(columns, width, height, view, binary)
-    if binary:
-        _write_binary(path, header, columns, n)
-    else:
+    _write_file(path, _pcd_header(columns, width, height, view, binary), columns, binary)
+
+
+def _write_file(path: PathLike, header: bytes, columns: list[_Column], binary: bool) -> None:
+    """Write the header, then the points as packed little-endian records or as text."""
+    n = columns[0].values.shape[0]
+    if not binary:
         body = _ascii_body(columns, n).encode("ascii")
         with open(path, "wb") as stream:
             stream.write(header)
             stream.write(body)
-
-
-def _write_binary(path: PathLike, header: bytes, columns: list[_Column], n: int) -> None:
-    """Write the header and the points as packed little-endian records."""
+        return
     record = np.dtype(
         [(c.name, c.dtype, (c.count,)) if c.count > 1 else (c.name, c.dtype) for c in columns]
     )
