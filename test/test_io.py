@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import struct
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import pytest
 
 from data_helpers import DATA, require
 
+from geomodel_ros.tools import pcd_file
 from geomodel_ros.tools.io import (
     OSD_INVALID_ID,
     OSD_TABLE_ID,
@@ -149,6 +149,38 @@ def test_lzf_corrupt_input_raises(stream: bytes, size: int, match: str) -> None:
         lzf_decompress(stream, size)
 
 
+def test_lzf_accepts_any_bytes_like() -> None:
+    stream = _literal(b"abc") + _backref(3, 3)
+    for data in (bytearray(stream), memoryview(stream)):
+        assert lzf_decompress(data, 6) == b"abcabc"
+
+
+class _DecoderSpy:
+    """Stands in for liblzf and records the (input, output) sizes it is asked for."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[int, int]] = []
+
+    def decompress(self, data: bytes, size: int) -> None:
+        self.calls.append((len(data), size))
+
+
+def test_lzf_size_beyond_what_the_stream_can_hold_is_refused_without_allocating(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # 6 input bytes yield at most 6 * 88 bytes: a claimed 1 GB is refused before liblzf
+    # (which allocates the claimed size up front) is called.
+    spy = _DecoderSpy()
+    monkeypatch.setattr(pcd_file, "lzf", spy)
+    stream = _literal(b"abc") + _backref(3, 3)
+    with pytest.raises(CloudFileError, match=r"decompressed to 6 bytes, expected 1000000000"):
+        lzf_decompress(stream, 10**9)
+    assert spy.calls == []
+    with pytest.raises(CloudFileError, match=r"decompressed to 6 bytes, expected 528"):
+        lzf_decompress(stream, 6 * 88)  # the largest size still handed to the decoder
+    assert spy.calls == [(6, 6 * 88)]
+
+
 # --------------------------------------------------------------------------------------------
 # PCD
 # --------------------------------------------------------------------------------------------
@@ -266,7 +298,7 @@ def _compressed_pcd(
     *,
     literal_only: bool = False,
 ) -> bytes:
-    """A binary_compressed PCD as PCL writes it: fields one after another, LZF, page padding."""
+    """Build a binary_compressed PCD as PCL writes it: fields one by one, LZF, page padding."""
     names, sizes, types, counts, blocks = [], [], [], [], []
     for name, values, type_ in fields:
         values = np.ascontiguousarray(values).reshape(width * height, -1)
@@ -553,6 +585,32 @@ def test_truncated_and_corrupt_binary_compressed(tmp_path: Path) -> None:
     path.write_bytes(good[:start] + struct.pack("<II", len(cut), raw) + cut)
     with pytest.raises(CloudFileError, match=r"c.pcd: corrupt LZF data"):
         read_pcd(path)
+
+
+def test_compressed_header_claiming_huge_cloud_is_refused_without_allocating(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    xyz = np.zeros((4, 3), np.float32)
+    good = _compressed_pcd([(axis, xyz[:, k], "F") for k, axis in enumerate("xyz")], 4, 1)
+    points = 80_000_000  # 960 MB of x y z claimed by a file of a few hundred bytes
+    start = good.index(b"DATA binary_compressed\n") + len(b"DATA binary_compressed\n")
+    compressed, _ = struct.unpack_from("<II", good, start)
+    head = good[:start].replace(b"WIDTH 4\n", f"WIDTH {points}\n".encode())
+    head = head.replace(b"POINTS 4\n", f"POINTS {points}\n".encode())
+    body = struct.pack("<II", compressed, points * 12) + good[start + 8 :]
+    (tmp_path / "huge.pcd").write_bytes(head + body)
+    spy = _DecoderSpy()
+    monkeypatch.setattr(pcd_file, "lzf", spy)
+    with pytest.raises(CloudFileError, match=r"huge.pcd: corrupt LZF data: decompressed to 48 b"):
+        read_pcd(tmp_path / "huge.pcd")
+    assert spy.calls == []
+
+
+def test_compressed_fields_are_writable_and_own_their_memory(learn0: Cloud) -> None:
+    # a field kept alone must not pin the whole decompressed payload (or be read-only)
+    for name in ("label", "rgba"):
+        values = learn0.fields[name]
+        assert values.flags.writeable and values.flags.owndata, name
 
 
 def test_mutated_files_raise_only_cloud_file_error(tmp_path: Path) -> None:

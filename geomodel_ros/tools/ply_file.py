@@ -1,0 +1,305 @@
+"""PLY vertex clouds: read (ascii, binary little and big endian) and write.
+
+:func:`read_ply` reads the ``vertex`` element of any PLY file (other elements, e.g. faces,
+are skipped); :func:`write_ply` writes binary little-endian xyz with optional colours.
+Our own small parser on numpy: every size the header implies is checked against the file
+before data are viewed, and problems raise :class:`CloudFileError` naming what was wrong.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, DTypeLike
+
+from geomodel_ros.tools.cloud_file import (
+    Cloud,
+    CloudFileError,
+    PathLike,
+    read_bytes,
+    resolve_shape,
+    to_xyz,
+)
+
+_PLY_TYPES = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+}
+_PLY_FORMATS = {"ascii": "", "binary_little_endian": "<", "binary_big_endian": ">"}
+#: Header lines are short; a file without end_header in this many bytes is not a PLY.
+_PLY_MAX_HEADER = 1 << 20
+
+
+@dataclass
+class _PlyElement:
+    name: str
+    count: int
+    properties: list[tuple[str, str]] = field(default_factory=list)  # (name, dtype code)
+    has_list: bool = False
+
+
+def _parse_ply_header(buf: bytearray, path: PathLike) -> tuple[str, list[_PlyElement], int]:
+    """Parse the header; return the format, the elements and the offset of the body."""
+    name = os.fspath(path)
+    if not buf.startswith(b"ply") or buf[3:4] not in (b"\n", b"\r"):
+        raise CloudFileError(f"{name}: not a PLY file (it must start with a 'ply' line)")
+    fmt: str | None = None
+    elements: list[_PlyElement] = []
+    pos = buf.find(b"\n") + 1
+    number = 1
+    while True:
+        if pos <= 0 or pos >= len(buf) or pos > _PLY_MAX_HEADER:
+            raise CloudFileError(f"{name}: PLY header has no end_header line (truncated?)")
+        newline = buf.find(b"\n", pos)
+        end = len(buf) if newline < 0 else newline + 1
+        try:
+            line = bytes(buf[pos:end]).decode("ascii").strip()
+        except UnicodeDecodeError:
+            raise CloudFileError(f"{name}: PLY header line {number + 1} is not ASCII") from None
+        pos = end
+        number += 1
+        words = line.split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        bad = CloudFileError(f"{name}: malformed PLY header line {number}: {line[:80]!r}")
+        if words[0] == "end_header":
+            break
+        if words[0] == "format":
+            if len(words) != 3 or words[1] not in _PLY_FORMATS:
+                raise CloudFileError(
+                    f"{name}: unsupported PLY format line {line[:80]!r}; allowed: "
+                    f"{', '.join(_PLY_FORMATS)}"
+                )
+            fmt = words[1]
+        elif words[0] == "element":
+            if len(words) != 3 or not words[2].isdigit():
+                raise bad
+            elements.append(_PlyElement(words[1], int(words[2])))
+        elif words[0] == "property":
+            if not elements:
+                raise bad
+            if len(words) == 5 and words[1] == "list":
+                elements[-1].has_list = True
+                elements[-1].properties.append((words[4], "list"))
+            elif len(words) == 3 and words[1] in _PLY_TYPES:
+                elements[-1].properties.append((words[2], _PLY_TYPES[words[1]]))
+            else:
+                raise CloudFileError(
+                    f"{name}: PLY property line {number} {line[:80]!r} not understood; "
+                    f"allowed types: {', '.join(_PLY_TYPES)} (or list)"
+                )
+        else:
+            raise bad
+    if fmt is None:
+        raise CloudFileError(f"{name}: PLY header has no format line")
+    return fmt, elements, pos
+
+
+def read_ply(path: PathLike) -> Cloud:
+    """Read the vertices of a PLY file as a point cloud.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An ``ascii``, ``binary_little_endian`` or ``binary_big_endian`` PLY file with a
+        ``vertex`` element that has x, y and z properties.
+
+    Returns
+    -------
+    Cloud
+        ``points`` (N, 3) float64 [m]; every other vertex property (e.g. ``red``, ``nx``) in
+        ``fields`` by name, native byte order; unorganized; no viewpoint. Other elements
+        (faces, ...) are ignored.
+
+    Raises
+    ------
+    CloudFileError
+        If the file is missing, empty, not a PLY file, has no vertex x y z, has list
+        properties in the vertex element (or, binary, in an element before it), or is
+        truncated or corrupt.
+    """
+    name = os.fspath(path)
+    buf = read_bytes(path)
+    fmt, elements, start = _parse_ply_header(buf, path)
+    vertex_index = next((i for i, e in enumerate(elements) if e.name == "vertex"), None)
+    if vertex_index is None:
+        raise CloudFileError(f"{name}: PLY file has no 'vertex' element")
+    vertex = elements[vertex_index]
+    props = [p for p, _ in vertex.properties]
+    missing = [axis for axis in "xyz" if axis not in props]
+    if missing:
+        raise CloudFileError(
+            f"{name}: PLY vertex element lacks {', '.join(missing)}; x, y and z are required"
+        )
+    if vertex.has_list:
+        raise CloudFileError(
+            f"{name}: PLY vertex element has list properties; only scalar properties are "
+            "supported"
+        )
+    if len(set(props)) != len(props):
+        raise CloudFileError(f"{name}: PLY vertex element names a property twice")
+    if fmt == "ascii":
+        records = _ascii_vertices(buf, start, elements, vertex_index, name)
+    else:
+        records = _binary_vertices(buf, start, elements, vertex_index, fmt, name)
+    points = to_xyz(path, (records["x"], records["y"], records["z"]))
+    fields = {
+        p: records[p].astype(records[p].dtype.newbyteorder("="), copy=False)
+        for p in props
+        if p not in ("x", "y", "z")
+    }
+    return Cloud(points, fields)
+
+
+def _ascii_vertices(
+    buf: bytearray, start: int, elements: list[_PlyElement], vertex_index: int, name: str
+) -> np.ndarray:
+    """Parse the vertex lines of an ascii body into a structured array (one row a vertex)."""
+    vertex = elements[vertex_index]
+    n = vertex.count
+    dtype = np.dtype([(p, code) for p, code in vertex.properties])
+    skip = sum(e.count for e in elements[:vertex_index])
+    if n == 0:
+        return np.zeros(0, dtype=dtype)
+    try:
+        lines = bytes(buf[start:]).decode("ascii").splitlines()
+    except UnicodeDecodeError:
+        raise CloudFileError(f"{name}: PLY ascii body is not ASCII text") from None
+    if len(lines) < skip + n:
+        raise CloudFileError(
+            f"{name}: truncated PLY: {len(lines)} body lines, the header needs at "
+            f"least {skip + n}"
+        )
+    try:
+        with warnings.catch_warnings():  # blank lines are reported below
+            warnings.simplefilter("ignore", UserWarning)
+            records = np.loadtxt(lines[skip : skip + n], dtype=dtype, ndmin=1)
+    except ValueError as exc:
+        raise CloudFileError(f"{name}: corrupt PLY ascii vertex data: {exc}") from None
+    if records.shape[0] != n:
+        raise CloudFileError(
+            f"{name}: corrupt PLY: {n - records.shape[0]} of the {n} vertex lines are blank"
+        )
+    return records
+
+
+def _binary_vertices(
+    buf: bytearray,
+    start: int,
+    elements: list[_PlyElement],
+    vertex_index: int,
+    fmt: str,
+    name: str,
+) -> np.ndarray:
+    """View the vertex records of a binary body (after checking the file holds them all)."""
+    offset = start
+    for element in elements[:vertex_index]:
+        if element.has_list:
+            raise CloudFileError(
+                f"{name}: PLY element {element.name!r} before 'vertex' has list "
+                "properties; cannot skip it in a binary file"
+            )
+        size = np.dtype([(f"p{i}", c) for i, (_, c) in enumerate(element.properties)])
+        offset += element.count * size.itemsize
+    vertex = elements[vertex_index]
+    n = vertex.count
+    dtype = np.dtype([(p, _PLY_FORMATS[fmt] + code) for p, code in vertex.properties])
+    needed = n * dtype.itemsize
+    if len(buf) - offset < needed:
+        raise CloudFileError(
+            f"{name}: truncated PLY: {n} vertices need {needed} bytes, the file has "
+            f"{max(len(buf) - offset, 0)}"
+        )
+    return np.frombuffer(buf, dtype=dtype, count=n, offset=offset)
+
+
+def write_ply(
+    path: PathLike,
+    points: ArrayLike,
+    colors: ArrayLike | None = None,
+    *,
+    xyz_dtype: DTypeLike = np.float32,
+) -> None:
+    """Write points (and optional colours) as a binary little-endian PLY file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file (overwritten).
+    points : (N, 3) or (H, W, 3) array_like [m]
+        Coordinates (organized input is flattened row by row).
+    colors : (N, 3) or (H, W, 3) array_like, optional
+        RGB as uint8, or as floats in [0, 1] (scaled by 255 and rounded); written as
+        ``uchar red green blue``.
+    xyz_dtype : {numpy.float32, numpy.float64}
+        Storage type of x, y, z (``float`` or ``double``).
+
+    Raises
+    ------
+    ValueError
+        If shapes or dtypes are not allowed.
+    OSError
+        If the file cannot be written.
+    """
+    xyz_type = np.dtype(xyz_dtype)
+    if xyz_type not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise ValueError(f"xyz_dtype must be float32 or float64, got {xyz_type}")
+    xyz, _, _ = resolve_shape(points, None, None)
+    n = xyz.shape[0]
+    ply_name = "float" if xyz_type.itemsize == 4 else "double"
+    layout: list[tuple[str, str]] = [(axis, "<" + xyz_type.str[1:]) for axis in "xyz"]
+    rgb = None if colors is None else _ply_colors(colors, n)
+    if rgb is not None:
+        layout += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    table = np.empty(n, dtype=np.dtype(layout))
+    table["x"], table["y"], table["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    lines = [
+        "ply",
+        "format binary_little_endian 1.0",
+        "comment written by geomodel_ros",
+        f"element vertex {n}",
+        *(f"property {ply_name} {axis}" for axis in "xyz"),
+    ]
+    if rgb is not None:
+        table["red"], table["green"], table["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+        lines += ["property uchar red", "property uchar green", "property uchar blue"]
+    lines += ["end_header", ""]
+    with open(path, "wb") as stream:
+        stream.write("\n".join(lines).encode("ascii"))
+        table.tofile(stream)
+
+
+
+
+def _ply_colors(colors: ArrayLike, n: int) -> np.ndarray:
+    """Check colours for :func:`write_ply`; return them as (N, 3) uint8."""
+    rgb = np.asarray(colors)
+    if rgb.shape[-1:] != (3,) or rgb.size != 3 * n:
+        raise ValueError(
+            f"colors must have one RGB triple per point ({n}, 3), got shape {rgb.shape}"
+        )
+    rgb = rgb.reshape(n, 3)
+    if rgb.dtype.kind == "f":
+        if n and not (np.isfinite(rgb).all() and rgb.min() >= 0.0 and rgb.max() <= 1.0):
+            raise ValueError("float colors must be finite and within [0, 1]")
+        return np.rint(rgb * 255.0).astype(np.uint8)
+    if rgb.dtype != np.uint8:
+        raise ValueError(f"colors must be uint8 or float in [0, 1], got dtype {rgb.dtype}")
+    return rgb
