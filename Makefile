@@ -23,4 +23,4 @@ bench: setup
 	$(PY) -m geomodel_ros.tools.bench_node
 
 clean:
-	rm -rf $(VENV) build install log demo_out bench_out
+	rm -rf $(VENV) build install log build_msgs demo_out bench_out

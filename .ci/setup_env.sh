@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Creates .venv, installs the pinned requirements (skipped when unchanged) and the project
-# itself, and makes sure open3d can load (Debian's libusb-1.0-0). Idempotent.
+# itself, makes sure open3d can load (Debian's libusb-1.0-0) and builds the interface
+# package geomodel_msgs into the venv (skipped when unchanged). Idempotent.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV=.venv
@@ -35,3 +36,6 @@ if ! "$VENV/bin/python" -c "import open3d" >/dev/null 2>&1; then
   fi
   "$VENV/bin/python" -c "import open3d" || { echo "error: open3d still fails to import (see above)" >&2; exit 2; }
 fi
+
+# The interface package geomodel_msgs (messages of the node), built into the venv.
+bash .ci/build_msgs.sh
