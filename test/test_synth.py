@@ -118,6 +118,93 @@ def test_intersection_is_nearest_and_misses_are_misses(kind):
     assert np.mean(shape.signed_distance(p_after) < 0) > 0.99
 
 
+#: Rotation that turns a shape's local z (cylinder/cone axis) onto the camera's y axis.
+Z_TO_Y = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+#: Rotation that points a shape's local z back at the camera (-z).
+Z_TO_MINUS_Z = np.diag([1.0, -1.0, -1.0])
+
+# Rays along +z from (x0, 0, 0) at shapes centred 0.5 m ahead, (x0 [m], near t [m], far t [m])
+# worked out by hand; the far hit is the back side that a ray must never report.
+NEAR_HITS = [
+    # upright cylinder r = 50 mm: (0.03, z) on the circle x^2 + (z - 0.5)^2 = 0.05^2 at
+    # z = 0.5 -+ 0.04 (3-4-5 triangle)
+    ("cylinder side", lambda: Cylinder(0.05, 0.2, center=[0, 0, 0.5], rotation=Z_TO_Y),
+     0.03, 0.46, 0.54),
+    ("cylinder side, on the axis", lambda: Cylinder(0.05, 0.2, center=[0, 0, 0.5],
+                                                     rotation=Z_TO_Y), 0.0, 0.45, 0.55),
+    # cylinder along the optical axis, height 100 mm: near cap at 0.45, far cap at 0.55
+    ("cylinder cap", lambda: Cylinder(0.05, 0.1, center=[0, 0, 0.5]), 0.02, 0.45, 0.55),
+    # sphere r = 50 mm: same circle as the cylinder side
+    ("sphere", lambda: Sphere(0.05, center=[0, 0, 0.5]), 0.03, 0.46, 0.54),
+    # cone r = 50 mm, h = 100 mm, apex towards the camera at z = 0.45: the radius grows by
+    # 0.5 mm per mm from the apex, so x0 = 25 mm meets the side at z = 0.50; the base cap is
+    # at z = 0.55
+    ("cone apex first", lambda: Cone(0.05, 0.1, center=[0, 0, 0.5], rotation=Z_TO_MINUS_Z),
+     0.025, 0.50, 0.55),
+    # the same cone turned round: base cap first at z = 0.45, then the side at z = 0.50
+    ("cone base first", lambda: Cone(0.05, 0.1, center=[0, 0, 0.5]), 0.025, 0.45, 0.50),
+    ("box", lambda: Box(0.1, 0.1, 0.1, center=[0, 0, 0.5]), 0.03, 0.45, 0.55),
+]
+
+
+@pytest.mark.parametrize("what, build, x0, near, far", NEAR_HITS,
+                         ids=[h[0] for h in NEAR_HITS])
+def test_a_ray_reports_the_near_hit_not_the_back_side(what, build, x0, near, far):
+    shape = build()
+    t = shape.intersect(np.array([[x0, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0]]))
+    assert abs(t[0] - near) < 1e-12, (what, t[0], far)
+    # from inside the solid (past the near hit) the same ray leaves through the back side
+    t_in = shape.intersect(np.array([[x0, 0.0, 0.5 * (near + far)]]),
+                           np.array([[0.0, 0.0, 1.0]]))
+    assert abs(t_in[0] - 0.5 * (far - near)) < 1e-12
+
+
+@pytest.mark.parametrize("what, build", [h[:2] for h in NEAR_HITS],
+                         ids=[h[0] for h in NEAR_HITS])
+def test_the_camera_sees_the_near_hit(what, build):
+    """The centre pixel looks along the optical axis: every shape of NEAR_HITS is met there
+    first at z = 0.45 (near cap, face, apex or the circle's nearest point), never at 0.55."""
+    cam = PinholeCamera(fx=100.0, fy=100.0, cx=10.0, cy=10.0, width=21, height=21)
+    organized, labels = cam.render([build()], ids=[4])
+    assert labels[10, 10] == 4, what
+    np.testing.assert_allclose(organized[10, 10], [0.0, 0.0, 0.45], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_rendered_points_face_the_camera(kind):
+    """Every hit is where its ray enters the solid: the outward normal (gradient of the
+    independent implicit function) points back towards the camera."""
+    shape = make_shape(kind, np.random.default_rng(3))
+    organized, labels = SMALL_CAMERA.render([shape])
+    p = organized[labels == 0]
+    assert len(p) > 50
+    h = 1e-7
+    grad = np.stack([(implicit_boundary(shape, p + h * e) - implicit_boundary(shape, p - h * e))
+                     / (2 * h) for e in np.eye(3)], axis=1)
+    if kind == "rectangle":  # no inside: either side faces the camera
+        grad *= -np.sign(np.einsum("ij,ij->i", grad, p))[:, None]
+    view = p / np.linalg.norm(p, axis=1, keepdims=True)
+    cos = np.einsum("ij,ij->i", grad, view) / np.linalg.norm(grad, axis=1)
+    assert np.all(cos <= 1e-6), cos.max()
+    assert np.median(cos) < -0.3
+    # and it lies on the surface of that shape
+    assert np.abs(implicit_boundary(shape, p)).max() < 1e-9
+
+
+def test_a_posed_camera_projects_through_its_pose_and_refuses_to_ray_cast():
+    # camera 1 m behind the scene origin, turned 90 deg about y: scene +x is its forward z
+    rot = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    cam = PinholeCamera(100.0, 100.0, 10.0, 10.0, 21, 21, rot, np.array([0.0, 0.0, 1.0]))
+    # scene point (1, 0.1, 0): camera frame (0, 0.1, 2) -> pixel (10, 10 + 100 * 0.1 / 2)
+    np.testing.assert_allclose(cam.project([[1.0, 0.1, 0.0]]), [[10.0, 15.0]], atol=1e-12)
+    assert np.isnan(cam.project([[-3.0, 0.0, 0.0]])).all()  # behind it
+    assert cam.scaled(2.0).rotation.tolist() == rot.tolist()
+    assert cam != PinholeCamera(100.0, 100.0, 10.0, 10.0, 21, 21)
+    assert cam == PinholeCamera(100.0, 100.0, 10.0, 10.0, 21, 21, rot, [0.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match="identity pose"):
+        cam.render([Sphere(0.1, center=[1.0, 0.0, 0.0])])
+
+
 def test_intersect_accepts_unnormalised_directions_and_origins():
     sphere = Sphere(0.1, center=[0.0, 0.0, 1.0])
     origins = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2.0]])

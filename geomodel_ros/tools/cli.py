@@ -16,6 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
+from geomodel_ros.core.colors import id_colors
 from geomodel_ros.core.fastmath import retain_freed_memory
 from geomodel_ros.tools.paths import CONFIG_DIR
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError, load_params_file
@@ -233,8 +234,7 @@ def cmd_model(args: argparse.Namespace) -> int:
 
         t1 = time.perf_counter()
         pts, ids = reconstruct(result.objects, params.reconstruction_spacing)
-        palette = _palette(ids)
-        write_ply(args.reconstruction, pts, palette)
+        write_ply(args.reconstruction, pts, id_colors(ids))
         out["timing"]["reconstruction_s"] = time.perf_counter() - t1
     out["timing"]["total_s"] = time.perf_counter() - t0
     Path(args.json).write_text(json.dumps(out, indent=2))
@@ -245,20 +245,6 @@ def cmd_model(args: argparse.Namespace) -> int:
     print(f"{len(result.objects)} objects ({summary}) in {out['timing']['total_s']:.2f} s "
           f"-> {args.json}")
     return 0
-
-
-def _palette(ids: np.ndarray) -> np.ndarray:
-    """Distinct RGB (uint8) per object id."""
-    golden = (ids.astype(np.float64) * 0.618033988749895) % 1.0
-    h = golden * 6.0
-    x = (1 - np.abs(h % 2 - 1)) * 255
-    c = np.full_like(x, 255.0)
-    z = np.zeros_like(x)
-    sector = h.astype(int) % 6
-    r = np.choose(sector, [c, x, z, z, x, c])
-    g = np.choose(sector, [x, c, c, x, z, z])
-    b = np.choose(sector, [z, z, x, c, c, x])
-    return np.stack([r, g, b], axis=1).astype(np.uint8)
 
 
 def cmd_params(args: argparse.Namespace) -> int:
