@@ -106,12 +106,19 @@ def summary_lines(report: dict) -> list[str]:
 # Segmentation
 # ---------------------------------------------------------------------------------------
 
+#: Labelled frames of osd_learn (learn0.pcd .. learn44.pcd).
+OSD_SCENE_COUNT = 45
 #: osd_learn scene groups (see the data README).
 OSD_GROUPS = {"boxes": range(0, 17), "stacked": range(17, 25), "occluded": range(25, 33),
               "cylinders": range(33, 45)}
 
 
-def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(45)),
+def _groups_and_all() -> dict[str, range]:
+    """:data:`OSD_GROUPS` and the group ``all`` of every scene."""
+    return {**OSD_GROUPS, "all": range(0, OSD_SCENE_COUNT)}
+
+
+def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(OSD_SCENE_COUNT)),
                   model: bool = True) -> list[dict]:
     """Segment (and model) osd_learn scenes; per-scene IoU scores and timings."""
     from geomodel_ros.tools.io import load_osd
@@ -176,9 +183,7 @@ def osd_type_lines(rows: list[dict]) -> list[str]:
     """Per group: how the labelled objects (their best-matching segments) were modeled."""
     kinds = ("plane", "cuboid", "cylinder", "cone", "sphere", "unknown", "none")
     lines = [f"{'group':<10} " + " ".join(f"{k:>8}" for k in kinds)]
-    groups = dict(OSD_GROUPS)
-    groups["all"] = range(0, 45)
-    for name, members in groups.items():
+    for name, members in _groups_and_all().items():
         ts = [t for r in rows if r["scene"] in members for t in r.get("object_types", {}).values()]
         if ts:
             lines.append(f"{name:<10} " + " ".join(f"{ts.count(k):>8}" for k in kinds))
@@ -194,9 +199,7 @@ def osd_lines(rows: list[dict]) -> list[str]:
     lines = [f"{'group':<10} {'scenes':>6} {'objects':>7} {'IoU>=0.8':>9} {'under':>6} "
              f"{'over':>5} {'mean IoU':>9} {'parts IoU>=0.8':>15} {'seg s (median)':>15} "
              f"{'seg+model s':>12}"]
-    groups = dict(OSD_GROUPS)
-    groups["all"] = range(0, 45)
-    for name, members in groups.items():
+    for name, members in _groups_and_all().items():
         rs = [r for r in rows if r["scene"] in members]
         if not rs:
             continue
