@@ -52,9 +52,11 @@ def make_shape(kind: str, rng):
 
 
 def implicit_boundary(shape, points: np.ndarray) -> np.ndarray:
-    """Independent implicit function of each surface, zero on the surface and
-    (up to a bounded factor) a distance: written here from the shape's
-    definition, not taken from the shapes module."""
+    """Return an independent implicit function of each surface.
+
+    Zero on the surface and (up to a bounded factor) a distance: written here from the
+    shape's definition, not taken from the shapes module.
+    """
     p = (points - shape.center) @ shape.rotation
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     rho = np.hypot(x, y)
@@ -98,8 +100,10 @@ def test_hits_lie_on_the_surface(kind, seed):
 
 @pytest.mark.parametrize("kind", [k for k in KINDS if k != "rectangle"])
 def test_intersection_is_nearest_and_misses_are_misses(kind):
-    """Ray marching: no sample before the reported hit (or on a missing ray)
-    lies inside the solid."""
+    """Check by ray marching: no sample before the reported hit lies inside the solid.
+
+    Nor any sample of a missing ray.
+    """
     shape = make_shape(kind, np.random.default_rng(7))
     d = SMALL_CAMERA.ray_directions()
     t = shape.intersect(np.zeros(3), d)
@@ -162,8 +166,11 @@ def test_a_ray_reports_the_near_hit_not_the_back_side(what, build, x0, near, far
 @pytest.mark.parametrize("what, build", [h[:2] for h in NEAR_HITS],
                          ids=[h[0] for h in NEAR_HITS])
 def test_the_camera_sees_the_near_hit(what, build):
-    """The centre pixel looks along the optical axis: every shape of NEAR_HITS is met there
-    first at z = 0.45 (near cap, face, apex or the circle's nearest point), never at 0.55."""
+    """Check that the centre pixel (the optical axis) sees z = 0.45, never 0.55.
+
+    Every shape of NEAR_HITS is met there first at z = 0.45 (near cap, face, apex or the
+    circle's nearest point).
+    """
     cam = PinholeCamera(fx=100.0, fy=100.0, cx=10.0, cy=10.0, width=21, height=21)
     organized, labels = cam.render([build()], ids=[4])
     assert labels[10, 10] == 4, what
@@ -172,8 +179,11 @@ def test_the_camera_sees_the_near_hit(what, build):
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_rendered_points_face_the_camera(kind):
-    """Every hit is where its ray enters the solid: the outward normal (gradient of the
-    independent implicit function) points back towards the camera."""
+    """Check that every hit is where its ray enters the solid.
+
+    The outward normal (gradient of the independent implicit function) points back
+    towards the camera.
+    """
     shape = make_shape(kind, np.random.default_rng(3))
     organized, labels = SMALL_CAMERA.render([shape])
     p = organized[labels == 0]
@@ -236,7 +246,8 @@ def test_torus_hole_shows_the_background():
 # --------------------------------------------------------------------------- occlusion
 def test_box_in_front_of_plane_hides_it():
     wall = Rectangle(1.0, 1.0, center=[0.0, 0.0, 0.8])
-    box = Box(0.1, 0.08, 0.06, center=[0.02, 0.0, 0.5], rotation=random_rotation(np.random.default_rng(3)))
+    box = Box(0.1, 0.08, 0.06, center=[0.02, 0.0, 0.5],
+              rotation=random_rotation(np.random.default_rng(3)))
     _, box_alone = SMALL_CAMERA.render([box])
     organized, labels = SMALL_CAMERA.render([wall, box])
     silhouette = box_alone == 0
@@ -325,7 +336,8 @@ def test_whole_desk_in_view():
         camera, shapes = scene_geometry(name)
         desk = shapes[0]
         corners = desk.to_world(
-            np.array([[sx * desk.length / 2, sy * desk.width / 2, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+            np.array([[sx * desk.length / 2, sy * desk.width / 2, 0.0]
+                      for sx in (-1, 1) for sy in (-1, 1)])
         )
         uv = camera.project(corners)
         assert np.all((uv >= 0) & (uv <= [camera.width - 1, camera.height - 1]))
@@ -387,7 +399,8 @@ def test_ground_truth_consistency(name):
     assert desk.type == "plane" and desk.id == 0
     assert desk.dimensions == {"length": 0.4, "width": 0.4}
     n = desk.rotation[:, 2]
-    np.testing.assert_allclose(n, np.array([0, -0.766, -0.643]) / np.hypot(0.766, 0.643), atol=1e-12)
+    np.testing.assert_allclose(n, np.array([0, -0.766, -0.643]) / np.hypot(0.766, 0.643),
+                               atol=1e-12)
     assert n @ desk.center < 0  # faces the camera
     np.testing.assert_allclose(desk.center, [-0.009030, -0.043117, 0.518281], atol=1e-12)
     offset = n @ desk.center
@@ -457,7 +470,8 @@ def test_noise_sigma_along_the_ray():
     p, q = clean.points, noisy.points
     r_clean = np.linalg.norm(p, axis=1)
     # displacement is along the viewing ray
-    np.testing.assert_allclose(q / np.linalg.norm(q, axis=1, keepdims=True), p / r_clean[:, None], atol=1e-12)
+    np.testing.assert_allclose(q / np.linalg.norm(q, axis=1, keepdims=True),
+                               p / r_clean[:, None], atol=1e-12)
     residual = np.linalg.norm(q, axis=1) - r_clean
     normalised = residual / (0.004 * (p[:, 2] / 0.5) ** 2)
     assert abs(normalised.mean()) < 0.05
@@ -486,7 +500,8 @@ def test_noise_is_reproducible(paper_scenes):
     n = len(paper_scenes["scene3"].points)
     assert len(a.points) == n - round(0.02 * n)
     # the cached clean render is untouched
-    assert np.array_equal(render_scene("scene3").organized, paper_scenes["scene3"].organized, equal_nan=True)
+    assert np.array_equal(render_scene("scene3").organized, paper_scenes["scene3"].organized,
+                          equal_nan=True)
 
 
 # --------------------------------------------------------------------------- errors

@@ -121,7 +121,7 @@ class PinholeCamera:
         return self.width * self.height
 
     def scaled(self, factor: float) -> "PinholeCamera":
-        """Same field of view at ``factor`` times the resolution (factor in (0, inf)).
+        """Return the same view at ``factor`` times the resolution (factor in (0, inf)).
 
         Pixel centres map as ``u' + 0.5 = factor * (u + 0.5)``; the pose is kept.
         """
@@ -139,7 +139,7 @@ class PinholeCamera:
         )
 
     def pixel_directions(self, start: int = 0, stop: int | None = None) -> np.ndarray:
-        """Unit ray directions of the pixels ``start:stop`` in row-major order.
+        """Return the unit ray directions of the pixels ``start:stop`` in row-major order.
 
         Parameters
         ----------
@@ -243,29 +243,42 @@ class PinholeCamera:
         n = self.num_pixels
         points = np.full((n, 3), np.nan)
         labels = np.full(n, -1, dtype=np.int32)
-        centers = np.array([s.center for s in shapes]).reshape(-1, 3)
-        radii = np.array([s.bounding_radius for s in shapes])
-        # Camera at the origin: a ray d reaches the bounding sphere (c, rho) iff
-        # |c|^2 - (c.d)^2 <= rho^2 and c.d + rho > 0.  Small relative margin.
-        c2 = np.einsum("ij,ij->i", centers, centers)
-        rho2 = (radii * (1.0 + 1e-9) + 1e-12) ** 2
-        origin = np.zeros(3)
         for start in range(0, n, chunk_size):
             stop = min(start + chunk_size, n)
             d = self.pixel_directions(start, stop)
-            t_best = np.full(stop - start, np.inf)
-            lab = np.full(stop - start, -1, dtype=np.int32)
-            cd = d @ centers.T  # (m, K)
-            for k, shape in enumerate(shapes):
-                cand = np.flatnonzero((c2[k] - cd[:, k] ** 2 <= rho2[k]) & (cd[:, k] + radii[k] > 0.0))
-                if cand.size == 0:
-                    continue
-                t = shape.intersect(origin, d[cand], eps=eps)
-                closer = t < t_best[cand]
-                hit = cand[closer]
-                t_best[hit] = t[closer]
-                lab[hit] = ids[k]
+            t_best, lab = _nearest_hits(d, shapes, ids, eps)
             seen = np.isfinite(t_best)
             points[start:stop][seen] = d[seen] * t_best[seen, None]
             labels[start:stop] = lab
         return points.reshape(self.height, self.width, 3), labels.reshape(self.height, self.width)
+
+
+def _nearest_hits(d: NDArray[np.float64], shapes: Sequence[Shape], ids: Sequence[int],
+                  eps: float) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    """Nearest hit of unit rays ``d`` (m, 3) from the origin among ``shapes``.
+
+    Returns the ray parameter (m,) [m] (``inf`` for a miss) and the id (m,) int32 of the
+    shape hit (-1 for a miss). Only rays that reach a shape's bounding sphere are
+    intersected with it.
+    """
+    centers = np.array([s.center for s in shapes]).reshape(-1, 3)
+    radii = np.array([s.bounding_radius for s in shapes])
+    # Camera at the origin: a ray d reaches the bounding sphere (c, rho) iff
+    # |c|^2 - (c.d)^2 <= rho^2 and c.d + rho > 0.  Small relative margin.
+    c2 = np.einsum("ij,ij->i", centers, centers)
+    rho2 = (radii * (1.0 + 1e-9) + 1e-12) ** 2
+    origin = np.zeros(3)
+    t_best = np.full(len(d), np.inf)
+    lab = np.full(len(d), -1, dtype=np.int32)
+    cd = d @ centers.T  # (m, K)
+    for k, shape in enumerate(shapes):
+        reach = (c2[k] - cd[:, k] ** 2 <= rho2[k]) & (cd[:, k] + radii[k] > 0.0)
+        cand = np.flatnonzero(reach)
+        if cand.size == 0:
+            continue
+        t = shape.intersect(origin, d[cand], eps=eps)
+        closer = t < t_best[cand]
+        hit = cand[closer]
+        t_best[hit] = t[closer]
+        lab[hit] = ids[k]
+    return t_best, lab

@@ -186,7 +186,8 @@ class Shape:
         """
         d = np.atleast_2d(np.asarray(directions, dtype=np.float64))
         if d.ndim != 2 or d.shape[1] != 3:
-            raise ValueError(f"directions must be an (M, 3) array, got shape {np.shape(directions)}")
+            raise ValueError("directions must be an (M, 3) array, got shape "
+                             f"{np.shape(directions)}")
         o = np.broadcast_to(np.asarray(origins, dtype=np.float64), d.shape)
         norm = np.linalg.norm(d, axis=1)
         if np.any(norm == 0.0):
@@ -303,8 +304,10 @@ class Rectangle(Shape):
         return 0.5 * self.length * abs(u[0]) + 0.5 * self.width * abs(u[1])
 
     def ground_truth(self, id: int):
-        """Ground truth of type ``"plane"``; its z (normal) faces the camera
-        (``normal . center < 0``), flipping y and z if needed."""
+        """Return the ground truth, of type ``"plane"``.
+
+        Its z (normal) faces the camera (``normal . center < 0``), flipping y and z if needed.
+        """
         rot = np.array(self.rotation)
         if rot[:, 2] @ self.center > 0.0:
             rot[:, 1:] *= -1.0
@@ -520,8 +523,8 @@ class Sphere(Shape):
     def _sdf_local(self, p):
         return np.linalg.norm(p, axis=1) - self.radius
 
-    def _support_local(self, u):
-        return self.radius
+    def _support_local(self, _u):
+        return self.radius  # the same in every direction
 
     def ground_truth(self, id: int):
         return self._gt(id, "sphere", {"radius": self.radius})
