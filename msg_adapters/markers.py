@@ -31,7 +31,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from geomodel_ros.core.colors import id_colors
+from geomodel_ros.core.colors import as_ids, id_colors
 from geomodel_ros.core.primitives import DIMENSION_NAMES, Primitive
 
 from .pointcloud2 import pack_rgb, xyz_to_cloud
@@ -391,17 +391,15 @@ def object_colours(ids: ArrayLike) -> NDArray[np.uint8]:
     Returns
     -------
     rgb : (N, 3) uint8 array
-        Hues spaced by the golden ratio per id, so neighbouring ids differ strongly.
+        The shared map :func:`geomodel_ros.core.colors.id_colors`, so an object has the same
+        colour in RViz, in the PLY and in the pictures.
 
     Raises
     ------
     ValueError
         If ``ids`` is not a 1-D integer array.
     """
-    arr = np.asarray(ids)
-    if arr.ndim != 1 or (arr.size and arr.dtype.kind not in "ui"):
-        raise ValueError(f"ids must be an (N,) integer array, got {arr.dtype} {arr.shape}")
-    return _lookup(arr.astype(np.int64, copy=False), _id_colours)
+    return _lookup(as_ids(ids), _id_colours)
 
 
 def _labelled_cloud(points: ArrayLike, ids: ArrayLike, header: Header, what: str,

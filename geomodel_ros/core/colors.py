@@ -17,7 +17,7 @@ from typing import Final
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["PALETTE", "NO_OBJECT_RGB", "id_colors"]
+__all__ = ["PALETTE", "NO_OBJECT_RGB", "as_ids", "id_colors"]
 
 #: Colours (RGB) of ids 0 .. len - 1, most distinct first: a qualitative palette whose
 #: entries are at least 60 apart in RGB space (checked by a test).
@@ -58,6 +58,20 @@ def _golden_hues(ids: NDArray[np.int64]) -> NDArray[np.uint8]:
     return np.round(rgb * 255.0).astype(np.uint8)
 
 
+def as_ids(ids: ArrayLike) -> NDArray[np.int64]:
+    """Return ``ids`` as an (N,) int64 array.
+
+    Raises
+    ------
+    ValueError
+        If ``ids`` is not a 1-D integer array.
+    """
+    arr = np.asarray(ids)
+    if arr.ndim != 1 or (arr.size and arr.dtype.kind not in "ui"):
+        raise ValueError(f"ids must be an (N,) integer array, got {arr.dtype} {arr.shape}")
+    return arr.astype(np.int64, copy=False)
+
+
 def id_colors(ids: ArrayLike) -> NDArray[np.uint8]:
     """RGB colour of every object id.
 
@@ -77,10 +91,7 @@ def id_colors(ids: ArrayLike) -> NDArray[np.uint8]:
     ValueError
         If ``ids`` is not a 1-D integer array.
     """
-    arr = np.asarray(ids)
-    if arr.ndim != 1 or (arr.size and arr.dtype.kind not in "ui"):
-        raise ValueError(f"ids must be an (N,) integer array, got {arr.dtype} {arr.shape}")
-    arr = arr.astype(np.int64, copy=False)
+    arr = as_ids(ids)
     out = np.empty((len(arr), 3), dtype=np.uint8)
     small = (arr >= 0) & (arr < len(PALETTE))
     out[small] = PALETTE[arr[small]]
