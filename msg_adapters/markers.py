@@ -31,6 +31,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
+from geomodel_ros.core.colors import as_ids, id_colors
 from geomodel_ros.core.primitives import DIMENSION_NAMES, Primitive
 
 from .pointcloud2 import pack_rgb, xyz_to_cloud
@@ -360,24 +361,8 @@ def primitives_to_markers(
 # ---------------------------------------------------------------------------------------
 
 def _id_colours(ids: NDArray[np.int64]) -> NDArray[np.uint8]:
-    """(n, 3) colours of distinct ids (golden-ratio hue steps, grey for negative ids)."""
-    hue = np.mod(ids.astype(np.float64) * 0.6180339887498949 + 0.1, 1.0)
-    sat, val = 0.75, 0.95
-    h6 = hue * 6.0
-    sector = np.floor(h6).astype(np.int64) % 6
-    f = h6 - np.floor(h6)
-    v = np.full_like(hue, val)
-    p = np.full_like(hue, val * (1.0 - sat))
-    q = val * (1.0 - sat * f)
-    t = val * (1.0 - sat * (1.0 - f))
-    table = np.select(
-        [sector[:, None] == k for k in range(6)],
-        [np.stack(c, axis=1) for c in ((v, t, p), (q, v, p), (p, v, t),
-                                       (p, q, v), (t, p, v), (v, p, q))],
-    )
-    colours = np.round(table * 255.0).astype(np.uint8)
-    colours[ids < 0] = _NOISE_RGB
-    return colours
+    """(n, 3) colours of distinct ids: the map shared with the PLY and the pictures."""
+    return id_colors(ids)
 
 
 def _lookup(ids: NDArray[np.int64], per_id) -> NDArray:
@@ -406,17 +391,15 @@ def object_colours(ids: ArrayLike) -> NDArray[np.uint8]:
     Returns
     -------
     rgb : (N, 3) uint8 array
-        Hues spaced by the golden ratio per id, so neighbouring ids differ strongly.
+        The shared map :func:`geomodel_ros.core.colors.id_colors`, so an object has the same
+        colour in RViz, in the PLY and in the pictures.
 
     Raises
     ------
     ValueError
         If ``ids`` is not a 1-D integer array.
     """
-    arr = np.asarray(ids)
-    if arr.ndim != 1 or (arr.size and arr.dtype.kind not in "ui"):
-        raise ValueError(f"ids must be an (N,) integer array, got {arr.dtype} {arr.shape}")
-    return _lookup(arr.astype(np.int64, copy=False), _id_colours)
+    return _lookup(as_ids(ids), _id_colours)
 
 
 def _labelled_cloud(points: ArrayLike, ids: ArrayLike, header: Header, what: str,

@@ -38,8 +38,10 @@ def test_object_lost_to_noise_scores_zero():
 
 
 def _half_cylinder_with_handle(axis, radius=0.04, height=0.1, n=6000, seed=0):
-    """Points on the front half of a cylinder about ``axis`` (through the origin), with
-    0.5 mm noise and a handle-like cluster of 10 % strays beside it."""
+    """Return points on the front half of a cylinder about ``axis`` (through the origin).
+
+    With 0.5 mm noise and a handle-like cluster of 10 % strays beside it.
+    """
     rng = np.random.default_rng(seed)
     z = axis / np.linalg.norm(axis)
     e1 = np.cross(z, [1.0, 0.0, 0.0])

@@ -13,19 +13,18 @@ from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.core.reconstruction import reconstruct
+from geomodel_ros.core.colors import id_colors
 from geomodel_ros.tools.render import (
-    Camera,
     draw_text,
     fit_camera,
     legend_label,
-    object_colors,
     orbit_camera,
     primitive_normals,
     render_figures,
     render_points,
     text_size,
 )
-from geomodel_ros.tools.synth import render_scene
+from geomodel_ros.tools.synth import PinholeCamera, render_scene
 
 CAM = (100.0, 100.0, 10.0, 10.0, 21, 21)  # fx, fy, cx, cy, width, height
 RED, BLUE = (255, 0, 0), (0, 0, 255)
@@ -64,7 +63,7 @@ def test_render_points_rejects_bad_arguments() -> None:
     with pytest.raises(ValueError, match="camera"):
         render_points(pts, np.zeros((2, 3), np.uint8), camera=(1, 2, 3))
     with pytest.raises(ValueError, match="fx"):
-        Camera(0.0, 1.0, 0.0, 0.0, 10, 10)
+        PinholeCamera(0.0, 1.0, 0.0, 0.0, 10, 10)
 
 
 def test_normal_shading_darkens_grazing_surfaces() -> None:
@@ -142,13 +141,12 @@ def test_primitive_normals_are_exact() -> None:
                 assert np.allclose(np.sort(np.abs(local), axis=1)[:, :2], 0.0, atol=1e-9)
 
 
-def test_object_colors_are_fixed_and_distinct() -> None:
+def test_legend_label_gives_id_type_and_size_in_mm() -> None:
     desk = Primitive(0, "plane", np.zeros(3), np.eye(3), {"length": 0.4, "width": 0.4}, 1, 0.0)
-    colors = object_colors([-1, 0, 1, 2, 3], [desk])
-    assert colors[-1] == (150, 150, 150)
-    assert len(set(colors.values())) == 5
-    assert colors == object_colors([3, 2, 1, 0, -1], [desk])
     assert legend_label(desk) == "0 plane 400x400 mm"
+    can = Primitive(3, "cylinder", np.zeros(3), np.eye(3), {"radius": 0.05, "height": 0.0605},
+                    1, 0.0)
+    assert legend_label(can) == "3 cylinder r50 h60.5 mm"
 
 
 @functools.lru_cache(maxsize=None)
@@ -166,7 +164,8 @@ def test_render_figures_writes_readable_pngs(tmp_path) -> None:
                            title_prefix="tiny: ", intrinsics=scene.intrinsics)
     assert [p.name for p in paths] == ["segments.png", "reconstruction.png", "overlay.png",
                                        "summary.png"]
-    colors = object_colors(np.r_[labels, [o.id for o in result.objects]], result.objects)
+    colors = {o.id: tuple(int(v) for v in id_colors(np.array([o.id]))[0])
+              for o in result.objects}
     for path in paths:
         assert path.stat().st_size < 1_000_000
         img = np.asarray(o3d.io.read_image(str(path)))
@@ -174,5 +173,5 @@ def test_render_figures_writes_readable_pngs(tmp_path) -> None:
         view = img[80:, :440].reshape(-1, 3)
         assert len(np.unique(view, axis=0)) > 50  # shaded objects, not a blank image
         present = {tuple(int(v) for v in c) for c in np.unique(img.reshape(-1, 3), axis=0)}
-        for o in result.objects:  # every object's legend swatch is drawn
+        for o in result.objects:  # every object's legend swatch, in its id's colour
             assert colors[o.id] in present, (path.name, o.id)

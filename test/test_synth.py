@@ -52,9 +52,11 @@ def make_shape(kind: str, rng):
 
 
 def implicit_boundary(shape, points: np.ndarray) -> np.ndarray:
-    """Independent implicit function of each surface, zero on the surface and
-    (up to a bounded factor) a distance: written here from the shape's
-    definition, not taken from the shapes module."""
+    """Return an independent implicit function of each surface.
+
+    Zero on the surface and (up to a bounded factor) a distance: written here from the
+    shape's definition, not taken from the shapes module.
+    """
     p = (points - shape.center) @ shape.rotation
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     rho = np.hypot(x, y)
@@ -98,8 +100,10 @@ def test_hits_lie_on_the_surface(kind, seed):
 
 @pytest.mark.parametrize("kind", [k for k in KINDS if k != "rectangle"])
 def test_intersection_is_nearest_and_misses_are_misses(kind):
-    """Ray marching: no sample before the reported hit (or on a missing ray)
-    lies inside the solid."""
+    """Check by ray marching: no sample before the reported hit lies inside the solid.
+
+    Nor any sample of a missing ray.
+    """
     shape = make_shape(kind, np.random.default_rng(7))
     d = SMALL_CAMERA.ray_directions()
     t = shape.intersect(np.zeros(3), d)
@@ -116,6 +120,99 @@ def test_intersection_is_nearest_and_misses_are_misses(kind):
     assert hit.sum() > 300
     p_after = d[hit] * (t[hit] + 1e-5)[:, None]
     assert np.mean(shape.signed_distance(p_after) < 0) > 0.99
+
+
+#: Rotation that turns a shape's local z (cylinder/cone axis) onto the camera's y axis.
+Z_TO_Y = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+#: Rotation that points a shape's local z back at the camera (-z).
+Z_TO_MINUS_Z = np.diag([1.0, -1.0, -1.0])
+
+# Rays along +z from (x0, 0, 0) at shapes centred 0.5 m ahead, (x0 [m], near t [m], far t [m])
+# worked out by hand; the far hit is the back side that a ray must never report.
+NEAR_HITS = [
+    # upright cylinder r = 50 mm: (0.03, z) on the circle x^2 + (z - 0.5)^2 = 0.05^2 at
+    # z = 0.5 -+ 0.04 (3-4-5 triangle)
+    ("cylinder side", lambda: Cylinder(0.05, 0.2, center=[0, 0, 0.5], rotation=Z_TO_Y),
+     0.03, 0.46, 0.54),
+    ("cylinder side, on the axis", lambda: Cylinder(0.05, 0.2, center=[0, 0, 0.5],
+                                                     rotation=Z_TO_Y), 0.0, 0.45, 0.55),
+    # cylinder along the optical axis, height 100 mm: near cap at 0.45, far cap at 0.55
+    ("cylinder cap", lambda: Cylinder(0.05, 0.1, center=[0, 0, 0.5]), 0.02, 0.45, 0.55),
+    # sphere r = 50 mm: same circle as the cylinder side
+    ("sphere", lambda: Sphere(0.05, center=[0, 0, 0.5]), 0.03, 0.46, 0.54),
+    # cone r = 50 mm, h = 100 mm, apex towards the camera at z = 0.45: the radius grows by
+    # 0.5 mm per mm from the apex, so x0 = 25 mm meets the side at z = 0.50; the base cap is
+    # at z = 0.55
+    ("cone apex first", lambda: Cone(0.05, 0.1, center=[0, 0, 0.5], rotation=Z_TO_MINUS_Z),
+     0.025, 0.50, 0.55),
+    # the same cone turned round: base cap first at z = 0.45, then the side at z = 0.50
+    ("cone base first", lambda: Cone(0.05, 0.1, center=[0, 0, 0.5]), 0.025, 0.45, 0.50),
+    ("box", lambda: Box(0.1, 0.1, 0.1, center=[0, 0, 0.5]), 0.03, 0.45, 0.55),
+]
+
+
+@pytest.mark.parametrize("what, build, x0, near, far", NEAR_HITS,
+                         ids=[h[0] for h in NEAR_HITS])
+def test_a_ray_reports_the_near_hit_not_the_back_side(what, build, x0, near, far):
+    shape = build()
+    t = shape.intersect(np.array([[x0, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0]]))
+    assert abs(t[0] - near) < 1e-12, (what, t[0], far)
+    # from inside the solid (past the near hit) the same ray leaves through the back side
+    t_in = shape.intersect(np.array([[x0, 0.0, 0.5 * (near + far)]]),
+                           np.array([[0.0, 0.0, 1.0]]))
+    assert abs(t_in[0] - 0.5 * (far - near)) < 1e-12
+
+
+@pytest.mark.parametrize("what, build", [h[:2] for h in NEAR_HITS],
+                         ids=[h[0] for h in NEAR_HITS])
+def test_the_camera_sees_the_near_hit(what, build):
+    """Check that the centre pixel (the optical axis) sees z = 0.45, never 0.55.
+
+    Every shape of NEAR_HITS is met there first at z = 0.45 (near cap, face, apex or the
+    circle's nearest point).
+    """
+    cam = PinholeCamera(fx=100.0, fy=100.0, cx=10.0, cy=10.0, width=21, height=21)
+    organized, labels = cam.render([build()], ids=[4])
+    assert labels[10, 10] == 4, what
+    np.testing.assert_allclose(organized[10, 10], [0.0, 0.0, 0.45], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_rendered_points_face_the_camera(kind):
+    """Check that every hit is where its ray enters the solid.
+
+    The outward normal (gradient of the independent implicit function) points back
+    towards the camera.
+    """
+    shape = make_shape(kind, np.random.default_rng(3))
+    organized, labels = SMALL_CAMERA.render([shape])
+    p = organized[labels == 0]
+    assert len(p) > 50
+    h = 1e-7
+    grad = np.stack([(implicit_boundary(shape, p + h * e) - implicit_boundary(shape, p - h * e))
+                     / (2 * h) for e in np.eye(3)], axis=1)
+    if kind == "rectangle":  # no inside: either side faces the camera
+        grad *= -np.sign(np.einsum("ij,ij->i", grad, p))[:, None]
+    view = p / np.linalg.norm(p, axis=1, keepdims=True)
+    cos = np.einsum("ij,ij->i", grad, view) / np.linalg.norm(grad, axis=1)
+    assert np.all(cos <= 1e-6), cos.max()
+    assert np.median(cos) < -0.3
+    # and it lies on the surface of that shape
+    assert np.abs(implicit_boundary(shape, p)).max() < 1e-9
+
+
+def test_a_posed_camera_projects_through_its_pose_and_refuses_to_ray_cast():
+    # camera 1 m behind the scene origin, turned 90 deg about y: scene +x is its forward z
+    rot = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    cam = PinholeCamera(100.0, 100.0, 10.0, 10.0, 21, 21, rot, np.array([0.0, 0.0, 1.0]))
+    # scene point (1, 0.1, 0): camera frame (0, 0.1, 2) -> pixel (10, 10 + 100 * 0.1 / 2)
+    np.testing.assert_allclose(cam.project([[1.0, 0.1, 0.0]]), [[10.0, 15.0]], atol=1e-12)
+    assert np.isnan(cam.project([[-3.0, 0.0, 0.0]])).all()  # behind it
+    assert cam.scaled(2.0).rotation.tolist() == rot.tolist()
+    assert cam != PinholeCamera(100.0, 100.0, 10.0, 10.0, 21, 21)
+    assert cam == PinholeCamera(100.0, 100.0, 10.0, 10.0, 21, 21, rot, [0.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match="identity pose"):
+        cam.render([Sphere(0.1, center=[1.0, 0.0, 0.0])])
 
 
 def test_intersect_accepts_unnormalised_directions_and_origins():
@@ -149,7 +246,8 @@ def test_torus_hole_shows_the_background():
 # --------------------------------------------------------------------------- occlusion
 def test_box_in_front_of_plane_hides_it():
     wall = Rectangle(1.0, 1.0, center=[0.0, 0.0, 0.8])
-    box = Box(0.1, 0.08, 0.06, center=[0.02, 0.0, 0.5], rotation=random_rotation(np.random.default_rng(3)))
+    box = Box(0.1, 0.08, 0.06, center=[0.02, 0.0, 0.5],
+              rotation=random_rotation(np.random.default_rng(3)))
     _, box_alone = SMALL_CAMERA.render([box])
     organized, labels = SMALL_CAMERA.render([wall, box])
     silhouette = box_alone == 0
@@ -238,7 +336,8 @@ def test_whole_desk_in_view():
         camera, shapes = scene_geometry(name)
         desk = shapes[0]
         corners = desk.to_world(
-            np.array([[sx * desk.length / 2, sy * desk.width / 2, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+            np.array([[sx * desk.length / 2, sy * desk.width / 2, 0.0]
+                      for sx in (-1, 1) for sy in (-1, 1)])
         )
         uv = camera.project(corners)
         assert np.all((uv >= 0) & (uv <= [camera.width - 1, camera.height - 1]))
@@ -300,7 +399,8 @@ def test_ground_truth_consistency(name):
     assert desk.type == "plane" and desk.id == 0
     assert desk.dimensions == {"length": 0.4, "width": 0.4}
     n = desk.rotation[:, 2]
-    np.testing.assert_allclose(n, np.array([0, -0.766, -0.643]) / np.hypot(0.766, 0.643), atol=1e-12)
+    np.testing.assert_allclose(n, np.array([0, -0.766, -0.643]) / np.hypot(0.766, 0.643),
+                               atol=1e-12)
     assert n @ desk.center < 0  # faces the camera
     np.testing.assert_allclose(desk.center, [-0.009030, -0.043117, 0.518281], atol=1e-12)
     offset = n @ desk.center
@@ -370,7 +470,8 @@ def test_noise_sigma_along_the_ray():
     p, q = clean.points, noisy.points
     r_clean = np.linalg.norm(p, axis=1)
     # displacement is along the viewing ray
-    np.testing.assert_allclose(q / np.linalg.norm(q, axis=1, keepdims=True), p / r_clean[:, None], atol=1e-12)
+    np.testing.assert_allclose(q / np.linalg.norm(q, axis=1, keepdims=True),
+                               p / r_clean[:, None], atol=1e-12)
     residual = np.linalg.norm(q, axis=1) - r_clean
     normalised = residual / (0.004 * (p[:, 2] / 0.5) ** 2)
     assert abs(normalised.mean()) < 0.05
@@ -399,7 +500,8 @@ def test_noise_is_reproducible(paper_scenes):
     n = len(paper_scenes["scene3"].points)
     assert len(a.points) == n - round(0.02 * n)
     # the cached clean render is untouched
-    assert np.array_equal(render_scene("scene3").organized, paper_scenes["scene3"].organized, equal_nan=True)
+    assert np.array_equal(render_scene("scene3").organized, paper_scenes["scene3"].organized,
+                          equal_nan=True)
 
 
 # --------------------------------------------------------------------------- errors

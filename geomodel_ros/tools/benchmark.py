@@ -1,5 +1,7 @@
-"""Benchmarks: modeling accuracy and speed on the paper's synthetic scenes, segmentation
-quality on real Kinect data (osd_learn) and the PCL mug scene.
+"""Benchmarks of modeling accuracy, speed and segmentation quality.
+
+Modeling accuracy and speed on the paper's synthetic scenes, segmentation quality on real
+Kinect data (osd_learn) and the PCL mug scene.
 
 Run through ``geomodel bench`` (``make bench``); figures go to BENCHMARKS.md. Nothing here
 is used by tests as a timing assertion.
@@ -7,11 +9,9 @@ is used by tests as a timing assertion.
 
 from __future__ import annotations
 
-import os
 import resource
 import statistics
 import time
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -80,8 +80,8 @@ def run_benchmark(scenes: Sequence[str], repeats: int, noisy_params: ModelingPar
 
 
 def summary_lines(report: dict) -> list[str]:
-    lines = [f"{'scene':<8} {'noise':<6} {'points':>7} {'types':>7} {'size err mm mean/median/max':>28} "
-             f"{'extract s (median)':>19}"]
+    lines = [f"{'scene':<8} {'noise':<6} {'points':>7} {'types':>7} "
+             f"{'size err mm mean/median/max':>28} {'extract s (median)':>19}"]
     for noisy in (False, True):
         runs = [r for r in report["runs"] if r["noisy"] == noisy]
         for r in runs:
@@ -95,8 +95,9 @@ def summary_lines(report: dict) -> list[str]:
             correct = sum(r["type_correct"] for r in runs)
             total = sum(r["objects"] for r in runs)
             lines.append(f"{'all':<8} {'noisy' if noisy else 'clean':<6} {'':>7} "
-                         f"{correct:>3}/{total:<3} {np.mean(allerr):>9.3f} /{np.median(allerr):>7.3f} "
-                         f"/{np.max(allerr):>7.3f} {'':>19}   type accuracy {100 * correct / total:.1f}%")
+                         f"{correct:>3}/{total:<3} {np.mean(allerr):>9.3f} "
+                         f"/{np.median(allerr):>7.3f} /{np.max(allerr):>7.3f} {'':>19}   "
+                         f"type accuracy {100 * correct / total:.1f}%")
     return lines
 
 
@@ -106,12 +107,19 @@ def summary_lines(report: dict) -> list[str]:
 # Segmentation
 # ---------------------------------------------------------------------------------------
 
+#: Labelled frames of osd_learn (learn0.pcd .. learn44.pcd).
+OSD_SCENE_COUNT = 45
 #: osd_learn scene groups (see the data README).
 OSD_GROUPS = {"boxes": range(0, 17), "stacked": range(17, 25), "occluded": range(25, 33),
               "cylinders": range(33, 45)}
 
 
-def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(45)),
+def _groups_and_all() -> dict[str, range]:
+    """:data:`OSD_GROUPS` and the group ``all`` of every scene."""
+    return {**OSD_GROUPS, "all": range(0, OSD_SCENE_COUNT)}
+
+
+def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(OSD_SCENE_COUNT)),
                   model: bool = True) -> list[dict]:
     """Segment (and model) osd_learn scenes; per-scene IoU scores and timings."""
     from geomodel_ros.tools.io import load_osd
@@ -143,8 +151,11 @@ def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(45
 
 def _best_segment_types(labels: np.ndarray, gt: np.ndarray, objects: list[int],
                         types: dict[int, str]) -> dict[int, str]:
-    """Modeled type of the segment with the highest IoU with each ground-truth object
-    (``none`` when no segment touches it)."""
+    """Return the modeled type of each ground-truth object's best segment.
+
+    The best segment has the highest IoU with the object; ``none`` when no segment touches
+    it.
+    """
     out = {}
     seg_sizes = np.bincount(labels[labels >= 0]) if (labels >= 0).any() else np.zeros(0)
     for g in objects:
@@ -159,8 +170,11 @@ def _best_segment_types(labels: np.ndarray, gt: np.ndarray, objects: list[int],
 
 
 def _cuboid_stretch(points: np.ndarray, labels: np.ndarray, objects) -> list[float]:
-    """Per cuboid: its largest side over the extent of its own segment's points along
-    that axis (1st-99th percentile); 1 = as long as the points, 1.5 = half again."""
+    """Return, per cuboid, its largest side over its points' extent along that axis.
+
+    The extent is the 1st-99th percentile of its own segment's points; 1 = as long as the
+    points, 1.5 = half again.
+    """
     out = []
     for o in objects:
         if o.type != "cuboid":
@@ -176,9 +190,7 @@ def osd_type_lines(rows: list[dict]) -> list[str]:
     """Per group: how the labelled objects (their best-matching segments) were modeled."""
     kinds = ("plane", "cuboid", "cylinder", "cone", "sphere", "unknown", "none")
     lines = [f"{'group':<10} " + " ".join(f"{k:>8}" for k in kinds)]
-    groups = dict(OSD_GROUPS)
-    groups["all"] = range(0, 45)
-    for name, members in groups.items():
+    for name, members in _groups_and_all().items():
         ts = [t for r in rows if r["scene"] in members for t in r.get("object_types", {}).values()]
         if ts:
             lines.append(f"{name:<10} " + " ".join(f"{ts.count(k):>8}" for k in kinds))
@@ -194,9 +206,7 @@ def osd_lines(rows: list[dict]) -> list[str]:
     lines = [f"{'group':<10} {'scenes':>6} {'objects':>7} {'IoU>=0.8':>9} {'under':>6} "
              f"{'over':>5} {'mean IoU':>9} {'parts IoU>=0.8':>15} {'seg s (median)':>15} "
              f"{'seg+model s':>12}"]
-    groups = dict(OSD_GROUPS)
-    groups["all"] = range(0, 45)
-    for name, members in groups.items():
+    for name, members in _groups_and_all().items():
         rs = [r for r in rows if r["scene"] in members]
         if not rs:
             continue
@@ -227,6 +237,63 @@ MUG_SELECT_RADIUS = 0.06
 MUG_SELECT_HEIGHT = (0.01, 0.2)
 
 
+def _line_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle [deg] between the lines along unit vectors ``a`` and ``b`` (3,), in [0, 90]."""
+    return float(np.degrees(np.arccos(min(1.0, abs(float(a @ b))))))
+
+
+def _radial_quartiles(points: np.ndarray, center: np.ndarray, direction: np.ndarray
+                      ) -> list[float]:
+    """Quartiles of the distances [m] of ``points`` (N, 3) from the line (center, direction)."""
+    v = points - center
+    r = np.linalg.norm(v - np.outer(v @ direction, direction), axis=1)
+    return [float(x) for x in np.percentile(r, [25, 50, 75])]
+
+
+def _mug_cylinder(objects) -> tuple[float, object] | None:
+    """Find the modeled cylinder whose axis passes nearest the tutorial's axis point.
+
+    Returns ``(offset [m], primitive)``, or None without cylinders.
+    """
+    best = None
+    for o in objects:
+        if o.type != "cylinder":
+            continue
+        axis = o.rotation[:, 2]
+        # distance of the tutorial's axis point from this cylinder's axis line
+        off = np.linalg.norm(np.cross(MUG_POINT - o.center, axis))
+        if best is None or off < best[0]:
+            best = (off, o)
+    return best
+
+
+def _mug_comparison(pts: np.ndarray, labels: np.ndarray, o, offset: float,
+                    table_n: np.ndarray | None) -> dict:
+    """Our mug cylinder ``o`` against the tutorial's: sizes, axis, and the axis scans."""
+    axis = o.rotation[:, 2]
+    ref = MUG_AXIS / np.linalg.norm(MUG_AXIS)
+    mug = pts[labels == o.id]
+    out = dict(cylinder_radius=o.dimensions["radius"], cylinder_height=o.dimensions["height"],
+               axis_error_deg=_line_angle_deg(axis, ref), axis_offset_m=float(offset),
+               cylinder_points=o.point_count,
+               radial_quartiles_ours_m=_radial_quartiles(mug, o.center, axis),
+               radial_quartiles_tutorial_m=_radial_quartiles(mug, MUG_POINT, ref))
+    if table_n is not None:
+        out["axis_to_table_normal_deg"] = _line_angle_deg(axis, table_n)
+        out["tutorial_axis_to_table_normal_deg"] = _line_angle_deg(ref, table_n)
+    out.update(_axis_scan(mug, axis, ref, table_n))
+    # The same scan on points chosen by the tutorial's own answer (independent of our
+    # segmentation): near its axis line, off its table plane.
+    v = pts - MUG_POINT
+    near_axis = np.linalg.norm(v - np.outer(v @ ref, ref), axis=1) < MUG_SELECT_RADIUS
+    height = np.abs(pts @ MUG_TABLE[:3] + MUG_TABLE[3])
+    chosen = pts[near_axis & (height > MUG_SELECT_HEIGHT[0]) & (height < MUG_SELECT_HEIGHT[1])]
+    scan = _axis_scan(chosen, axis, ref, table_n)
+    out["tutorial_selection_points"] = int(len(chosen))
+    out.update({f"tutorial_selection_{k}": v for k, v in scan.items()})
+    return out
+
+
 def mug_benchmark(params: ModelingParams) -> dict:
     """Model the PCL mug scene (points with 0 <= z <= 1.5 m) and compare with the tutorial."""
     from geomodel_ros.tools.io import read_cloud
@@ -241,15 +308,6 @@ def mug_benchmark(params: ModelingParams) -> dict:
     dt = time.perf_counter() - t0
     out = {"points": int(len(pts)), "time_s": dt,
            "types": sorted(o.type for o in result.objects)}
-    best = None
-    for o in result.objects:
-        if o.type != "cylinder":
-            continue
-        axis = o.rotation[:, 2]
-        # distance of the tutorial's axis point from this cylinder's axis line
-        off = np.linalg.norm(np.cross(MUG_POINT - o.center, axis))
-        if best is None or off < best[0]:
-            best = (off, o)
     planes = [o for o in result.objects if o.type == "plane"]
     table_n = None
     if planes:
@@ -257,37 +315,9 @@ def mug_benchmark(params: ModelingParams) -> dict:
         table_n = table.rotation[:, 2]
         out["table_points"] = table.point_count
         out["table_normal"] = [float(v) for v in table_n]
+    best = _mug_cylinder(result.objects)
     if best is not None:
-        o = best[1]
-        axis = o.rotation[:, 2]
-        ref = MUG_AXIS / np.linalg.norm(MUG_AXIS)
-
-        def angle(a: np.ndarray, b: np.ndarray) -> float:
-            return float(np.degrees(np.arccos(min(1.0, abs(float(a @ b))))))
-
-        def radial(center: np.ndarray, direction: np.ndarray) -> list[float]:
-            v = pts[labels == o.id] - center
-            r = np.linalg.norm(v - np.outer(v @ direction, direction), axis=1)
-            return [float(x) for x in np.percentile(r, [25, 50, 75])]
-
-        out.update(cylinder_radius=o.dimensions["radius"], cylinder_height=o.dimensions["height"],
-                   axis_error_deg=angle(axis, ref), axis_offset_m=float(best[0]),
-                   cylinder_points=o.point_count,
-                   radial_quartiles_ours_m=radial(o.center, axis),
-                   radial_quartiles_tutorial_m=radial(MUG_POINT, ref))
-        if table_n is not None:
-            out["axis_to_table_normal_deg"] = angle(axis, table_n)
-            out["tutorial_axis_to_table_normal_deg"] = angle(ref, table_n)
-        out.update(_axis_scan(pts[labels == o.id], axis, ref, table_n, angle))
-        # The same scan on points chosen by the tutorial's own answer (independent of our
-        # segmentation): near its axis line, off its table plane.
-        v = pts - MUG_POINT
-        near_axis = np.linalg.norm(v - np.outer(v @ ref, ref), axis=1) < MUG_SELECT_RADIUS
-        height = np.abs(pts @ MUG_TABLE[:3] + MUG_TABLE[3])
-        chosen = pts[near_axis & (height > MUG_SELECT_HEIGHT[0]) & (height < MUG_SELECT_HEIGHT[1])]
-        scan = _axis_scan(chosen, axis, ref, table_n, angle)
-        out["tutorial_selection_points"] = int(len(chosen))
-        out.update({f"tutorial_selection_{k}": v for k, v in scan.items()})
+        out.update(_mug_comparison(pts, labels, best[1], best[0], table_n))
     return out
 
 
@@ -298,8 +328,8 @@ MUG_SCAN_BAND = 0.003
 
 
 def _axis_scan(mug: np.ndarray, ours: np.ndarray, tutorial: np.ndarray,
-               table_n: np.ndarray | None, angle) -> dict:
-    """Which axis direction do the mug's points support, independently of the fitter?
+               table_n: np.ndarray | None) -> dict:
+    """Find the axis direction the mug's points support, independently of the fitter.
 
     A circle is fitted to the segment's points seen along every direction within
     MUG_SCAN_ANGLE of our axis (which includes the tutorial's); reported: the best
@@ -309,14 +339,14 @@ def _axis_scan(mug: np.ndarray, ours: np.ndarray, tutorial: np.ndarray,
 
     fits = scan_axis(mug, ours, MUG_SCAN_ANGLE, MUG_SCAN_BAND)
     best = fits[0]
-    near = [f for f in fits if angle(f.direction, tutorial) <= 5.0][0]
+    near = [f for f in fits if _line_angle_deg(f.direction, tutorial) <= 5.0][0]
 
     def summary(f) -> dict:
         row = {"share_within_3mm": f.share, "median_residual_m": f.median_residual,
-               "radius_m": f.radius, "to_ours_deg": angle(f.direction, ours),
-               "to_tutorial_deg": angle(f.direction, tutorial)}
+               "radius_m": f.radius, "to_ours_deg": _line_angle_deg(f.direction, ours),
+               "to_tutorial_deg": _line_angle_deg(f.direction, tutorial)}
         if table_n is not None:
-            row["to_table_normal_deg"] = angle(f.direction, table_n)
+            row["to_table_normal_deg"] = _line_angle_deg(f.direction, table_n)
         return row
 
     return {"axis_scan_best": summary(best),

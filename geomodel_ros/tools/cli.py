@@ -16,6 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
+from geomodel_ros.core.colors import id_colors
 from geomodel_ros.core.fastmath import retain_freed_memory
 from geomodel_ros.tools.paths import CONFIG_DIR
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError, load_params_file
@@ -52,7 +53,7 @@ def _params(args: argparse.Namespace) -> ModelingParams:
 
 
 def params_yaml(node: str = "modeler") -> str:
-    """The parameter defaults as a ROS 2 params file (the content of config/modeler.yaml)."""
+    """Return the parameter defaults as a ROS 2 params file (config/modeler.yaml)."""
     lines = [
         "# Defaults of every modeling parameter of geomodel_ros (generated from",
         "# geomodel_ros/core/params.py by `geomodel params`; keep them in sync).",
@@ -233,8 +234,7 @@ def cmd_model(args: argparse.Namespace) -> int:
 
         t1 = time.perf_counter()
         pts, ids = reconstruct(result.objects, params.reconstruction_spacing)
-        palette = _palette(ids)
-        write_ply(args.reconstruction, pts, palette)
+        write_ply(args.reconstruction, pts, id_colors(ids))
         out["timing"]["reconstruction_s"] = time.perf_counter() - t1
     out["timing"]["total_s"] = time.perf_counter() - t0
     Path(args.json).write_text(json.dumps(out, indent=2))
@@ -247,21 +247,8 @@ def cmd_model(args: argparse.Namespace) -> int:
     return 0
 
 
-def _palette(ids: np.ndarray) -> np.ndarray:
-    """Distinct RGB (uint8) per object id."""
-    golden = (ids.astype(np.float64) * 0.618033988749895) % 1.0
-    h = golden * 6.0
-    x = (1 - np.abs(h % 2 - 1)) * 255
-    c = np.full_like(x, 255.0)
-    z = np.zeros_like(x)
-    sector = h.astype(int) % 6
-    r = np.choose(sector, [c, x, z, z, x, c])
-    g = np.choose(sector, [x, c, c, x, z, z])
-    b = np.choose(sector, [z, z, x, c, c, x])
-    return np.stack([r, g, b], axis=1).astype(np.uint8)
-
-
-def cmd_params(args: argparse.Namespace) -> int:
+def cmd_params(_args: argparse.Namespace) -> int:
+    """Print the parameter defaults (every command takes the parsed arguments)."""
     sys.stdout.write(params_yaml())
     return 0
 
@@ -336,15 +323,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------------
 
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="geomodel", description=__doc__.splitlines()[0])
-    sub = ap.add_subparsers(dest="command", required=True)
+def _add_params(p: argparse.ArgumentParser) -> None:
+    """Add ``--params`` and ``--set`` (the modeling parameters) to a command."""
+    p.add_argument("--params", help="parameter YAML (flat or ROS params-file layout)")
+    p.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="override one parameter (repeatable)")
 
-    def add_params(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--params", help="parameter YAML (flat or ROS params-file layout)")
-        p.add_argument("--set", action="append", metavar="NAME=VALUE",
-                       help="override one parameter (repeatable)")
 
+def _add_synth(sub) -> None:
+    """Add the ``synth`` command to the subparsers ``sub``."""
     p = sub.add_parser("synth", help="render synthetic depth-camera scenes to PCD + JSON or "
                        "to a rosbag2 of PointCloud2 frames + JSON")
     p.add_argument("names", nargs="+", metavar="NAME", help="scene name (several with --bag)")
@@ -362,6 +349,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1)
     p.set_defaults(func=cmd_synth)
 
+
+def _add_bag(sub) -> None:
+    """Add the ``bag`` command to the subparsers ``sub``."""
     p = sub.add_parser("bag", help="model every PointCloud2 of a rosbag2 offline, as the node "
                        "would, into a new bag")
     p.add_argument("input", help="input bag (rosbag2 directory, .mcap or .db3)")
@@ -377,9 +367,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="do not write <namespace>/reconstruction")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show a [k/N] counter on stderr (default: when stderr is a terminal)")
-    add_params(p)
+    _add_params(p)
     p.set_defaults(func=cmd_bag)
 
+
+def _add_play(sub) -> None:
+    """Add the ``play`` command to the subparsers ``sub``."""
     p = sub.add_parser("play", help="publish a bag's PointCloud2 records at the recorded rate")
     p.add_argument("bag", help="rosbag2 directory, .mcap or .db3")
     p.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1)")
@@ -393,6 +386,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "start at once)")
     p.set_defaults(func=cmd_play)
 
+
+def _add_model(sub) -> None:
+    """Add the ``model`` command to the subparsers ``sub``."""
     p = sub.add_parser("model", help="segment a cloud (or take its labels) and model its objects")
     p.add_argument("input", help="cloud file (.pcd, .ply, .npy)")
     p.add_argument("--json", required=True, help="output JSON")
@@ -401,9 +397,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--labels-out", help="write the per-point object ids used (.npy, int32, "
                    "-1 = none); without --labels/--labels-field these come from segmentation")
     p.add_argument("--reconstruction", help="write the reconstructed surfaces (.ply)")
-    add_params(p)
+    _add_params(p)
     p.set_defaults(func=cmd_model)
 
+
+def _add_bench(sub) -> None:
+    """Add the ``bench`` command to the subparsers ``sub``."""
     p = sub.add_parser("bench", help="accuracy and speed on the paper's synthetic scenes")
     p.add_argument("--scenes", nargs="+", default=["scene1", "scene2", "scene3"])
     p.add_argument("--repeats", type=int, default=5)
@@ -412,13 +411,19 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default config/sensor_noise.yaml)")
     p.add_argument("--part", choices=("modeling", "segmentation", "all"), default="all")
     p.add_argument("--json", help="write the full report here")
-    add_params(p)
+    _add_params(p)
     p.set_defaults(func=cmd_bench)
 
-    p = sub.add_parser("demo", help="model the paper's Scene 3 and print its Figure 9 table")
-    add_params(p)
-    p.set_defaults(func=cmd_demo)
 
+def build_parser() -> argparse.ArgumentParser:
+    """Return the parser of every ``geomodel`` command."""
+    ap = argparse.ArgumentParser(prog="geomodel", description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+    for add in (_add_synth, _add_bag, _add_play, _add_model, _add_bench):
+        add(sub)
+    p = sub.add_parser("demo", help="model the paper's Scene 3 and print its Figure 9 table")
+    _add_params(p)
+    p.set_defaults(func=cmd_demo)
     p = sub.add_parser("params", help="print the parameter defaults as a ROS params file")
     p.set_defaults(func=cmd_params)
     return ap

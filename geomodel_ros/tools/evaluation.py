@@ -14,7 +14,7 @@ __all__ = ["expected_type", "DimensionError", "dimension_errors", "ObjectScore",
 
 
 def expected_type(gt_type: str) -> str:
-    """The type the modeling must output for a ground-truth type (irregular -> unknown)."""
+    """Return the type the modeling must output for a ground-truth type (else unknown)."""
     return gt_type if gt_type in ("plane", "cuboid", "cylinder", "cone", "sphere") else "unknown"
 
 
@@ -173,9 +173,11 @@ class AxisFit:
 
 def circle_along(points: np.ndarray, direction: np.ndarray, threshold: float,
                  rounds: int = 6) -> AxisFit:
-    """Best circle through ``points`` (N, 3) projected along ``direction``: an algebraic
-    (Kasa) circle refitted on the points near it, the band narrowing to ``threshold`` [m]
-    over ``rounds`` rounds (handles and strays drop out)."""
+    """Fit the best circle through ``points`` (N, 3) projected along ``direction``.
+
+    An algebraic (Kasa) circle refitted on the points near it, the band narrowing to
+    ``threshold`` [m] over ``rounds`` rounds (handles and strays drop out).
+    """
     d = np.asarray(direction, dtype=np.float64)
     d = d / np.linalg.norm(d)
     a, b = perpendicular_basis(d)
@@ -199,8 +201,11 @@ def circle_along(points: np.ndarray, direction: np.ndarray, threshold: float,
 
 def scan_axis(points: np.ndarray, around: np.ndarray, max_angle: float, threshold: float,
               step: float = np.radians(1.0)) -> list[AxisFit]:
-    """:func:`circle_along` for directions up to ``max_angle`` [rad] from ``around``
-    (``step`` [rad] in polar angle, about ``step`` along the circles), best share first."""
+    """Run :func:`circle_along` for directions up to ``max_angle`` [rad] from ``around``.
+
+    Directions are ``step`` [rad] apart in polar angle and about ``step`` along the circles;
+    the fits are returned best share first.
+    """
     z = np.asarray(around, dtype=np.float64)
     z = z / np.linalg.norm(z)
     e1, e2 = perpendicular_basis(z)

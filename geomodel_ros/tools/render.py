@@ -11,27 +11,31 @@ at a scene from the sensor's own view or from a rotated one (:func:`sensor_camer
 * ``overlay.png`` -- input (grey) and reconstruction (coloured) together (Figure 8),
 * ``summary.png`` -- the three side by side with one legend.
 
-Cameras use the optical frame of REP 103 (x right, y down, z forward) and the pinhole
-model; a camera's pose maps a scene point ``p`` [m] to ``rotation @ p + translation``
-in the camera frame. Images are (H, W, 3) uint8 RGB arrays; PNGs are written through
+Cameras are :class:`geomodel_ros.tools.synth.camera.PinholeCamera` (the one camera model of
+the tools, also the synthetic depth camera): optical frame of REP 103 (x right, y down, z
+forward), a pose mapping a scene point ``p`` [m] to ``rotation @ p + translation``. Objects
+take the shared colour of their id (:func:`geomodel_ros.core.colors.id_colors`, the same as
+in RViz and in the PLY). Images are (H, W, 3) uint8 RGB arrays; PNGs are written through
 open3d.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
+from geomodel_ros.core.colors import NO_OBJECT_RGB, id_colors
 from geomodel_ros.core.errors import InputError, as_points
+from geomodel_ros.core.faces import estimate_normals
 from geomodel_ros.core.primitives import Primitive
+from geomodel_ros.tools.synth.camera import PinholeCamera
 
 __all__ = [
-    "Camera",
     "sensor_camera",
     "fit_camera",
     "orbit_camera",
@@ -39,30 +43,13 @@ __all__ = [
     "primitive_normals",
     "text_size",
     "draw_text",
-    "object_colors",
     "legend_label",
     "render_figures",
-    "PALETTE",
-    "PLANE_PALETTE",
-    "NOISE_COLOR",
     "INPUT_GREY",
 ]
 
 RGB = tuple[int, int, int]
 
-#: Distinct colours for objects, most distinct first (RGB).
-PALETTE: tuple[RGB, ...] = (
-    (228, 26, 28), (30, 120, 220), (40, 170, 60), (250, 140, 0), (150, 60, 190),
-    (0, 175, 175), (225, 50, 200), (150, 95, 40), (120, 130, 0), (20, 40, 140),
-    (245, 200, 20), (120, 0, 30), (110, 220, 120), (250, 150, 170), (90, 160, 255),
-    (190, 110, 255), (0, 100, 80), (255, 110, 70),
-)
-#: Soft colours for planes (desk, walls, floor), so the objects on them stand out.
-PLANE_PALETTE: tuple[RGB, ...] = (
-    (215, 195, 150), (165, 195, 220), (190, 210, 165), (215, 180, 195),
-)
-#: Points without an object (label -1).
-NOISE_COLOR: RGB = (150, 150, 150)
 #: Input points in the overlay picture.
 INPUT_GREY: RGB = (185, 185, 185)
 
@@ -73,102 +60,42 @@ _MUTED_INK: RGB = (110, 110, 110)
 
 
 # --------------------------------------------------------------------------- cameras
-@dataclass(frozen=True)
-class Camera:
-    """A pinhole camera with a pose.
-
-    Attributes
-    ----------
-    fx, fy : float
-        Focal lengths [px], > 0.
-    cx, cy : float
-        Principal point [px] (pixel centres at integer coordinates).
-    width, height : int
-        Image size [px], >= 1.
-    rotation : (3, 3) float64 array
-        Rotation from the scene frame to the camera's optical frame.
-    translation : (3,) float64 array [m]
-        ``p_camera = rotation @ p + translation``.
-    """
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-    rotation: NDArray[np.float64] = field(default_factory=lambda: np.eye(3), repr=False)
-    translation: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3), repr=False)
-
-    def __post_init__(self) -> None:
-        for name in ("fx", "fy"):
-            v = float(getattr(self, name))
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0 [px], got {v!r}")
-            object.__setattr__(self, name, v)
-        for name in ("cx", "cy"):
-            v = float(getattr(self, name))
-            if not math.isfinite(v):
-                raise ValueError(f"{name} must be finite [px], got {v!r}")
-            object.__setattr__(self, name, v)
-        for name in ("width", "height"):
-            v = getattr(self, name)
-            if int(v) != v or not 1 <= int(v) <= 16384:
-                raise ValueError(f"{name} must be an integer in [1, 16384] [px], got {v!r}")
-            object.__setattr__(self, name, int(v))
-        r = np.asarray(self.rotation, dtype=np.float64)
-        t = np.asarray(self.translation, dtype=np.float64)
-        if r.shape != (3, 3) or not np.isfinite(r).all():
-            raise ValueError(f"rotation must be a finite (3, 3) array, got shape {r.shape}")
-        if t.shape != (3,) or not np.isfinite(t).all():
-            raise ValueError(f"translation must be a finite (3,) array, got shape {t.shape}")
-        object.__setattr__(self, "rotation", r)
-        object.__setattr__(self, "translation", t)
-
-    def to_camera_frame(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
-        """(N, 3) scene points [m] -> (N, 3) points in the optical frame [m]."""
-        return _rotate(points, self.rotation) + self.translation
-
-
 def _rotate(points: NDArray[np.float64], rotation: NDArray[np.float64]) -> NDArray[np.float64]:
     """``points @ rotation.T`` (a contiguous right operand is much faster in numpy)."""
     return points @ np.ascontiguousarray(rotation.T)
 
 
-def _as_camera(camera) -> Camera:
-    if isinstance(camera, Camera):
+def _as_camera(camera) -> PinholeCamera:
+    if isinstance(camera, PinholeCamera):
         return camera
     if isinstance(camera, Mapping):
-        return Camera(*(camera[k] for k in ("fx", "fy", "cx", "cy", "width", "height")))
+        return PinholeCamera(*(camera[k] for k in ("fx", "fy", "cx", "cy", "width", "height")))
     try:
         values = tuple(camera)
     except TypeError:
         values = ()
     if len(values) != 6:
-        raise ValueError("camera must be a Camera, an intrinsics dict or a tuple "
+        raise ValueError("camera must be a PinholeCamera, an intrinsics dict or a tuple "
                          f"(fx, fy, cx, cy, width, height), got {camera!r}")
-    return Camera(*values)
+    return PinholeCamera(*values)
 
 
-def sensor_camera(intrinsics, width: int, height: int) -> Camera:
-    """The sensor's own view scaled to fit in ``width`` x ``height`` [px].
+def sensor_camera(intrinsics, width: int, height: int) -> PinholeCamera:
+    """Return the sensor's own view scaled to fit in ``width`` x ``height`` [px].
 
     Parameters
     ----------
-    intrinsics : dict, Camera or tuple
+    intrinsics : dict, PinholeCamera or tuple
         ``fx, fy, cx, cy`` [px] and ``width, height`` [px] of the sensor.
     width, height : int
         Largest image size [px]; the aspect ratio of the sensor is kept.
     """
     cam = _as_camera(intrinsics)
-    s = min(width / cam.width, height / cam.height)
-    return Camera(cam.fx * s, cam.fy * s, (cam.cx + 0.5) * s - 0.5, (cam.cy + 0.5) * s - 0.5,
-                  max(1, round(cam.width * s)), max(1, round(cam.height * s)),
-                  cam.rotation, cam.translation)
+    return cam.scaled(min(width / cam.width, height / cam.height))
 
 
 def fit_camera(points, rotation=None, translation=None, *, width: int, height: int,
-               margin: float = 0.03) -> Camera:
+               margin: float = 0.03) -> PinholeCamera:
     """Camera with the given pose whose intrinsics frame all ``points``.
 
     Parameters
@@ -185,7 +112,7 @@ def fit_camera(points, rotation=None, translation=None, *, width: int, height: i
 
     Returns
     -------
-    Camera
+    PinholeCamera
         Square pixels (``fx == fy``), the points' projection centred in the image.
     """
     if not 0.0 <= margin <= 0.45:
@@ -195,7 +122,7 @@ def fit_camera(points, rotation=None, translation=None, *, width: int, height: i
     q = _rotate(as_points(points), r) + t
     q = q[np.isfinite(q).all(axis=1) & (q[:, 2] > 1e-6)]
     if len(q) == 0:
-        return Camera(width, width, (width - 1) / 2, (height - 1) / 2, width, height, r, t)
+        return PinholeCamera(width, width, (width - 1) / 2, (height - 1) / 2, width, height, r, t)
     a, b = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
     a0, a1, b0, b1 = a.min(), a.max(), b.min(), b.max()
     f = min(width * (1 - 2 * margin) / max(a1 - a0, 1e-9),
@@ -203,7 +130,7 @@ def fit_camera(points, rotation=None, translation=None, *, width: int, height: i
     f = min(f, 1e6)
     cx = (width - 1) / 2 - f * (a0 + a1) / 2
     cy = (height - 1) / 2 - f * (b0 + b1) / 2
-    return Camera(f, f, cx, cy, width, height, r, t)
+    return PinholeCamera(f, f, cx, cy, width, height, r, t)
 
 
 def _axis_angle(axis: NDArray[np.float64], angle: float) -> NDArray[np.float64]:
@@ -213,8 +140,9 @@ def _axis_angle(axis: NDArray[np.float64], angle: float) -> NDArray[np.float64]:
 
 
 def orbit_camera(points, *, yaw: float = math.radians(40), pitch: float = math.radians(15),
-                 up=None, pivot=None, width: int, height: int, margin: float = 0.03) -> Camera:
-    """A camera that sees the scene turned about its centre, framing all ``points``.
+                 up=None, pivot=None, width: int, height: int, margin: float = 0.03
+                 ) -> PinholeCamera:
+    """Make a camera that sees the scene turned about its centre, framing all ``points``.
 
     The scene is turned by ``yaw`` about ``up`` and then by ``pitch`` about the sensor's
     x axis (positive: look more from above), both through ``pivot``, and seen from the
@@ -266,7 +194,7 @@ def _splat_offsets(point_size: int) -> NDArray[np.int64]:
     return off
 
 
-def _rasterize(q: NDArray[np.float64], camera: Camera, point_size: int
+def _rasterize(q: NDArray[np.float64], camera: PinholeCamera, point_size: int
                ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
     """Z-buffer of camera-frame points: (pixel index, point index) of the winners, depth."""
     w, h = camera.width, camera.height
@@ -274,8 +202,7 @@ def _rasterize(q: NDArray[np.float64], camera: Camera, point_size: int
     z = q[:, 2]
     ok = np.isfinite(q).all(axis=1) & (z > 1e-6)
     idx = np.flatnonzero(ok)
-    u = camera.fx * q[idx, 0] / z[idx] + camera.cx
-    v = camera.fy * q[idx, 1] / z[idx] + camera.cy
+    u, v = camera.project_camera_frame(q[idx]).T
     near = (np.abs(u) < 4 * (w + h)) & (np.abs(v) < 4 * (w + h))
     idx, u, v = idx[near], u[near], v[near]
     off = _splat_offsets(point_size)
@@ -368,7 +295,7 @@ def _fill_pass(col: NDArray[np.float64], depth: NDArray[np.float64]) -> None:
     flat_c[cand[hole]] = (nc * inside[..., None]).sum(axis=1) / count[:, None]
 
 
-def _render_layer(points, colors, camera: Camera, point_size: int, normals, shading: float
+def _render_layer(points, colors, camera: PinholeCamera, point_size: int, normals, shading: float
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Shaded colour (H, W, 3) float64 and depth (H, W) [m] images of one cloud.
 
@@ -422,7 +349,7 @@ def render_points(points, colors, *, camera, point_size: int = 2,
         Non-finite rows and points behind the camera are skipped.
     colors : (N, 3) or (3,) uint8 array
         RGB per point (or one for all).
-    camera : Camera, intrinsics dict or (fx, fy, cx, cy, width, height)
+    camera : PinholeCamera, intrinsics dict or (fx, fy, cx, cy, width, height)
         A plain intrinsics tuple means the sensor's pose (identity).
     point_size : int
         Splat size [px], 1-9.
@@ -451,7 +378,7 @@ def render_points(points, colors, *, camera, point_size: int = 2,
     return (img, depth) if return_depth else img
 
 
-def _render_overlay(under, under_color, over, over_colors, camera: Camera, under_size: int,
+def _render_overlay(under, under_color, over, over_colors, camera: PinholeCamera, under_size: int,
                     over_size: int, under_normals, over_normals, background
                     ) -> NDArray[np.uint8]:
     """Two clouds in one picture; where both show the same surface their colours mix."""
@@ -690,27 +617,6 @@ def draw_text(img: NDArray[np.uint8], text: str, xy: tuple[int, int], scale: int
 
 
 # --------------------------------------------------------------------------- figures
-def object_colors(ids: Iterable[int], primitives: Iterable[Primitive] = ()) -> dict[int, RGB]:
-    """A fixed colour per object id: soft colours for planes, distinct ones for the rest.
-
-    Colours are given in ascending id order, so the same ids and types always get the
-    same colours. Id -1 (no object) is :data:`NOISE_COLOR`.
-    """
-    planes = {p.id for p in primitives if p.type == "plane"}
-    out: dict[int, RGB] = {}
-    n_plane = n_obj = 0
-    for i in sorted({int(i) for i in ids}):
-        if i < 0:
-            out[i] = NOISE_COLOR
-        elif i in planes:
-            out[i] = PLANE_PALETTE[n_plane % len(PLANE_PALETTE)]
-            n_plane += 1
-        else:
-            out[i] = PALETTE[n_obj % len(PALETTE)]
-            n_obj += 1
-    return out
-
-
 def _mm(v: float) -> str:
     s = f"{v * 1000:.1f}"
     return s[:-2] if s.endswith(".0") else s
@@ -795,25 +701,34 @@ def _write_png(path: Path, img: NDArray[np.uint8]) -> Path:
     return path
 
 
-def _estimate_normals(points: NDArray[np.float64], knn: int = 12, max_points: int = 500_000
-                      ) -> NDArray[np.float64]:
-    """(N, 3) normals for shading: estimated on at most ``max_points`` (a fixed subsample),
-    each point taking the normal of its nearest subsample point."""
-    import open3d as o3d
+#: Shading normals are estimated on at most this many points (a fixed subsample); the
+#: others take the normal of their nearest subsample point. Bounds the time on large clouds
+#: (a full 1104 x 624 synthetic frame has ~370k valid points and is estimated whole).
+_MAX_NORMAL_POINTS = 500_000
+#: Neighbours per shading normal: a stable plane through sensor noise, still local enough
+#: to keep the edges of small objects.
+_NORMAL_NEIGHBORS = 12
+
+
+def _shading_normals(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 3) unit normals of ``points`` (N, 3) [m] for shading (either orientation).
+
+    The core's estimator (:func:`geomodel_ros.core.faces.estimate_normals`) on at most
+    :data:`_MAX_NORMAL_POINTS` points.
+    """
     from scipy.spatial import cKDTree
 
     sub = points
-    if len(points) > max_points:
-        sub = points[np.random.default_rng(0).choice(len(points), max_points, replace=False)]
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sub))
-    pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn))
-    normals = np.asarray(pc.normals)
+    if len(points) > _MAX_NORMAL_POINTS:
+        sub = points[np.random.default_rng(0).choice(len(points), _MAX_NORMAL_POINTS,
+                                                     replace=False)]
+    normals = estimate_normals(sub, _NORMAL_NEIGHBORS)[0]
     if sub is points:
         return normals
     return normals[cKDTree(sub).query(points, workers=-1)[1]]
 
 
-def _splat_size(points: NDArray[np.float64], camera: Camera, minimum: int) -> int:
+def _splat_size(points: NDArray[np.float64], camera: PinholeCamera, minimum: int) -> int:
     """Splat size [px] that closes the gaps between neighbouring ``points`` in ``camera``.
 
     The points' spacing is the median nearest-neighbour distance of a fixed sample.
@@ -834,13 +749,156 @@ def _splat_size(points: NDArray[np.float64], camera: Camera, minimum: int) -> in
 
 
 def _up_vector(primitives: Sequence[Primitive]) -> NDArray[np.float64]:
-    """The largest plane's normal pointing to the sensor's up (-y), else -y."""
+    """Return the largest plane's normal pointing to the sensor's up (-y), else -y."""
     planes = [p for p in primitives if p.type == "plane"]
     if not planes:
         return np.array([0.0, -1.0, 0.0])
     p = max(planes, key=lambda p: p.point_count)
     n = p.rotation[:, 2]
     return -n if n[1] > 0 else n
+
+
+@dataclass(frozen=True)
+class _Figure:
+    """What the pictures of one scene show, in the sensor frame.
+
+    Attributes
+    ----------
+    points, labels, rgb, normals : (N, 3), (N,), (N, 3) uint8, (N, 3) or None
+        Finite input points [m], their object ids, id colours and shading normals.
+    rec, rec_rgb, rec_normals : (n, 3), (n, 3) uint8, (n, 3)
+        Reconstruction samples [m] at about one pixel, their colours and exact normals.
+    framing : (N + m, 3)
+        Input and coarse reconstruction: what the turned views frame.
+    pivot, up : (3,) or None, (3,)
+        Centre and up direction of the turned views.
+    primitives : list of Primitive
+    """
+
+    points: NDArray[np.float64]
+    labels: NDArray[np.int64]
+    rgb: NDArray[np.uint8]
+    normals: NDArray[np.float64] | None
+    rec: NDArray[np.float64]
+    rec_rgb: NDArray[np.uint8]
+    rec_normals: NDArray[np.float64]
+    framing: NDArray[np.float64]
+    pivot: NDArray[np.float64] | None
+    up: NDArray[np.float64]
+    primitives: list[Primitive]
+
+
+#: Height of the title bar and width of the legend column of a picture [px].
+_TITLE_H, _LEGEND_W = 70, 360
+#: Height of a cell's caption bar in the summary picture [px].
+_CAPTION_H = 30
+#: Colour of the thin lines between the parts of a picture.
+_RULE: RGB = (215, 215, 215)
+
+
+def _prepare(points, labels, primitives, view: tuple[int, int], point_size: int, yaw: float,
+             pitch: float) -> _Figure:
+    """Check the inputs and build what every picture shows (:class:`_Figure`).
+
+    The reconstruction is sampled at about one pixel of a ``view`` (width, height) [px]
+    picture turned by ``yaw`` and ``pitch`` [rad]: coarse samples frame it first.
+    """
+    from geomodel_ros.core.reconstruction import reconstruct
+
+    prims = list(getattr(primitives, "objects", primitives))
+    pts = as_points(points, allow_organized=True)
+    lab = np.asarray(labels).reshape(-1)
+    if len(lab) != len(pts):
+        raise InputError(f"labels must have {len(pts)} entries like points, got {len(lab)}")
+    finite = np.isfinite(pts).all(axis=1)
+    pts, lab = pts[finite], lab[finite].astype(np.int64)
+    up = _up_vector(prims)
+    coarse, _ = reconstruct(prims, 0.01, max_points_per_object=50_000)
+    framing = np.vstack([pts, coarse])
+    pivot = (0.5 * (pts.min(axis=0) + pts.max(axis=0)) if len(pts) else None)
+    orbit = orbit_camera(framing, yaw=yaw, pitch=pitch, up=up, pivot=pivot,
+                         width=view[0], height=view[1])
+    depth = orbit.to_camera_frame(framing)[:, 2]
+    footprint = float(np.median(depth)) / orbit.fx if len(depth) else 0.001
+    rec, rec_ids = reconstruct(prims, max(0.6 * point_size * footprint, 1e-4),
+                               max_points_per_object=600_000)
+    return _Figure(pts, lab, id_colors(lab), _shading_normals(pts) if len(pts) >= 3 else None,
+                   rec, id_colors(rec_ids), primitive_normals(rec, rec_ids, prims), framing,
+                   pivot, up, prims)
+
+
+def _views(fig: _Figure, width: int, height: int, intrinsics, point_size: int, yaw: float,
+           pitch: float) -> list[NDArray[np.uint8]]:
+    """Render the segments (sensor view), reconstruction and overlay (turned view) images."""
+    if intrinsics is not None:
+        sensor = sensor_camera(intrinsics, width, height)
+    else:
+        sensor = fit_camera(fig.points, width=width, height=height)
+    cam = orbit_camera(fig.framing, yaw=yaw, pitch=pitch, up=fig.up, pivot=fig.pivot,
+                       width=width, height=height)
+    seg = render_points(fig.points, fig.rgb, camera=sensor, normals=fig.normals,
+                        point_size=_splat_size(fig.points, sensor, point_size))
+    recon = render_points(fig.rec, fig.rec_rgb, camera=cam, point_size=point_size,
+                          normals=fig.rec_normals)
+    overlay = _render_overlay(fig.points, np.array(INPUT_GREY, dtype=np.uint8), fig.rec,
+                              fig.rec_rgb, cam,
+                              min(_splat_size(fig.points, cam, point_size) + 1, 9), point_size,
+                              fig.normals, fig.rec_normals, _WHITE)
+    return [seg, recon, overlay]
+
+
+def _captions(fig: _Figure, yaw: float) -> list[tuple[str, str]]:
+    """(title, subtitle) of the segments, reconstruction and overlay pictures."""
+    n_obj = sum(p.type != "unknown" for p in fig.primitives)
+    turned = f"view turned {math.degrees(yaw):.0f} deg"
+    return [
+        ("Segmentation of the input",
+         f"{len(fig.points)} sensor points coloured by object (sensor view); grey = no object"),
+        ("Reconstruction",
+         f"{n_obj} modeled surfaces in full, hidden parts included; {turned}"),
+        ("Input + reconstruction",
+         f"grey = sensor points; colour = modeled surface, bright where unseen; {turned}"),
+    ]
+
+
+def _legend_entries(fig: _Figure) -> tuple[list[tuple[RGB, str]], list[list[tuple[RGB, str]]]]:
+    """Legend lines of every object, and the extra lines of each of the three pictures."""
+    prims = sorted(fig.primitives, key=lambda p: p.id)
+    swatches = id_colors(np.array([p.id for p in prims], dtype=np.int64))
+    entries = [(tuple(int(v) for v in c), legend_label(p)) for c, p in zip(swatches, prims)]
+    noise = [(NO_OBJECT_RGB, "-1 no object")] if (fig.labels < 0).any() else []
+    return entries, [noise, [], [(INPUT_GREY, "sensor points")]]
+
+
+def _picture(img: NDArray[np.uint8], title: str, subtitle: str,
+             entries: Sequence[tuple[RGB, str]], size: tuple[int, int]) -> NDArray[np.uint8]:
+    """One full picture: title bar, the view on the left, the legend on the right."""
+    width, height = size
+    view_w = width - _LEGEND_W
+    canvas = _blank(width, height)
+    _title_bar(canvas, title, subtitle, _TITLE_H, 2)
+    _paste(canvas, img, (0, _TITLE_H, view_w, height))
+    canvas[_TITLE_H:, view_w:view_w + 1] = _RULE
+    _legend(canvas, entries, (view_w + 16, _TITLE_H + 16, width - 8, height - 8),
+            "id type size")
+    return canvas
+
+
+def _summary(imgs: Sequence[NDArray[np.uint8]], titles: Sequence[str], legend_title: str,
+             entries: Sequence[tuple[RGB, str]], size: tuple[int, int]) -> NDArray[np.uint8]:
+    """Put the three views and one legend in a 2 x 2 grid of ``size`` (width, height) [px]."""
+    width, height = size
+    cw, ch, cap = width // 2, height // 2, _CAPTION_H
+    canvas = _blank(width, height)
+    for img, title, (x, y) in zip(imgs, titles, [(0, 0), (cw, 0), (0, ch)]):
+        canvas[y:y + cap, x:x + cw] = _TITLE_BG
+        draw_text(canvas, title, (x + 10, y + 7), 2, _WHITE)
+        _paste(canvas, img, (x, y + cap, x + cw, y + ch))
+    canvas[ch, :] = canvas[:, cw] = _RULE
+    canvas[ch:ch + cap, cw:] = _TITLE_BG
+    draw_text(canvas, legend_title, (cw + 10, ch + 7), 2, _WHITE)
+    _legend(canvas, entries, (cw + 16, ch + cap + 12, width - 8, height - 8), "id type size")
+    return canvas
 
 
 def render_figures(points, labels, primitives, out_dir, *, title_prefix: str = "",
@@ -878,100 +936,28 @@ def render_figures(points, labels, primitives, out_dir, *, title_prefix: str = "
     -------
     list of Path
         ``segments.png``, ``reconstruction.png``, ``overlay.png`` [, ``summary.png``].
+        Every object has the colour :func:`geomodel_ros.core.colors.id_colors` gives its id.
     """
-    from geomodel_ros.core.reconstruction import reconstruct
-
-    prims = list(getattr(primitives, "objects", primitives))
-    pts = as_points(points, allow_organized=True)
-    lab = np.asarray(labels).reshape(-1)
-    if len(lab) != len(pts):
-        raise InputError(f"labels must have {len(pts)} entries like points, got {len(lab)}")
     width, height = int(size[0]), int(size[1])
     if width < 640 or height < 400:
         raise ValueError(f"size must be at least (640, 400) [px], got {size!r}")
-    finite = np.isfinite(pts).all(axis=1)
-    pts, lab = pts[finite], lab[finite].astype(np.int64)
+    view_w, view_h = width - _LEGEND_W, height - _TITLE_H
+    fig = _prepare(points, labels, primitives, (view_w, view_h), point_size, yaw, pitch)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-
-    colors = object_colors(np.r_[np.unique(lab), [p.id for p in prims]], prims)
-    ids_sorted = np.array(sorted(colors), dtype=np.int64)
-    table = np.array([colors[i] for i in ids_sorted], dtype=np.uint8)
-    seg_rgb = table[np.searchsorted(ids_sorted, lab)]
-    in_normals = _estimate_normals(pts) if len(pts) >= 3 else None
-
-    # reconstruction: frame coarse samples first, then sample at about one pixel
-    up = _up_vector(prims)
-    title_h, legend_w = 70, 360
-    view_w, view_h = width - legend_w, height - title_h
-    coarse, _ = reconstruct(prims, 0.01, max_points_per_object=50_000)
-    framing = np.vstack([pts, coarse])
-    pivot = (0.5 * (pts.min(axis=0) + pts.max(axis=0)) if len(pts) else None)
-    orbit = orbit_camera(framing, yaw=yaw, pitch=pitch, up=up, pivot=pivot,
-                         width=view_w, height=view_h)
-    depth = orbit.to_camera_frame(framing)[:, 2]
-    footprint = float(np.median(depth)) / orbit.fx if len(depth) else 0.001
-    rec, rec_ids = reconstruct(prims, max(0.6 * point_size * footprint, 1e-4),
-                               max_points_per_object=600_000)
-    rec_normals = primitive_normals(rec, rec_ids, prims)
-    rec_rgb = table[np.searchsorted(ids_sorted, rec_ids)] if len(rec) else np.zeros((0, 3),
-                                                                                      np.uint8)
-
-    def sensor_view(w: int, h: int) -> Camera:
-        if intrinsics is not None:
-            return sensor_camera(intrinsics, w, h)
-        return fit_camera(pts, width=w, height=h)
-
-    def views(w: int, h: int) -> list[NDArray[np.uint8]]:
-        sensor = sensor_view(w, h)
-        cam = orbit_camera(framing, yaw=yaw, pitch=pitch, up=up, pivot=pivot, width=w,
-                           height=h)
-        seg = render_points(pts, seg_rgb, camera=sensor, normals=in_normals,
-                            point_size=_splat_size(pts, sensor, point_size))
-        recon = render_points(rec, rec_rgb, camera=cam, point_size=point_size,
-                              normals=rec_normals)
-        overlay = _render_overlay(pts, np.array(INPUT_GREY, dtype=np.uint8), rec, rec_rgb, cam,
-                                  min(_splat_size(pts, cam, point_size) + 1, 9), point_size,
-                                  in_normals, rec_normals, _WHITE)
-        return [seg, recon, overlay]
-
-    n_obj = sum(p.type != "unknown" for p in prims)
-    turned = f"view turned {math.degrees(yaw):.0f} deg"
-    captions = [
-        ("Segmentation of the input",
-         f"{len(pts)} sensor points coloured by object (sensor view); grey = no object"),
-        ("Reconstruction",
-         f"{n_obj} modeled surfaces in full, hidden parts included; {turned}"),
-        ("Input + reconstruction",
-         f"grey = sensor points; colour = modeled surface, bright where unseen; {turned}"),
-    ]
+    captions = _captions(fig, yaw)
+    entries, extra = _legend_entries(fig)
     names = ["segments.png", "reconstruction.png", "overlay.png"]
-    entries = [(colors[p.id], legend_label(p)) for p in sorted(prims, key=lambda p: p.id)]
-    extra = [[(NOISE_COLOR, "-1 no object")] if (lab < 0).any() else [], [],
-             [(INPUT_GREY, "sensor points")]]
-
     paths = []
-    for img, (title, sub), name, more in zip(views(view_w, view_h), captions, names, extra):
-        canvas = _blank(width, height)
-        _title_bar(canvas, title_prefix + title, sub, title_h, 2)
-        _paste(canvas, img, (0, title_h, view_w, height))
-        canvas[title_h:, view_w:view_w + 1] = (215, 215, 215)
-        _legend(canvas, entries + more, (view_w + 16, title_h + 16, width - 8, height - 8),
-                "id type size")
+    views = _views(fig, view_w, view_h, intrinsics, point_size, yaw, pitch)
+    for img, (title, sub), name, more in zip(views, captions, names, extra):
+        canvas = _picture(img, title_prefix + title, sub, entries + more, (width, height))
         paths.append(_write_png(out / name, canvas))
-
     if summary:
-        cw, ch, cap = width // 2, height // 2, 30
-        canvas = _blank(width, height)
-        cells = [(0, 0), (cw, 0), (0, ch)]
-        for img, (title, _), (x, y) in zip(views(cw, ch - cap), captions, cells):
-            canvas[y:y + cap, x:x + cw] = _TITLE_BG
-            draw_text(canvas, title_prefix + title, (x + 10, y + 7), 2, _WHITE)
-            _paste(canvas, img, (x, y + cap, x + cw, y + ch))
-        canvas[ch, :] = canvas[:, cw] = (215, 215, 215)
-        canvas[ch:ch + cap, cw:] = _TITLE_BG
-        draw_text(canvas, title_prefix + "Objects", (cw + 10, ch + 7), 2, _WHITE)
-        _legend(canvas, entries + extra[0] + extra[2],
-                (cw + 16, ch + cap + 12, width - 8, height - 8), "id type size")
+        cw, ch = width // 2, height // 2
+        views = _views(fig, cw, ch - _CAPTION_H, intrinsics, point_size, yaw, pitch)
+        canvas = _summary(views, [title_prefix + t for t, _ in captions],
+                          title_prefix + "Objects", entries + extra[0] + extra[2],
+                          (width, height))
         paths.append(_write_png(out / "summary.png", canvas))
     return paths

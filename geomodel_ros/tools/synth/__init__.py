@@ -1,5 +1,6 @@
-"""Synthetic depth-camera data: analytic shapes, a ray-casting pinhole camera
-and the paper's desk scenes with exact ground truth.
+"""Synthetic depth-camera data with exact ground truth.
+
+Analytic shapes, the ray-casting pinhole camera and the paper's desk scenes.
 
 ROS-free (numpy only).  Typical use::
 

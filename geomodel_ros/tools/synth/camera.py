@@ -1,18 +1,26 @@
-"""Pinhole depth camera that ray-casts analytic shapes.
+"""The pinhole camera model of the tools: ray casting of analytic shapes and projection.
 
-The camera sits at the origin of the ROS optical frame (x right, y down,
-z forward).  Pixel ``(row v, column u)`` looks along the unit direction of
-``((u - cx) / fx, (v - cy) / fy, 1)``, pixel centres at integer coordinates.
-Every ray is intersected with every shape analytically and the nearest
-positive hit wins, which gives exact occlusion and self-occlusion.
+One class, :class:`PinholeCamera`, serves both the synthetic depth camera (it ray-casts
+analytic shapes, :meth:`PinholeCamera.render`) and the picture renderer
+(:mod:`geomodel_ros.tools.render`, which splats points through :meth:`PinholeCamera.project`).
+
+Frames follow REP 103's optical convention (x right, y down, z forward).  Pixel
+``(row v, column u)`` looks along the unit direction of ``((u - cx) / fx, (v - cy) / fy,
+1)`` in the camera frame, pixel centres at integer coordinates.  A camera's pose maps a
+scene point ``p`` [m] to ``rotation @ p + translation`` in its optical frame; the default
+(identity) pose is the sensor's own view.  Ray casting intersects every ray with every
+shape analytically and keeps the nearest positive hit, which gives exact occlusion and
+self-occlusion.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .shapes import DEFAULT_EPS, Shape
 
@@ -22,9 +30,14 @@ __all__ = ["PinholeCamera", "DEFAULT_CHUNK_SIZE"]
 DEFAULT_CHUNK_SIZE = 1 << 15
 
 
-@dataclass(frozen=True)
+def _frozen(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
 class PinholeCamera:
-    """Ideal pinhole depth camera at the origin of the optical frame.
+    """Ideal pinhole camera with a pose.
 
     Parameters
     ----------
@@ -34,6 +47,12 @@ class PinholeCamera:
         Principal point [px] (column, row), finite.
     width, height : int
         Image size [px], in [1, inf).
+    rotation : (3, 3) float64 array, optional
+        Rotation from the scene frame to the camera's optical frame (default identity).
+    translation : (3,) float64 array [m], optional
+        ``p_camera = rotation @ p + translation`` (default zero).
+
+    Cameras are equal when their intrinsics and poses are equal.
     """
 
     fx: float
@@ -42,23 +61,46 @@ class PinholeCamera:
     cy: float
     width: int
     height: int
+    rotation: NDArray[np.float64] = field(default_factory=lambda: np.eye(3), repr=False)
+    translation: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3), repr=False)
 
     def __post_init__(self) -> None:
         for name in ("fx", "fy"):
             v = float(getattr(self, name))
             if not np.isfinite(v) or v <= 0.0:
-                raise ValueError(f"{name} must be a finite focal length in (0, inf) [px], got {v!r}")
+                raise ValueError(f"{name} must be a finite focal length in (0, inf) [px], "
+                                 f"got {v!r}")
             object.__setattr__(self, name, v)
         for name in ("cx", "cy"):
             v = float(getattr(self, name))
             if not np.isfinite(v):
-                raise ValueError(f"{name} must be a finite principal-point coordinate [px], got {v!r}")
+                raise ValueError(f"{name} must be a finite principal-point coordinate [px], "
+                                 f"got {v!r}")
             object.__setattr__(self, name, v)
         for name in ("width", "height"):
             v = getattr(self, name)
             if isinstance(v, bool) or int(v) != v or int(v) < 1:
                 raise ValueError(f"{name} must be an integer in [1, inf) [px], got {v!r}")
             object.__setattr__(self, name, int(v))
+        r = np.array(self.rotation, dtype=np.float64)
+        t = np.array(self.translation, dtype=np.float64)
+        if r.shape != (3, 3) or not np.isfinite(r).all():
+            raise ValueError(f"rotation must be a finite (3, 3) array, got shape {r.shape}")
+        if t.shape != (3,) or not np.isfinite(t).all():
+            raise ValueError(f"translation must be a finite (3,) array, got shape {t.shape}")
+        object.__setattr__(self, "rotation", _frozen(r))
+        object.__setattr__(self, "translation", _frozen(t))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, PinholeCamera):
+            return NotImplemented
+        return (self.intrinsics == other.intrinsics
+                and np.array_equal(self.rotation, other.rotation)
+                and np.array_equal(self.translation, other.translation))
+
+    def __hash__(self) -> int:
+        return hash((tuple(self.intrinsics.values()), self.rotation.tobytes(),
+                     self.translation.tobytes()))
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -79,14 +121,15 @@ class PinholeCamera:
         return self.width * self.height
 
     def scaled(self, factor: float) -> "PinholeCamera":
-        """Same field of view at ``factor`` times the resolution (factor in (0, inf)).
+        """Return the same view at ``factor`` times the resolution (factor in (0, inf)).
 
-        Pixel centres map as ``u' + 0.5 = factor * (u + 0.5)``.
+        Pixel centres map as ``u' + 0.5 = factor * (u + 0.5)``; the pose is kept.
         """
         f = float(factor)
         if not np.isfinite(f) or f <= 0.0:
             raise ValueError(f"factor must be in (0, inf), got {factor!r}")
-        return PinholeCamera(
+        return dataclasses.replace(
+            self,
             fx=self.fx * f,
             fy=self.fy * f,
             cx=(self.cx + 0.5) * f - 0.5,
@@ -96,7 +139,7 @@ class PinholeCamera:
         )
 
     def pixel_directions(self, start: int = 0, stop: int | None = None) -> np.ndarray:
-        """Unit ray directions of the pixels ``start:stop`` in row-major order.
+        """Return the unit ray directions of the pixels ``start:stop`` in row-major order.
 
         Parameters
         ----------
@@ -122,19 +165,38 @@ class PinholeCamera:
         """All (H*W, 3) float64 unit pixel ray directions, row-major."""
         return self.pixel_directions()
 
-    def project(self, points) -> np.ndarray:
-        """Project points (N, 3) [m] to pixel coordinates (N, 2) ``(u, v)`` [px].
+    @property
+    def has_identity_pose(self) -> bool:
+        """True when the camera sits at the scene origin looking along the scene's z."""
+        return bool(np.array_equal(self.rotation, np.eye(3))
+                    and not self.translation.any())
 
-        Points with ``z <= 0`` give non-finite coordinates.
+    def to_camera_frame(self, points) -> np.ndarray:
+        """Scene points (N, 3) [m] -> the same points in the optical frame (N, 3) [m]."""
+        p = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        # a contiguous right operand is much faster in numpy
+        return p @ np.ascontiguousarray(self.rotation.T) + self.translation
+
+    def project_camera_frame(self, points) -> np.ndarray:
+        """Project optical-frame points (N, 3) [m] to pixel coordinates (N, 2) ``(u, v)`` [px].
+
+        Points with ``z <= 0`` give NaN coordinates.
         """
         p = np.atleast_2d(np.asarray(points, dtype=np.float64))
         with np.errstate(divide="ignore", invalid="ignore"):
             u = self.fx * p[:, 0] / p[:, 2] + self.cx
             v = self.fy * p[:, 1] / p[:, 2] + self.cy
-        bad = p[:, 2] <= 0.0
+        bad = ~(p[:, 2] > 0.0)
         u[bad] = np.nan
         v[bad] = np.nan
         return np.stack([u, v], axis=1)
+
+    def project(self, points) -> np.ndarray:
+        """Project scene points (N, 3) [m] to pixel coordinates (N, 2) ``(u, v)`` [px].
+
+        Points behind the camera (optical ``z <= 0``) give NaN coordinates.
+        """
+        return self.project_camera_frame(self.to_camera_frame(points))
 
     # ------------------------------------------------------------------ rendering
     def render(
@@ -150,7 +212,7 @@ class PinholeCamera:
         Parameters
         ----------
         shapes : sequence of Shape
-            Shapes posed in the optical frame.
+            Shapes posed in the optical frame (the camera must have the identity pose).
         ids : sequence of int, optional
             Label of each shape (default ``0 .. len(shapes) - 1``); must be >= 0.
         chunk_size : int, optional
@@ -165,6 +227,9 @@ class PinholeCamera:
         labels : (H, W) int32 array
             Id of the shape seen in each pixel, -1 where nothing is hit.
         """
+        if not self.has_identity_pose:
+            raise ValueError("ray casting needs the camera at the origin of the shapes' frame "
+                             "(identity pose)")
         shapes = list(shapes)
         ids = list(range(len(shapes))) if ids is None else [int(i) for i in ids]
         if len(ids) != len(shapes):
@@ -178,29 +243,42 @@ class PinholeCamera:
         n = self.num_pixels
         points = np.full((n, 3), np.nan)
         labels = np.full(n, -1, dtype=np.int32)
-        centers = np.array([s.center for s in shapes]).reshape(-1, 3)
-        radii = np.array([s.bounding_radius for s in shapes])
-        # Camera at the origin: a ray d reaches the bounding sphere (c, rho) iff
-        # |c|^2 - (c.d)^2 <= rho^2 and c.d + rho > 0.  Small relative margin.
-        c2 = np.einsum("ij,ij->i", centers, centers)
-        rho2 = (radii * (1.0 + 1e-9) + 1e-12) ** 2
-        origin = np.zeros(3)
         for start in range(0, n, chunk_size):
             stop = min(start + chunk_size, n)
             d = self.pixel_directions(start, stop)
-            t_best = np.full(stop - start, np.inf)
-            lab = np.full(stop - start, -1, dtype=np.int32)
-            cd = d @ centers.T  # (m, K)
-            for k, shape in enumerate(shapes):
-                cand = np.flatnonzero((c2[k] - cd[:, k] ** 2 <= rho2[k]) & (cd[:, k] + radii[k] > 0.0))
-                if cand.size == 0:
-                    continue
-                t = shape.intersect(origin, d[cand], eps=eps)
-                closer = t < t_best[cand]
-                hit = cand[closer]
-                t_best[hit] = t[closer]
-                lab[hit] = ids[k]
+            t_best, lab = _nearest_hits(d, shapes, ids, eps)
             seen = np.isfinite(t_best)
             points[start:stop][seen] = d[seen] * t_best[seen, None]
             labels[start:stop] = lab
         return points.reshape(self.height, self.width, 3), labels.reshape(self.height, self.width)
+
+
+def _nearest_hits(d: NDArray[np.float64], shapes: Sequence[Shape], ids: Sequence[int],
+                  eps: float) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    """Nearest hit of unit rays ``d`` (m, 3) from the origin among ``shapes``.
+
+    Returns the ray parameter (m,) [m] (``inf`` for a miss) and the id (m,) int32 of the
+    shape hit (-1 for a miss). Only rays that reach a shape's bounding sphere are
+    intersected with it.
+    """
+    centers = np.array([s.center for s in shapes]).reshape(-1, 3)
+    radii = np.array([s.bounding_radius for s in shapes])
+    # Camera at the origin: a ray d reaches the bounding sphere (c, rho) iff
+    # |c|^2 - (c.d)^2 <= rho^2 and c.d + rho > 0.  Small relative margin.
+    c2 = np.einsum("ij,ij->i", centers, centers)
+    rho2 = (radii * (1.0 + 1e-9) + 1e-12) ** 2
+    origin = np.zeros(3)
+    t_best = np.full(len(d), np.inf)
+    lab = np.full(len(d), -1, dtype=np.int32)
+    cd = d @ centers.T  # (m, K)
+    for k, shape in enumerate(shapes):
+        reach = (c2[k] - cd[:, k] ** 2 <= rho2[k]) & (cd[:, k] + radii[k] > 0.0)
+        cand = np.flatnonzero(reach)
+        if cand.size == 0:
+            continue
+        t = shape.intersect(origin, d[cand], eps=eps)
+        closer = t < t_best[cand]
+        hit = cand[closer]
+        t_best[hit] = t[closer]
+        lab[hit] = ids[k]
+    return t_best, lab

@@ -316,8 +316,10 @@ def _standing(u_mm: float, v_mm: float, yaw_deg: float) -> dict:
 
 
 def _lying(u_mm: float, v_mm: float, yaw_deg: float) -> dict:
-    """Pose with local z parallel to the desk at angle yaw in the desk plane and
-    local x = desk normal (for a cylinder lying on its side)."""
+    """Return a pose lying on the desk (for a cylinder on its side).
+
+    Local z is parallel to the desk at angle yaw in the desk plane, local x = desk normal.
+    """
     frame = desk_frame()
     center = DESK_CENTER + 1e-3 * (u_mm * frame[:, 0] + v_mm * frame[:, 1])
     yaw = np.radians(yaw_deg)
@@ -420,8 +422,10 @@ def _rest_on(shape: Shape, base: Shape) -> Shape:
 
 def _next_to(u_mm: float, v_mm: float, yaw_deg: float, dx_mm: float, dy_mm: float
              ) -> tuple[float, float]:
-    """Desk coordinates [mm] of the point (dx, dy) [mm] of the local frame of an upright
-    object at (u, v) with yaw ``yaw_deg`` (to place objects face to face)."""
+    """Return the desk coordinates [mm] of a point (dx, dy) [mm] of an upright object.
+
+    The object stands at (u, v) with yaw ``yaw_deg``; used to place objects face to face.
+    """
     c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
     return u_mm + c * dx_mm - s * dy_mm, v_mm + s * dx_mm + c * dy_mm
 

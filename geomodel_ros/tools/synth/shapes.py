@@ -24,6 +24,7 @@ The shapes are ROS-free and depend on numpy only.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -141,9 +142,14 @@ class Shape:
     center: np.ndarray = field(default_factory=lambda: np.zeros(3), kw_only=True)
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3), kw_only=True)
 
+    #: Names of the size fields of a shape, each a finite length in (0, inf) [m].
+    _LENGTHS: ClassVar[tuple[str, ...]] = ()
+
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _as_center(self.center))
         object.__setattr__(self, "rotation", _as_rotation(self.rotation))
+        for name in self._LENGTHS:
+            object.__setattr__(self, name, _positive(name, getattr(self, name)))
 
     # ---- frame changes
     def to_local(self, points: np.ndarray) -> np.ndarray:
@@ -180,7 +186,8 @@ class Shape:
         """
         d = np.atleast_2d(np.asarray(directions, dtype=np.float64))
         if d.ndim != 2 or d.shape[1] != 3:
-            raise ValueError(f"directions must be an (M, 3) array, got shape {np.shape(directions)}")
+            raise ValueError("directions must be an (M, 3) array, got shape "
+                             f"{np.shape(directions)}")
         o = np.broadcast_to(np.asarray(origins, dtype=np.float64), d.shape)
         norm = np.linalg.norm(d, axis=1)
         if np.any(norm == 0.0):
@@ -236,6 +243,16 @@ class Shape:
         )
 
 
+@dataclass(frozen=True, eq=False)
+class _AxialShape(Shape):
+    """A shape symmetric about its local z axis (cylinder, cone, torus)."""
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Unit symmetry axis (3,) = local z (a cone's points base -> apex)."""
+        return self.rotation[:, 2]
+
+
 # --------------------------------------------------------------------------- shapes
 @dataclass(frozen=True, eq=False)
 class Rectangle(Shape):
@@ -254,10 +271,7 @@ class Rectangle(Shape):
     length: float
     width: float
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        object.__setattr__(self, "length", _positive("length", self.length))
-        object.__setattr__(self, "width", _positive("width", self.width))
+    _LENGTHS = ("length", "width")
 
     @property
     def normal(self) -> np.ndarray:
@@ -290,8 +304,10 @@ class Rectangle(Shape):
         return 0.5 * self.length * abs(u[0]) + 0.5 * self.width * abs(u[1])
 
     def ground_truth(self, id: int):
-        """Ground truth of type ``"plane"``; its z (normal) faces the camera
-        (``normal . center < 0``), flipping y and z if needed."""
+        """Return the ground truth, of type ``"plane"``.
+
+        Its z (normal) faces the camera (``normal . center < 0``), flipping y and z if needed.
+        """
         rot = np.array(self.rotation)
         if rot[:, 2] @ self.center > 0.0:
             rot[:, 1:] *= -1.0
@@ -315,10 +331,7 @@ class Box(Shape):
     width: float
     height: float
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        for name in ("length", "width", "height"):
-            object.__setattr__(self, name, _positive(name, getattr(self, name)))
+    _LENGTHS = ("length", "width", "height")
 
     @property
     def half_extents(self) -> np.ndarray:
@@ -357,7 +370,7 @@ class Box(Shape):
 
 
 @dataclass(frozen=True, eq=False)
-class Cylinder(Shape):
+class Cylinder(_AxialShape):
     """Solid capped cylinder about local z.
 
     Parameters
@@ -373,15 +386,7 @@ class Cylinder(Shape):
     radius: float
     height: float
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        object.__setattr__(self, "radius", _positive("radius", self.radius))
-        object.__setattr__(self, "height", _positive("height", self.height))
-
-    @property
-    def axis(self) -> np.ndarray:
-        """Unit axis (3,) = local z."""
-        return self.rotation[:, 2]
+    _LENGTHS = ("radius", "height")
 
     @property
     def bounding_radius(self) -> float:
@@ -417,7 +422,7 @@ class Cylinder(Shape):
 
 
 @dataclass(frozen=True, eq=False)
-class Cone(Shape):
+class Cone(_AxialShape):
     """Solid cone with a capped base.
 
     Parameters
@@ -434,15 +439,7 @@ class Cone(Shape):
     radius: float
     height: float
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        object.__setattr__(self, "radius", _positive("radius", self.radius))
-        object.__setattr__(self, "height", _positive("height", self.height))
-
-    @property
-    def axis(self) -> np.ndarray:
-        """Unit axis (3,) = local z, base -> apex."""
-        return self.rotation[:, 2]
+    _LENGTHS = ("radius", "height")
 
     @property
     def apex(self) -> np.ndarray:
@@ -509,9 +506,7 @@ class Sphere(Shape):
 
     radius: float
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        object.__setattr__(self, "radius", _positive("radius", self.radius))
+    _LENGTHS = ("radius",)
 
     @property
     def bounding_radius(self) -> float:
@@ -528,15 +523,15 @@ class Sphere(Shape):
     def _sdf_local(self, p):
         return np.linalg.norm(p, axis=1) - self.radius
 
-    def _support_local(self, u):
-        return self.radius
+    def _support_local(self, _u):
+        return self.radius  # the same in every direction
 
     def ground_truth(self, id: int):
         return self._gt(id, "sphere", {"radius": self.radius})
 
 
 @dataclass(frozen=True, eq=False)
-class Torus(Shape):
+class Torus(_AxialShape):
     """Solid ring torus about local z.
 
     Parameters
@@ -564,22 +559,16 @@ class Torus(Shape):
     #: acceptance tolerance [m] on |signed distance| of a polished quartic root
     _ACCEPT_TOL = 1e-10
 
+    _LENGTHS = ("major_radius", "minor_radius")
+
     def __post_init__(self) -> None:
         super().__post_init__()
-        big = _positive("major_radius", self.major_radius)
-        small = _positive("minor_radius", self.minor_radius)
+        big, small = self.major_radius, self.minor_radius
         if small >= big:
             raise ValueError(
                 "minor_radius must lie in (0, major_radius) (ring torus), got "
                 f"minor_radius={small}, major_radius={big}"
             )
-        object.__setattr__(self, "major_radius", big)
-        object.__setattr__(self, "minor_radius", small)
-
-    @property
-    def axis(self) -> np.ndarray:
-        """Unit symmetry axis (3,) = local z."""
-        return self.rotation[:, 2]
 
     @property
     def bounding_radius(self) -> float:
