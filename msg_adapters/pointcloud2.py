@@ -33,8 +33,12 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
 __all__ = [
+    "CloudSize",
     "PointCloud2Error",
+    "ScenePoints",
+    "cloud_size",
     "cloud_to_fields",
+    "cloud_to_scene",
     "cloud_to_xyz",
     "cloud_to_xyz_and_mask",
     "pack_rgb",
@@ -336,6 +340,55 @@ def cloud_to_xyz(
     return points
 
 
+class CloudSize(NamedTuple):
+    """Grid and payload of a cloud (see :func:`cloud_size`)."""
+
+    height: int
+    width: int
+    #: Bytes of ``data`` (``row_step * height`` in a well-formed message).
+    nbytes: int
+
+
+def cloud_size(msg: PointCloud2) -> CloudSize:
+    """``height``, ``width`` and the size of ``data`` [bytes] of a cloud, as declared."""
+    return CloudSize(int(msg.height), int(msg.width), int(len(msg.data)))
+
+
+class ScenePoints(NamedTuple):
+    """A cloud as the core takes it (see :func:`cloud_to_scene`)."""
+
+    #: (N, 3) float64 array [m], every point in row-major order, NaN rows kept.
+    points: NDArray[np.float64]
+    #: (height, width) of an organized cloud (height > 1), else None.
+    organized_shape: tuple[int, int] | None
+    #: The input's header, to be copied into the outputs (std_msgs/Header).
+    header: Header
+
+
+def cloud_to_scene(msg: PointCloud2) -> ScenePoints:
+    """Every point of ``msg`` (NaNs included, so labels stay pixel-aligned) and its grid.
+
+    Parameters
+    ----------
+    msg : sensor_msgs.msg.PointCloud2
+        Any layout :func:`cloud_to_xyz` reads.  Not modified.
+
+    Returns
+    -------
+    ScenePoints
+        ``points`` is ``(height * width, 3)`` float64 [m]; ``organized_shape`` is
+        ``(height, width)`` when ``height > 1``.
+
+    Raises
+    ------
+    PointCloud2Error
+        As :func:`cloud_to_xyz`.
+    """
+    grid = cloud_to_xyz(msg, keep_organized=True)
+    organized = (int(grid.shape[0]), int(grid.shape[1])) if grid.shape[0] > 1 else None
+    return ScenePoints(grid.reshape(-1, 3), organized, msg.header)
+
+
 def cloud_to_fields(
     msg: PointCloud2,
     names: Iterable[str],
@@ -549,6 +602,72 @@ def _copy_header(header: Header) -> Header:
     )
 
 
+def _grid(pts: NDArray, organized_shape: tuple[int, int] | None) -> tuple[int, int]:
+    """``(height, width)`` of the output cloud for ``(N, 3)`` or ``(H, W, 3)`` points."""
+    if pts.dtype.kind not in "uif" or pts.ndim not in (2, 3) or pts.shape[-1] != 3:
+        raise ValueError(
+            f"points must be a real array of shape (N, 3) or (H, W, 3), got {pts.dtype} "
+            f"array of shape {pts.shape}"
+        )
+    if pts.ndim == 3:
+        if organized_shape is not None and tuple(organized_shape) != pts.shape[:2]:
+            raise ValueError(
+                f"organized_shape {tuple(organized_shape)} disagrees with points of shape {pts.shape}"
+            )
+        return pts.shape[0], pts.shape[1]
+    if organized_shape is None:
+        return 1, pts.shape[0]
+    height, width = (int(v) for v in organized_shape)
+    if height < 0 or width < 0 or height * width != pts.shape[0]:
+        raise ValueError(
+            f"organized_shape {tuple(organized_shape)} must have height * width == N = "
+            f"{pts.shape[0]} and no negative size"
+        )
+    return height, width
+
+
+def _record_layout(extras: list[_OutField]) -> tuple[list[PointField], np.dtype]:
+    """PointFields and the structured dtype (``itemsize = point_step``) of x, y, z + extras."""
+    point_fields = [
+        PointField(name=name, offset=4 * i, datatype=PointField.FLOAT32, count=1)
+        for i, name in enumerate(_XYZ)
+    ]
+    names, formats, offsets = list(_XYZ), ["<f4"] * 3, [0, 4, 8]
+    offset, alignment = 12, 4
+    for extra in extras:
+        element = extra.values.dtype.itemsize
+        offset = -(-offset // element) * element  # align to the element size
+        point_fields.append(
+            PointField(name=extra.name, offset=offset, datatype=extra.datatype, count=extra.count)
+        )
+        names.append(extra.name)
+        storage = extra.values.dtype.str  # e.g. '<i4'
+        formats.append(storage if extra.count == 1 else f"({extra.count},){storage}")
+        offsets.append(offset)
+        offset += element * extra.count
+        alignment = max(alignment, element)
+    point_step = -(-offset // alignment) * alignment
+    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
+    return point_fields, dtype
+
+
+def _fill(flat: NDArray, extras: list[_OutField], dtype: np.dtype) -> tuple[array.array, bool]:
+    """The message's data buffer filled with the points and extras; whether all are finite."""
+    n = len(flat)
+    # The message owns this buffer; fill it in place through a structured view.
+    data = array.array("B", b"\0") * (n * dtype.itemsize)
+    is_dense = True
+    if n:
+        record = np.frombuffer(data, dtype=dtype)
+        for i, name in enumerate(_XYZ):
+            record[name] = flat[:, i]
+            is_dense = is_dense and bool(np.isfinite(record[name]).all())
+        for extra in extras:
+            record[extra.name] = extra.values
+        del record  # release the buffer export so that the array.array stays resizable
+    return data, is_dense
+
+
 def xyz_to_cloud(
     points: ArrayLike,
     header: Header,
@@ -589,62 +708,13 @@ def xyz_to_cloud(
         empty, repeated ('x', 'y', 'z') or ``'_'``.
     """
     pts = np.asarray(points)
-    if pts.dtype.kind not in "uif" or pts.ndim not in (2, 3) or pts.shape[-1] != 3:
-        raise ValueError(
-            f"points must be a real array of shape (N, 3) or (H, W, 3), got {pts.dtype} "
-            f"array of shape {pts.shape}"
-        )
-    if pts.ndim == 3:
-        height, width = pts.shape[0], pts.shape[1]
-        if organized_shape is not None and tuple(organized_shape) != (height, width):
-            raise ValueError(
-                f"organized_shape {tuple(organized_shape)} disagrees with points of shape {pts.shape}"
-            )
-    elif organized_shape is not None:
-        height, width = (int(v) for v in organized_shape)
-        if height < 0 or width < 0 or height * width != pts.shape[0]:
-            raise ValueError(
-                f"organized_shape {tuple(organized_shape)} must have height * width == N = "
-                f"{pts.shape[0]} and no negative size"
-            )
-    else:
-        height, width = 1, pts.shape[0]
+    height, width = _grid(pts, organized_shape)
     n = height * width
     flat = pts.reshape(n, 3)
-
     extras = [_out_field(name, values, n, (height, width)) for name, values in (fields or {}).items()]
-    point_fields = [
-        PointField(name=name, offset=4 * i, datatype=PointField.FLOAT32, count=1)
-        for i, name in enumerate(_XYZ)
-    ]
-    names, formats, offsets = list(_XYZ), ["<f4"] * 3, [0, 4, 8]
-    offset, alignment = 12, 4
-    for extra in extras:
-        element = extra.values.dtype.itemsize
-        offset = -(-offset // element) * element  # align to the element size
-        point_fields.append(
-            PointField(name=extra.name, offset=offset, datatype=extra.datatype, count=extra.count)
-        )
-        names.append(extra.name)
-        storage = extra.values.dtype.str  # e.g. '<i4'
-        formats.append(storage if extra.count == 1 else f"({extra.count},){storage}")
-        offsets.append(offset)
-        offset += element * extra.count
-        alignment = max(alignment, element)
-    point_step = -(-offset // alignment) * alignment
-    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
-
-    # The message owns this buffer; fill it in place through a structured view.
-    data = array.array("B", b"\0") * (n * point_step)
-    is_dense = True
-    if n:
-        record = np.frombuffer(data, dtype=dtype)
-        for i, name in enumerate(_XYZ):
-            record[name] = flat[:, i]
-            is_dense = is_dense and bool(np.isfinite(record[name]).all())
-        for extra in extras:
-            record[extra.name] = extra.values
-        del record  # release the buffer export so that the array.array stays resizable
+    point_fields, dtype = _record_layout(extras)
+    point_step = dtype.itemsize
+    data, is_dense = _fill(flat, extras, dtype)
 
     return PointCloud2(
         header=_copy_header(header),

@@ -506,16 +506,14 @@ def test_reconstruction_of_a_large_plane_is_bounded():
     # In a subprocess with a 3 GiB address-space limit: the buggy code must not be allowed
     # to really allocate 75 GiB on a big CI machine.
     code = textwrap.dedent("""
-        import resource, time, numpy as np
+        import resource, numpy as np
         resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
         from geomodel_ros.core.primitives import Primitive
         from geomodel_ros.core.reconstruction import reconstruct
         floor = Primitive(1, "plane", np.zeros(3), np.eye(3),
                           {"length": 100.0, "width": 100.0}, 1000, 0.001)
-        t = time.perf_counter()
         pts, ids = reconstruct([floor], 0.002)
         assert len(pts) <= 2_000_000, len(pts)
-        assert time.perf_counter() - t < 10.0
     """)
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120)
