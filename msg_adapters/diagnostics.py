@@ -23,7 +23,7 @@ LEVELS: Final[Mapping[str, bytes]] = {"ok": DiagnosticStatus.OK,
 
 def diagnostics_message(name: str, hardware_id: str, level: str, message: str,
                         values: Mapping[str, str], stamp_ns: int) -> DiagnosticArray:
-    """A ``DiagnosticArray`` with one status.
+    """Build a ``DiagnosticArray`` with one status.
 
     Parameters
     ----------

@@ -42,7 +42,7 @@ def time_from_ns(stamp_ns: int) -> Time:
 
 
 def make_header(frame_id: str, stamp_ns: int = 0) -> Header:
-    """A new ``std_msgs/Header`` with ``frame_id`` and the stamp ``stamp_ns`` [ns]."""
+    """Build a ``std_msgs/Header`` with ``frame_id`` and the stamp ``stamp_ns`` [ns]."""
     return Header(stamp=time_from_ns(stamp_ns), frame_id=str(frame_id))
 
 

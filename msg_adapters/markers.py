@@ -83,7 +83,7 @@ _NOISE_RGB: Final = (128, 128, 128)
 # ---------------------------------------------------------------------------------------
 
 def rotation_to_quaternion(rotation: ArrayLike) -> NDArray[np.float64]:
-    """Unit quaternion ``(x, y, z, w)`` of a rotation matrix.
+    """Return the unit quaternion ``(x, y, z, w)`` of a rotation matrix.
 
     Parameters
     ----------
@@ -158,7 +158,7 @@ def _colour(rgba: Sequence[float]) -> ColorRGBA:
 
 
 def _marker_id(object_id: int) -> int:
-    """The object id wrapped into int32 (Marker.id); identity for ids in int32 range."""
+    """Wrap the object id into int32 (Marker.id); identity for ids in int32 range."""
     return (int(object_id) + 2**31) % 2**32 - 2**31
 
 
@@ -243,7 +243,7 @@ def _default_up(frame_id: str) -> NDArray[np.float64]:
 
 
 def _up_direction(up: ArrayLike | None, header: Header) -> NDArray[np.float64]:
-    """Unit direction in which labels are lifted (default from the frame name)."""
+    """Return the unit direction in which labels are lifted (default from the frame)."""
     if up is None:
         return _default_up(str(header.frame_id))
     up_dir = np.asarray(up, dtype=np.float64).reshape(-1)
@@ -454,7 +454,7 @@ def _labelled_cloud(points: ArrayLike, ids: ArrayLike, header: Header, what: str
 
 def segments_cloud(points: ArrayLike, labels: ArrayLike, header: Header, *,
                    organized_shape: tuple[int, int] | None = None) -> PointCloud2:
-    """The input points coloured by the object they were assigned to.
+    """Colour the input points by the object they were assigned to.
 
     Parameters
     ----------
@@ -517,7 +517,7 @@ def _quaternion_to_rotation(q) -> NDArray[np.float64]:
 
 
 def markers_to_primitives(markers: MarkerArray) -> list[Primitive]:
-    """The primitives a :func:`primitives_to_markers` array describes (its inverse).
+    """Read back the primitives a :func:`primitives_to_markers` array describes (its inverse).
 
     For subscribers of ``~/primitives`` (planners, recorders) that want typed objects back:
     type from the namespace, pose from the marker pose, sizes from the scale (cones from

@@ -115,10 +115,13 @@ def _layout(msg: PointCloud2) -> _Layout:
         name, offset = str(field.name), int(field.offset)
         code, count = int(field.datatype), int(field.count)
         if not name:
-            raise PointCloud2Error(f"PointField #{index} has an empty name; every field needs a name")
+            raise PointCloud2Error(
+                f"PointField #{index} has an empty name; every field needs a name"
+            )
         if code not in _DATATYPES:
             raise PointCloud2Error(
-                f"PointField {name!r} has datatype {code}; allowed datatypes are {_ALLOWED_DATATYPES}"
+                f"PointField {name!r} has datatype {code}; allowed datatypes are "
+                f"{_ALLOWED_DATATYPES}"
             )
         if count < 1:
             raise PointCloud2Error(f"PointField {name!r} has count {count}; count must be >= 1")
@@ -152,12 +155,14 @@ def _layout(msg: PointCloud2) -> _Layout:
             f"PointCloud2 data has {buffer.size} bytes, expected row_step*height = "
             f"{row_step}*{height} = {row_step * height}"
         )
-    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
+    dtype = np.dtype(
+        {"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step}
+    )
     return _Layout(height, width, point_step, row_step, dtype, buffer)
 
 
 def _byte_view(data: object) -> NDArray[np.uint8]:
-    """A read-only flat ``uint8`` view of ``data`` (array.array, bytes, ndarray, ...)."""
+    """Return a read-only flat ``uint8`` view of ``data`` (array.array, bytes, ndarray, ...)."""
     try:
         buffer = np.frombuffer(data, dtype=np.uint8)  # type: ignore[call-overload]
     except (TypeError, ValueError):  # a list of ints, a strided array: one unavoidable copy
@@ -167,7 +172,7 @@ def _byte_view(data: object) -> NDArray[np.uint8]:
 
 
 def _view(layout: _Layout) -> NDArray[np.void]:
-    """The read-only ``(height, width)`` structured view of the message's points."""
+    """Return the read-only ``(height, width)`` structured view of the message's points."""
     if layout.height * layout.width == 0:
         view = np.empty((layout.height, layout.width), dtype=layout.dtype)
         view.flags.writeable = False
@@ -191,7 +196,9 @@ def _check_xyz(layout: _Layout) -> None:
         field_dtype = fields[name][0]
         element, shape = field_dtype.subdtype or (field_dtype, ())
         if shape or element.kind != "f":
-            described = _DATATYPE_NAMES[element.newbyteorder("<")] + (f" x {shape[0]}" if shape else "")
+            described = _DATATYPE_NAMES[element.newbyteorder("<")] + (
+                f" x {shape[0]}" if shape else ""
+            )
             raise PointCloud2Error(
                 f"PointField {name!r} is {described}; x, y and z must be FLOAT32 or FLOAT64 "
                 "with count 1"
@@ -201,7 +208,9 @@ def _check_xyz(layout: _Layout) -> None:
 def _float_dtype(dtype: DTypeLike) -> np.dtype:
     result = np.dtype(dtype)
     if result.kind != "f":
-        raise ValueError(f"dtype must be a floating type such as np.float32 or np.float64, got {result}")
+        raise ValueError(
+            f"dtype must be a floating type such as np.float32 or np.float64, got {result}"
+        )
     return result
 
 
@@ -488,7 +497,11 @@ def pack_rgb(rgb: ArrayLike) -> NDArray[np.uint32]:
             f"got {channels.dtype} array of shape {channels.shape}; "
             "convert colours in [0, 1] with (rgb * 255).round().astype(np.uint8)"
         )
-    if channels.dtype != np.uint8 and channels.size and (channels.min() < 0 or channels.max() > 255):
+    if (
+        channels.dtype != np.uint8
+        and channels.size
+        and (channels.min() < 0 or channels.max() > 255)
+    ):
         raise ValueError(
             f"rgb values must lie in [0, 255], got [{channels.min()}, {channels.max()}]"
         )
@@ -566,7 +579,8 @@ def _out_field(name: object, values: ArrayLike, n: int, grid: tuple[int, int]) -
         else:
             raise ValueError(
                 f"field {name!r} must be (N,) uint32 packed colours (see pack_rgb), (N,) float32 "
-                f"bit patterns or (N, 3|4) uint8 channels, got {arr.dtype} array of shape {arr.shape}"
+                f"bit patterns or (N, 3|4) uint8 channels, got {arr.dtype} array of shape "
+                f"{arr.shape}"
             )
         # Stored as uint32 bits, declared FLOAT32: the PCL/RViz convention.
         return _OutField(name, arr.astype("<u4", copy=False), PointField.FLOAT32, 1)
@@ -612,7 +626,8 @@ def _grid(pts: NDArray, organized_shape: tuple[int, int] | None) -> tuple[int, i
     if pts.ndim == 3:
         if organized_shape is not None and tuple(organized_shape) != pts.shape[:2]:
             raise ValueError(
-                f"organized_shape {tuple(organized_shape)} disagrees with points of shape {pts.shape}"
+                f"organized_shape {tuple(organized_shape)} disagrees with points of shape "
+                f"{pts.shape}"
             )
         return pts.shape[0], pts.shape[1]
     if organized_shape is None:
@@ -647,12 +662,14 @@ def _record_layout(extras: list[_OutField]) -> tuple[list[PointField], np.dtype]
         offset += element * extra.count
         alignment = max(alignment, element)
     point_step = -(-offset // alignment) * alignment
-    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
+    dtype = np.dtype(
+        {"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step}
+    )
     return point_fields, dtype
 
 
 def _fill(flat: NDArray, extras: list[_OutField], dtype: np.dtype) -> tuple[array.array, bool]:
-    """The message's data buffer filled with the points and extras; whether all are finite."""
+    """Fill a new data buffer with the points and extras; also whether all are finite."""
     n = len(flat)
     # The message owns this buffer; fill it in place through a structured view.
     data = array.array("B", b"\0") * (n * dtype.itemsize)
@@ -711,7 +728,9 @@ def xyz_to_cloud(
     height, width = _grid(pts, organized_shape)
     n = height * width
     flat = pts.reshape(n, 3)
-    extras = [_out_field(name, values, n, (height, width)) for name, values in (fields or {}).items()]
+    extras = [
+        _out_field(name, values, n, (height, width)) for name, values in (fields or {}).items()
+    ]
     point_fields, dtype = _record_layout(extras)
     point_step = dtype.itemsize
     data, is_dense = _fill(flat, extras, dtype)

@@ -27,7 +27,7 @@ def serialize(msg: Any) -> bytes:
 
 
 def deserialize_cloud(raw: bytes) -> PointCloud2:
-    """The ``sensor_msgs/PointCloud2`` serialized in ``raw``.
+    """Read the ``sensor_msgs/PointCloud2`` serialized in ``raw``.
 
     Raises
     ------

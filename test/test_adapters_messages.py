@@ -1,5 +1,8 @@
-"""The small adapters: headers and stamps, CDR bytes, diagnostics, parameter descriptors,
-reading a frame's markers back, and a cloud as the core takes it (no ``rclpy.init``)."""
+"""The small adapters, without ``rclpy.init``.
+
+Headers and stamps, CDR bytes, diagnostics, parameter descriptors, reading a frame's
+markers back, and a cloud as the core takes it.
+"""
 
 from __future__ import annotations
 

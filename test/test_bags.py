@@ -1,5 +1,6 @@
-"""rosbag2 files: ``geomodel synth --bag``, ``geomodel bag`` (offline, the node's chain) and
-``play`` into a live node.
+"""rosbag2 files: ``geomodel synth --bag``, ``geomodel bag`` and ``play`` into a node.
+
+``geomodel bag`` runs the node's chain offline.
 
 Bags are written and read back with ``rosbags``; outputs are checked against the ground
 truth of the synthetic scenes.
@@ -62,7 +63,7 @@ def read_bag(path: Path) -> dict[str, list[tuple[int, bytes]]]:
 
 
 def content(raw: bytes, msgtype: str):
-    """A deserialized message in a comparable form."""
+    """Deserialize a message into a comparable form."""
     msg = TYPESTORE.deserialize_cdr(raw, msgtype)
     if msgtype == bags.POINTCLOUD2:
         return (repr(msg.header), msg.height, msg.width, repr(msg.fields), msg.point_step,

@@ -379,7 +379,8 @@ def test_markers_to_primitives_inverts_primitives_to_markers():
     q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     rot = q * np.sign(np.linalg.det(q))
     prims = [
-        Primitive(1, "plane", np.array([0.0, 0.1, 0.8]), rot, {"length": 0.4, "width": 0.3}, 10, 0.0),
+        Primitive(1, "plane", np.array([0.0, 0.1, 0.8]), rot, {"length": 0.4, "width": 0.3},
+                  10, 0.0),
         Primitive(2, "cuboid", np.array([0.1, 0.0, 0.6]), rot, {"length": 0.05, "width": 0.06,
                                                                 "height": 0.07}, 10, 0.0),
         Primitive(3, "cylinder", np.array([-0.1, 0.0, 0.6]), rot, {"radius": 0.02, "height": 0.08},

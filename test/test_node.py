@@ -375,7 +375,7 @@ def test_parameter_sets_are_validated_and_applied_from_the_next_frame(make_harne
                                                       max_radius=5.0)
 
 
-def test_output_switches_take_effect(make_harness, core):
+def test_output_switches_take_effect(make_harness):
     h = make_harness()
     results = h.node.set_parameters([Parameter("publish_segments", value=False),
                                      Parameter("publish_reconstruction", value=False)])

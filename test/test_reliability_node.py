@@ -178,7 +178,7 @@ def marker_signature(markers: MarkerArray) -> list[tuple]:
 # --------------------------------------------------------------------------- bad input
 def _raw_cloud(points, sec: int, *, datatype=PointField.FLOAT32, big=False, names="xyz",
                height=1) -> PointCloud2:
-    """A hand-built x, y, z cloud (any datatype, byte order and field names)."""
+    """Build an x, y, z cloud by hand (any datatype, byte order and field names)."""
     pts = np.asarray(points, dtype=np.float64)
     element = np.dtype({PointField.FLOAT32: "f4", PointField.FLOAT64: "f8",
                         PointField.INT16: "i2"}[datatype]).newbyteorder(">" if big else "<")

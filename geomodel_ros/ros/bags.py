@@ -237,7 +237,7 @@ def _describe(exc: BaseException) -> str:
 
 def _messages(reader: Reader, path: Path, connections: Sequence[Connection]
               ) -> Iterator[tuple[Connection, int, bytes]]:
-    """The reader's records, with any storage failure turned into :class:`BagError`."""
+    """Yield the reader's records, with any storage failure turned into :class:`BagError`."""
     it = reader.messages(connections=connections)
     while True:
         try:
@@ -355,7 +355,7 @@ def _add_outputs(writer: Writer, name: str, conns: Sequence[Connection], ns: str
 
 def _model_record(raw: bytes, params: ModelingParams, segments: bool, reconstruction: bool,
                   model_scene: SceneModeler) -> tuple[FrameResult | None, str | None]:
-    """The node's outputs for one serialized cloud, or None and why it was skipped."""
+    """Model one serialized cloud: the node's outputs, or None and why it was skipped."""
     try:
         msg = deserialize_cloud(raw)
         return process_cloud(msg, params, segments=segments, reconstruction=reconstruction,
@@ -483,7 +483,7 @@ def _parse_remaps(remap: Mapping[str, str] | Sequence[str] | None) -> dict[str, 
 
 
 def _play_qos(conns: Sequence[Connection]):
-    """The QoS ``ros2 bag play`` offers for a topic recorded with these connections."""
+    """Return the QoS ``ros2 bag play`` offers for a topic recorded with these connections."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     reliability, durability = ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE

@@ -1,8 +1,8 @@
-"""ROS 2 node ``modeler``: PointCloud2 in, modeled primitives out.
+r"""ROS 2 node ``modeler``: PointCloud2 in, modeled primitives out.
 
 Run it as::
 
-    ros2 run geomodel_ros modeler --ros-args --params-file config/modeler.yaml \\
+    ros2 run geomodel_ros modeler --ros-args --params-file config/modeler.yaml \
         -r points:=/camera/depth/points
 
 Topics (names relative to the node, so ``-r`` and namespaces work):
@@ -24,8 +24,9 @@ published reliable, keep last ``qos_depth`` (compatible with reliable and best-e
 subscribers such as RViz and planners).
 
 The node is a thin wire: :func:`geomodel_ros.ros.processing.process_cloud` (adapter -> core
-:func:`geomodel_ros.core.pipeline.model_scene` -> adapters, shared with the offline bag tool
-``geomodel bag``) -> publish.  Modeling runs in a worker thread fed by a one-slot
+:func:`geomodel_ros.core.pipeline.model_scene`, or the ``model_scene`` passed in -> adapters,
+shared with the offline bag tool ``geomodel bag``) -> publish; every message is built and
+read through :mod:`msg_adapters`.  Modeling runs in a worker thread fed by a one-slot
 mailbox: a frame that arrives while another waits replaces it (newest frame wins) and is
 counted as dropped.  A malformed message or a frame
 the core fails on is logged (throttled) and skipped; the node keeps running.
@@ -155,7 +156,7 @@ class _Mailbox:
             return replaced
 
     def take(self) -> Any:
-        """The next item, or None once the mailbox is closed."""
+        """Return the next item, or None once the mailbox is closed."""
         with self._cond:
             while self._item is None and not self._closed:
                 self._cond.wait()
@@ -264,7 +265,7 @@ class ModelerNode(Node):
         return self._options
 
     def stats(self) -> FrameStats:
-        """A snapshot of the frame counters."""
+        """Return a snapshot of the frame counters."""
         with self._stats_lock:
             return replace(self._stats, last_timing=dict(self._stats.last_timing))
 

@@ -97,9 +97,11 @@ def _clouds(kind: str, count: int) -> list[PointCloud2]:
 
 def _single_frame_s(clouds: list[PointCloud2], params_file: str | None, repeats: int = 3
                     ) -> float:
-    """Median time [s] the node's per-frame work (``process_cloud``: conversion, segmentation,
-    modeling, output messages) takes on these clouds, measured here, one frame at a time,
-    before the load starts."""
+    """Measure the median time [s] of the node's per-frame work on these clouds.
+
+    The work is ``process_cloud`` (conversion, segmentation, modeling, output messages),
+    measured here, one frame at a time, before the load starts.
+    """
     from geomodel_ros.ros.processing import process_cloud
 
     from geomodel_ros.core.params import ModelingParams, load_params_file
@@ -349,9 +351,12 @@ def _latency_report(arrivals: list[tuple[float, float]], single_s: float) -> dic
 
 def _rss_summary(series: list[tuple[float, float]], warmup: float, elapsed: float,
                  window: float = 60.0) -> dict:
-    """RSS [MiB] after warm-up and at the end, each the median of a ``window`` of 1 Hz
-    samples (single samples swing by tens of MiB with the allocator's high-water marks),
-    their growth [%], and the maximum of each half of the run (a leak raises the second)."""
+    """Summarize the node's RSS [MiB] over the run.
+
+    After warm-up and at the end, each the median of a ``window`` of 1 Hz samples (single
+    samples swing by tens of MiB with the allocator's high-water marks), their growth [%],
+    and the maximum of each half of the run (a leak raises the second).
+    """
     t = np.array([s for s, _ in series])
     v = np.array([m for _, m in series])
     ok = np.isfinite(v)

@@ -44,7 +44,7 @@ TOPIC = "/camera/depth/points"
 
 
 def _node_command(params_file: Path) -> list[str]:
-    """The installed ``modeler`` console script (as ``ros2 run`` would start it)."""
+    """Return the installed ``modeler`` console script (as ``ros2 run`` would start it)."""
     script = Path(sys.prefix) / "lib" / "geomodel_ros" / "modeler"
     exe = [str(script)] if script.exists() else [sys.executable, "-m", "geomodel_ros.ros.node"]
     return exe + ["--ros-args", "--params-file", str(params_file), "-r", f"points:={TOPIC}",
@@ -125,8 +125,11 @@ def _table(truth: list[dict], detected) -> tuple[str, int]:
 
 def _wait_until_ready(recorder: _Recorder, node_proc: subprocess.Popen,
                       timeout_s: float = 60.0) -> bool:
-    """Whether the node subscribed to the input (besides the recorder) and its outputs
-    were discovered before ``timeout_s`` or its exit."""
+    """Wait until the node is up; False if it is not after ``timeout_s`` or has exited.
+
+    Up means: it subscribed to the input (besides the recorder) and its outputs were
+    discovered.
+    """
     ready = time.monotonic() + timeout_s
     while time.monotonic() < ready and node_proc.poll() is None:
         if recorder.node.count_subscribers(TOPIC) >= 2 and \
