@@ -94,6 +94,32 @@ class _Layout(NamedTuple):
     buffer: NDArray[np.uint8]  # read-only flat byte view of msg.data (no copy)
 
 
+def _field_format(
+    index: int, field: PointField, order: str, point_step: int
+) -> tuple[str, np.dtype | tuple[np.dtype, tuple[int]], int]:
+    """Check one PointField; its name, numpy format (sub-array if count > 1) and offset."""
+    name, offset = str(field.name), int(field.offset)
+    code, count = int(field.datatype), int(field.count)
+    if not name:
+        raise PointCloud2Error(f"PointField #{index} has an empty name; every field needs a name")
+    if code not in _DATATYPES:
+        raise PointCloud2Error(
+            f"PointField {name!r} has datatype {code}; allowed datatypes are "
+            f"{_ALLOWED_DATATYPES}"
+        )
+    if count < 1:
+        raise PointCloud2Error(f"PointField {name!r} has count {count}; count must be >= 1")
+    element = _DATATYPES[code][1].newbyteorder(order)
+    end = offset + element.itemsize * count
+    if offset < 0 or end > point_step:
+        raise PointCloud2Error(
+            f"PointField {name!r} ({_DATATYPES[code][0]} x {count}) occupies bytes "
+            f"[{offset}, {end}) of each point but point_step is {point_step}; "
+            f"fields must lie within [0, point_step)"
+        )
+    return name, element if count == 1 else (element, (count,)), offset
+
+
 def _layout(msg: PointCloud2) -> _Layout:
     """Validate ``msg``'s geometry and field table and build its structured dtype.
 
@@ -112,27 +138,7 @@ def _layout(msg: PointCloud2) -> _Layout:
     formats: list[np.dtype | tuple[np.dtype, tuple[int]]] = []
     offsets: list[int] = []
     for index, field in enumerate(msg.fields):
-        name, offset = str(field.name), int(field.offset)
-        code, count = int(field.datatype), int(field.count)
-        if not name:
-            raise PointCloud2Error(
-                f"PointField #{index} has an empty name; every field needs a name"
-            )
-        if code not in _DATATYPES:
-            raise PointCloud2Error(
-                f"PointField {name!r} has datatype {code}; allowed datatypes are "
-                f"{_ALLOWED_DATATYPES}"
-            )
-        if count < 1:
-            raise PointCloud2Error(f"PointField {name!r} has count {count}; count must be >= 1")
-        element = _DATATYPES[code][1].newbyteorder(order)
-        end = offset + element.itemsize * count
-        if offset < 0 or end > point_step:
-            raise PointCloud2Error(
-                f"PointField {name!r} ({_DATATYPES[code][0]} x {count}) occupies bytes "
-                f"[{offset}, {end}) of each point but point_step is {point_step}; "
-                f"fields must lie within [0, point_step)"
-            )
+        name, element, offset = _field_format(index, field, order, point_step)
         if name == _PADDING_FIELD:
             continue
         if name in names:
@@ -141,7 +147,7 @@ def _layout(msg: PointCloud2) -> _Layout:
                 f"(only {_PADDING_FIELD!r} padding fields may repeat)"
             )
         names.append(name)
-        formats.append(element if count == 1 else (element, (count,)))
+        formats.append(element)
         offsets.append(offset)
 
     if point_step * width > row_step:
@@ -551,6 +557,25 @@ class _OutField(NamedTuple):
     count: int
 
 
+def _packed_colours(name: str, arr: NDArray) -> NDArray[np.uint32]:
+    """Convert a colour field to little-endian uint32 ``0xAARRGGBB`` bits."""
+    if arr.ndim == 2 and arr.shape[1] in (3, 4) and arr.dtype.kind in "ui":
+        arr = pack_rgb(arr)
+    elif arr.ndim == 1 and arr.dtype.kind == "f" and arr.dtype.itemsize == 4:
+        arr = arr.view(np.dtype(np.uint32).newbyteorder(arr.dtype.byteorder))  # same bits
+    elif arr.ndim == 1 and arr.dtype.kind in "ui":
+        if arr.size and (arr.min() < 0 or arr.max() > 0xFFFFFFFF):
+            raise ValueError(f"field {name!r} must hold uint32 packed colours (see pack_rgb)")
+        arr = arr.astype(np.uint32)
+    else:
+        raise ValueError(
+            f"field {name!r} must be (N,) uint32 packed colours (see pack_rgb), (N,) float32 "
+            f"bit patterns or (N, 3|4) uint8 channels, got {arr.dtype} array of shape "
+            f"{arr.shape}"
+        )
+    return arr.astype("<u4", copy=False)
+
+
 def _out_field(name: object, values: ArrayLike, n: int, grid: tuple[int, int]) -> _OutField:
     """Validate one extra field for ``xyz_to_cloud`` and convert it to its storage dtype."""
     if not isinstance(name, str) or not name or name == _PADDING_FIELD or name in _XYZ:
@@ -568,22 +593,8 @@ def _out_field(name: object, values: ArrayLike, n: int, grid: tuple[int, int]) -
         )
 
     if name in _PACKED_COLOUR_FIELDS:
-        if arr.ndim == 2 and arr.shape[1] in (3, 4) and arr.dtype.kind in "ui":
-            arr = pack_rgb(arr)
-        elif arr.ndim == 1 and arr.dtype.kind == "f" and arr.dtype.itemsize == 4:
-            arr = arr.view(np.dtype(np.uint32).newbyteorder(arr.dtype.byteorder))  # same bits
-        elif arr.ndim == 1 and arr.dtype.kind in "ui":
-            if arr.size and (arr.min() < 0 or arr.max() > 0xFFFFFFFF):
-                raise ValueError(f"field {name!r} must hold uint32 packed colours (see pack_rgb)")
-            arr = arr.astype(np.uint32)
-        else:
-            raise ValueError(
-                f"field {name!r} must be (N,) uint32 packed colours (see pack_rgb), (N,) float32 "
-                f"bit patterns or (N, 3|4) uint8 channels, got {arr.dtype} array of shape "
-                f"{arr.shape}"
-            )
         # Stored as uint32 bits, declared FLOAT32: the PCL/RViz convention.
-        return _OutField(name, arr.astype("<u4", copy=False), PointField.FLOAT32, 1)
+        return _OutField(name, _packed_colours(name, arr), PointField.FLOAT32, 1)
 
     kind, size = arr.dtype.kind, arr.dtype.itemsize
     if kind == "b":
