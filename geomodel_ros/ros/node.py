@@ -239,7 +239,7 @@ class ModelerNode(Node):
             f"'{self._pub_reconstruction.topic_name}'")
 
     def _create_publishers(self) -> None:
-        """Output publishers: reliable, keep last ``qos_depth``; /diagnostics if enabled."""
+        """Create the output publishers (reliable, keep last ``qos_depth``; /diagnostics)."""
         qos_out = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self._options.qos_depth,
                              reliability=ReliabilityPolicy.RELIABLE)
         self._pub_markers = self.create_publisher(MarkerArray, "~/primitives", qos_out)
