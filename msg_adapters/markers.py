@@ -34,12 +34,16 @@ from visualization_msgs.msg import Marker, MarkerArray
 from geomodel_ros.core.colors import as_ids, id_colors
 from geomodel_ros.core.primitives import DIMENSION_NAMES, Primitive
 
+from .header import StampedFrame, header_of
 from .pointcloud2 import pack_rgb, xyz_to_cloud
 
 __all__ = [
+    "LABEL_GAP",
     "LABEL_NAMESPACE",
     "PLANE_THICKNESS",
     "TYPE_COLOURS",
+    "marker_array_frame",
+    "marker_array_problem",
     "markers_to_primitives",
     "object_colours",
     "primitives_to_markers",
@@ -56,6 +60,8 @@ LABEL_NAMESPACE: Final = "labels"
 UNKNOWN_MARKER_SIZE: Final = 0.01
 #: Triangle-fan segments of a cone mesh.
 CONE_SEGMENTS: Final = 32
+#: Gap [m] between an object's top and the bottom of its label (clear of the shape).
+LABEL_GAP: Final = 0.005
 #: Smallest scale [m] written to a marker (RViz ignores markers with a zero scale).
 _MIN_SCALE: Final = 1e-4
 
@@ -78,7 +84,7 @@ _NOISE_RGB: Final = (128, 128, 128)
 # ---------------------------------------------------------------------------------------
 
 def rotation_to_quaternion(rotation: ArrayLike) -> NDArray[np.float64]:
-    """Unit quaternion ``(x, y, z, w)`` of a rotation matrix.
+    """Return the unit quaternion ``(x, y, z, w)`` of a rotation matrix.
 
     Parameters
     ----------
@@ -153,7 +159,7 @@ def _colour(rgba: Sequence[float]) -> ColorRGBA:
 
 
 def _marker_id(object_id: int) -> int:
-    """The object id wrapped into int32 (Marker.id); identity for ids in int32 range."""
+    """Wrap the object id into int32 (Marker.id); identity for ids in int32 range."""
     return (int(object_id) + 2**31) % 2**32 - 2**31
 
 
@@ -237,6 +243,79 @@ def _default_up(frame_id: str) -> NDArray[np.float64]:
     return np.array([0.0, 0.0, 1.0])
 
 
+def _up_direction(up: ArrayLike | None, header: Header) -> NDArray[np.float64]:
+    """Return the unit direction in which labels are lifted (default from the frame)."""
+    if up is None:
+        return _default_up(str(header.frame_id))
+    up_dir = np.asarray(up, dtype=np.float64).reshape(-1)
+    norm = float(np.linalg.norm(up_dir)) if up_dir.shape == (3,) else 0.0
+    if not math.isfinite(norm) or norm == 0.0:
+        raise ValueError(f"up must be a finite non-zero (3,) vector, got {up!r}")
+    return up_dir / norm
+
+
+def _draw_shape(shape: Marker, p: Primitive, center: NDArray[np.float64],
+                rotation: NDArray[np.float64], valid: bool) -> None:
+    """Set type, namespace, pose, scale (and cone mesh) of ``shape`` for ``p``."""
+    d = p.dimensions
+    if not valid:
+        shape.ns = p.type if p.type in TYPE_COLOURS else "unknown"
+        shape.type = Marker.SPHERE
+        shape.pose = _pose(center, None)
+        shape.scale = _scale(UNKNOWN_MARKER_SIZE, UNKNOWN_MARKER_SIZE, UNKNOWN_MARKER_SIZE)
+        return
+    shape.ns = p.type
+    if p.type == "plane":
+        shape.type = Marker.CUBE
+        shape.pose = _pose(center, rotation)
+        shape.scale = _scale(d["length"], d["width"], PLANE_THICKNESS)
+    elif p.type == "cuboid":
+        shape.type = Marker.CUBE
+        shape.pose = _pose(center, rotation)
+        shape.scale = _scale(d["length"], d["width"], d["height"])
+    elif p.type == "cylinder":
+        shape.type = Marker.CYLINDER
+        shape.pose = _pose(center, rotation)
+        shape.scale = _scale(2.0 * d["radius"], 2.0 * d["radius"], d["height"])
+    elif p.type == "sphere":
+        shape.type = Marker.SPHERE
+        shape.pose = _pose(center, None)
+        shape.scale = _scale(2.0 * d["radius"], 2.0 * d["radius"], 2.0 * d["radius"])
+    else:  # cone
+        shape.type = Marker.TRIANGLE_LIST
+        shape.pose = _pose(center, rotation)
+        shape.scale = Vector3(x=1.0, y=1.0, z=1.0)
+        shape.points = _cone_mesh(float(d["radius"]), float(d["height"]), CONE_SEGMENTS)
+
+
+def _object_markers(p: Primitive, header: Header, lifetime: Duration, text: bool,
+                    text_size: float, up_dir: NDArray[np.float64]) -> list[Marker]:
+    """Shape marker and (with ``text``) label of one object; none if its centre is bad."""
+    center = np.asarray(p.center, dtype=np.float64).reshape(-1)
+    if center.shape != (3,) or not np.all(np.isfinite(center)):
+        return []
+    rotation = np.asarray(p.rotation, dtype=np.float64)
+    try:
+        rotation_to_quaternion(rotation)
+    except ValueError:
+        rotation = np.eye(3)
+    valid = p.type != "unknown" and _valid_dimensions(p)
+    mid = _marker_id(p.id)
+    shape = Marker(header=_header(header), id=mid, action=Marker.ADD, lifetime=lifetime)
+    _draw_shape(shape, p, center, rotation, valid)
+    shape.color = _colour(TYPE_COLOURS.get(shape.ns, TYPE_COLOURS["unknown"]))
+    if not text:
+        return [shape]
+    lift = _half_extent_along(p, rotation, up_dir, valid) + 0.5 * text_size + LABEL_GAP
+    label = Marker(header=_header(header), ns=LABEL_NAMESPACE, id=mid,
+                   type=Marker.TEXT_VIEW_FACING, action=Marker.ADD, lifetime=lifetime)
+    label.pose = _pose(center + lift * up_dir, None)
+    label.scale = Vector3(x=text_size, y=text_size, z=text_size)
+    label.color = _colour(_TEXT_COLOUR)
+    label.text = _label_text(p, valid)
+    return [shape, label]
+
+
 def primitives_to_markers(
     primitives: Sequence[Primitive],
     header: Header,
@@ -286,73 +365,12 @@ def primitives_to_markers(
         raise ValueError(f"lifetime_s must be a finite number >= 0 [s], got {lifetime_s!r}")
     if not math.isfinite(text_size) or text_size <= 0.0:
         raise ValueError(f"text_size must be a finite number > 0 [m], got {text_size!r}")
-    if up is None:
-        up_dir = _default_up(str(header.frame_id))
-    else:
-        up_dir = np.asarray(up, dtype=np.float64).reshape(-1)
-        norm = float(np.linalg.norm(up_dir)) if up_dir.shape == (3,) else 0.0
-        if not math.isfinite(norm) or norm == 0.0:
-            raise ValueError(f"up must be a finite non-zero (3,) vector, got {up!r}")
-        up_dir = up_dir / norm
+    up_dir = _up_direction(up, header)
     lifetime = _duration(lifetime_s)
-
     out = MarkerArray()
-    clear = Marker(header=_header(header), action=Marker.DELETEALL)
-    out.markers.append(clear)
+    out.markers.append(Marker(header=_header(header), action=Marker.DELETEALL))
     for p in primitives:
-        center = np.asarray(p.center, dtype=np.float64).reshape(-1)
-        if center.shape != (3,) or not np.all(np.isfinite(center)):
-            continue
-        rotation = np.asarray(p.rotation, dtype=np.float64)
-        try:
-            rotation_to_quaternion(rotation)
-        except ValueError:
-            rotation = np.eye(3)
-        valid = p.type != "unknown" and _valid_dimensions(p)
-        mid = _marker_id(p.id)
-
-        shape = Marker(header=_header(header), id=mid, action=Marker.ADD, lifetime=lifetime)
-        d = p.dimensions
-        if not valid:
-            shape.ns = p.type if p.type in TYPE_COLOURS else "unknown"
-            shape.type = Marker.SPHERE
-            shape.pose = _pose(center, None)
-            shape.scale = _scale(UNKNOWN_MARKER_SIZE, UNKNOWN_MARKER_SIZE, UNKNOWN_MARKER_SIZE)
-        elif p.type == "plane":
-            shape.type = Marker.CUBE
-            shape.pose = _pose(center, rotation)
-            shape.scale = _scale(d["length"], d["width"], PLANE_THICKNESS)
-        elif p.type == "cuboid":
-            shape.type = Marker.CUBE
-            shape.pose = _pose(center, rotation)
-            shape.scale = _scale(d["length"], d["width"], d["height"])
-        elif p.type == "cylinder":
-            shape.type = Marker.CYLINDER
-            shape.pose = _pose(center, rotation)
-            shape.scale = _scale(2.0 * d["radius"], 2.0 * d["radius"], d["height"])
-        elif p.type == "sphere":
-            shape.type = Marker.SPHERE
-            shape.pose = _pose(center, None)
-            shape.scale = _scale(2.0 * d["radius"], 2.0 * d["radius"], 2.0 * d["radius"])
-        else:  # cone
-            shape.type = Marker.TRIANGLE_LIST
-            shape.pose = _pose(center, rotation)
-            shape.scale = Vector3(x=1.0, y=1.0, z=1.0)
-            shape.points = _cone_mesh(float(d["radius"]), float(d["height"]), CONE_SEGMENTS)
-        if valid:
-            shape.ns = p.type
-        shape.color = _colour(TYPE_COLOURS.get(shape.ns, TYPE_COLOURS["unknown"]))
-        out.markers.append(shape)
-
-        if text:
-            lift = _half_extent_along(p, rotation, up_dir, valid) + 0.5 * text_size + 0.005
-            label = Marker(header=_header(header), ns=LABEL_NAMESPACE, id=mid,
-                           type=Marker.TEXT_VIEW_FACING, action=Marker.ADD, lifetime=lifetime)
-            label.pose = _pose(center + lift * up_dir, None)
-            label.scale = Vector3(x=text_size, y=text_size, z=text_size)
-            label.color = _colour(_TEXT_COLOUR)
-            label.text = _label_text(p, valid)
-            out.markers.append(label)
+        out.markers.extend(_object_markers(p, header, lifetime, text, text_size, up_dir))
     return out
 
 
@@ -419,7 +437,7 @@ def _labelled_cloud(points: ArrayLike, ids: ArrayLike, header: Header, what: str
 
 def segments_cloud(points: ArrayLike, labels: ArrayLike, header: Header, *,
                    organized_shape: tuple[int, int] | None = None) -> PointCloud2:
-    """The input points coloured by the object they were assigned to.
+    """Colour the input points by the object they were assigned to.
 
     Parameters
     ----------
@@ -482,7 +500,7 @@ def _quaternion_to_rotation(q) -> NDArray[np.float64]:
 
 
 def markers_to_primitives(markers: MarkerArray) -> list[Primitive]:
-    """The primitives a :func:`primitives_to_markers` array describes (its inverse).
+    """Read back the primitives a :func:`primitives_to_markers` array describes (its inverse).
 
     For subscribers of ``~/primitives`` (planners, recorders) that want typed objects back:
     type from the namespace, pose from the marker pose, sizes from the scale (cones from
@@ -513,3 +531,41 @@ def markers_to_primitives(markers: MarkerArray) -> list[Primitive]:
         out.append(Primitive(int(m.id), m.ns, c, r, {k: float(v) for k, v in dims.items()},
                              0, 0.0))
     return out
+
+
+def marker_array_frame(markers: MarkerArray) -> StampedFrame | None:
+    """``frame_id`` and stamp [ns] of a frame's markers (all share the input's header).
+
+    Returns None for an empty array.
+    """
+    if not markers.markers:
+        return None
+    return header_of(markers.markers[0])
+
+
+def _marker_problem(m: Marker) -> str | None:
+    p, q = m.pose.position, m.pose.orientation
+    if not all(math.isfinite(v) for v in (p.x, p.y, p.z, q.x, q.y, q.z, q.w)):
+        return f"marker {m.ns}/{m.id} has a non-finite pose"
+    if not all(math.isfinite(v) and v > 0 for v in (m.scale.x, m.scale.y, m.scale.z)):
+        return f"marker {m.ns}/{m.id} has a non-positive or non-finite scale"
+    if any(not all(math.isfinite(v) for v in (pt.x, pt.y, pt.z)) for pt in m.points):
+        return f"marker {m.ns}/{m.id} has non-finite points"
+    return None
+
+
+def marker_array_problem(markers: MarkerArray, frame: StampedFrame) -> str | None:
+    """Why a frame's MarkerArray is not what :func:`primitives_to_markers` promises, or None.
+
+    Checked: DELETEALL first; every marker carries ``frame`` (the input's ``frame_id`` and
+    stamp [ns]); every other marker has a finite pose, a positive finite scale and finite
+    points.
+    """
+    if not markers.markers or markers.markers[0].action != Marker.DELETEALL:
+        return "does not start with DELETEALL"
+    for m in markers.markers:
+        if header_of(m) != frame:
+            return f"marker {m.ns}/{m.id} has another header than its input"
+        if m.action != Marker.DELETEALL and (why := _marker_problem(m)) is not None:
+            return why
+    return None

@@ -33,8 +33,12 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
 __all__ = [
+    "CloudSize",
     "PointCloud2Error",
+    "ScenePoints",
+    "cloud_size",
     "cloud_to_fields",
+    "cloud_to_scene",
     "cloud_to_xyz",
     "cloud_to_xyz_and_mask",
     "pack_rgb",
@@ -90,6 +94,32 @@ class _Layout(NamedTuple):
     buffer: NDArray[np.uint8]  # read-only flat byte view of msg.data (no copy)
 
 
+def _field_format(
+    index: int, field: PointField, order: str, point_step: int
+) -> tuple[str, np.dtype | tuple[np.dtype, tuple[int]], int]:
+    """Check one PointField; its name, numpy format (sub-array if count > 1) and offset."""
+    name, offset = str(field.name), int(field.offset)
+    code, count = int(field.datatype), int(field.count)
+    if not name:
+        raise PointCloud2Error(f"PointField #{index} has an empty name; every field needs a name")
+    if code not in _DATATYPES:
+        raise PointCloud2Error(
+            f"PointField {name!r} has datatype {code}; allowed datatypes are "
+            f"{_ALLOWED_DATATYPES}"
+        )
+    if count < 1:
+        raise PointCloud2Error(f"PointField {name!r} has count {count}; count must be >= 1")
+    element = _DATATYPES[code][1].newbyteorder(order)
+    end = offset + element.itemsize * count
+    if offset < 0 or end > point_step:
+        raise PointCloud2Error(
+            f"PointField {name!r} ({_DATATYPES[code][0]} x {count}) occupies bytes "
+            f"[{offset}, {end}) of each point but point_step is {point_step}; "
+            f"fields must lie within [0, point_step)"
+        )
+    return name, element if count == 1 else (element, (count,)), offset
+
+
 def _layout(msg: PointCloud2) -> _Layout:
     """Validate ``msg``'s geometry and field table and build its structured dtype.
 
@@ -108,24 +138,7 @@ def _layout(msg: PointCloud2) -> _Layout:
     formats: list[np.dtype | tuple[np.dtype, tuple[int]]] = []
     offsets: list[int] = []
     for index, field in enumerate(msg.fields):
-        name, offset = str(field.name), int(field.offset)
-        code, count = int(field.datatype), int(field.count)
-        if not name:
-            raise PointCloud2Error(f"PointField #{index} has an empty name; every field needs a name")
-        if code not in _DATATYPES:
-            raise PointCloud2Error(
-                f"PointField {name!r} has datatype {code}; allowed datatypes are {_ALLOWED_DATATYPES}"
-            )
-        if count < 1:
-            raise PointCloud2Error(f"PointField {name!r} has count {count}; count must be >= 1")
-        element = _DATATYPES[code][1].newbyteorder(order)
-        end = offset + element.itemsize * count
-        if offset < 0 or end > point_step:
-            raise PointCloud2Error(
-                f"PointField {name!r} ({_DATATYPES[code][0]} x {count}) occupies bytes "
-                f"[{offset}, {end}) of each point but point_step is {point_step}; "
-                f"fields must lie within [0, point_step)"
-            )
+        name, element, offset = _field_format(index, field, order, point_step)
         if name == _PADDING_FIELD:
             continue
         if name in names:
@@ -134,7 +147,7 @@ def _layout(msg: PointCloud2) -> _Layout:
                 f"(only {_PADDING_FIELD!r} padding fields may repeat)"
             )
         names.append(name)
-        formats.append(element if count == 1 else (element, (count,)))
+        formats.append(element)
         offsets.append(offset)
 
     if point_step * width > row_step:
@@ -148,12 +161,14 @@ def _layout(msg: PointCloud2) -> _Layout:
             f"PointCloud2 data has {buffer.size} bytes, expected row_step*height = "
             f"{row_step}*{height} = {row_step * height}"
         )
-    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
+    dtype = np.dtype(
+        {"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step}
+    )
     return _Layout(height, width, point_step, row_step, dtype, buffer)
 
 
 def _byte_view(data: object) -> NDArray[np.uint8]:
-    """A read-only flat ``uint8`` view of ``data`` (array.array, bytes, ndarray, ...)."""
+    """Return a read-only flat ``uint8`` view of ``data`` (array.array, bytes, ndarray, ...)."""
     try:
         buffer = np.frombuffer(data, dtype=np.uint8)  # type: ignore[call-overload]
     except (TypeError, ValueError):  # a list of ints, a strided array: one unavoidable copy
@@ -163,7 +178,7 @@ def _byte_view(data: object) -> NDArray[np.uint8]:
 
 
 def _view(layout: _Layout) -> NDArray[np.void]:
-    """The read-only ``(height, width)`` structured view of the message's points."""
+    """Return the read-only ``(height, width)`` structured view of the message's points."""
     if layout.height * layout.width == 0:
         view = np.empty((layout.height, layout.width), dtype=layout.dtype)
         view.flags.writeable = False
@@ -187,7 +202,9 @@ def _check_xyz(layout: _Layout) -> None:
         field_dtype = fields[name][0]
         element, shape = field_dtype.subdtype or (field_dtype, ())
         if shape or element.kind != "f":
-            described = _DATATYPE_NAMES[element.newbyteorder("<")] + (f" x {shape[0]}" if shape else "")
+            described = _DATATYPE_NAMES[element.newbyteorder("<")] + (
+                f" x {shape[0]}" if shape else ""
+            )
             raise PointCloud2Error(
                 f"PointField {name!r} is {described}; x, y and z must be FLOAT32 or FLOAT64 "
                 "with count 1"
@@ -197,7 +214,9 @@ def _check_xyz(layout: _Layout) -> None:
 def _float_dtype(dtype: DTypeLike) -> np.dtype:
     result = np.dtype(dtype)
     if result.kind != "f":
-        raise ValueError(f"dtype must be a floating type such as np.float32 or np.float64, got {result}")
+        raise ValueError(
+            f"dtype must be a floating type such as np.float32 or np.float64, got {result}"
+        )
     return result
 
 
@@ -336,6 +355,55 @@ def cloud_to_xyz(
     return points
 
 
+class CloudSize(NamedTuple):
+    """Grid and payload of a cloud (see :func:`cloud_size`)."""
+
+    height: int
+    width: int
+    #: Bytes of ``data`` (``row_step * height`` in a well-formed message).
+    nbytes: int
+
+
+def cloud_size(msg: PointCloud2) -> CloudSize:
+    """``height``, ``width`` and the size of ``data`` [bytes] of a cloud, as declared."""
+    return CloudSize(int(msg.height), int(msg.width), int(len(msg.data)))
+
+
+class ScenePoints(NamedTuple):
+    """A cloud as the core takes it (see :func:`cloud_to_scene`)."""
+
+    #: (N, 3) float64 array [m], every point in row-major order, NaN rows kept.
+    points: NDArray[np.float64]
+    #: (height, width) of an organized cloud (height > 1), else None.
+    organized_shape: tuple[int, int] | None
+    #: The input's header, to be copied into the outputs (std_msgs/Header).
+    header: Header
+
+
+def cloud_to_scene(msg: PointCloud2) -> ScenePoints:
+    """Every point of ``msg`` (NaNs included, so labels stay pixel-aligned) and its grid.
+
+    Parameters
+    ----------
+    msg : sensor_msgs.msg.PointCloud2
+        Any layout :func:`cloud_to_xyz` reads.  Not modified.
+
+    Returns
+    -------
+    ScenePoints
+        ``points`` is ``(height * width, 3)`` float64 [m]; ``organized_shape`` is
+        ``(height, width)`` when ``height > 1``.
+
+    Raises
+    ------
+    PointCloud2Error
+        As :func:`cloud_to_xyz`.
+    """
+    grid = cloud_to_xyz(msg, keep_organized=True)
+    organized = (int(grid.shape[0]), int(grid.shape[1])) if grid.shape[0] > 1 else None
+    return ScenePoints(grid.reshape(-1, 3), organized, msg.header)
+
+
 def cloud_to_fields(
     msg: PointCloud2,
     names: Iterable[str],
@@ -435,7 +503,11 @@ def pack_rgb(rgb: ArrayLike) -> NDArray[np.uint32]:
             f"got {channels.dtype} array of shape {channels.shape}; "
             "convert colours in [0, 1] with (rgb * 255).round().astype(np.uint8)"
         )
-    if channels.dtype != np.uint8 and channels.size and (channels.min() < 0 or channels.max() > 255):
+    if (
+        channels.dtype != np.uint8
+        and channels.size
+        and (channels.min() < 0 or channels.max() > 255)
+    ):
         raise ValueError(
             f"rgb values must lie in [0, 255], got [{channels.min()}, {channels.max()}]"
         )
@@ -485,6 +557,25 @@ class _OutField(NamedTuple):
     count: int
 
 
+def _packed_colours(name: str, arr: NDArray) -> NDArray[np.uint32]:
+    """Convert a colour field to little-endian uint32 ``0xAARRGGBB`` bits."""
+    if arr.ndim == 2 and arr.shape[1] in (3, 4) and arr.dtype.kind in "ui":
+        arr = pack_rgb(arr)
+    elif arr.ndim == 1 and arr.dtype.kind == "f" and arr.dtype.itemsize == 4:
+        arr = arr.view(np.dtype(np.uint32).newbyteorder(arr.dtype.byteorder))  # same bits
+    elif arr.ndim == 1 and arr.dtype.kind in "ui":
+        if arr.size and (arr.min() < 0 or arr.max() > 0xFFFFFFFF):
+            raise ValueError(f"field {name!r} must hold uint32 packed colours (see pack_rgb)")
+        arr = arr.astype(np.uint32)
+    else:
+        raise ValueError(
+            f"field {name!r} must be (N,) uint32 packed colours (see pack_rgb), (N,) float32 "
+            f"bit patterns or (N, 3|4) uint8 channels, got {arr.dtype} array of shape "
+            f"{arr.shape}"
+        )
+    return arr.astype("<u4", copy=False)
+
+
 def _out_field(name: object, values: ArrayLike, n: int, grid: tuple[int, int]) -> _OutField:
     """Validate one extra field for ``xyz_to_cloud`` and convert it to its storage dtype."""
     if not isinstance(name, str) or not name or name == _PADDING_FIELD or name in _XYZ:
@@ -502,21 +593,8 @@ def _out_field(name: object, values: ArrayLike, n: int, grid: tuple[int, int]) -
         )
 
     if name in _PACKED_COLOUR_FIELDS:
-        if arr.ndim == 2 and arr.shape[1] in (3, 4) and arr.dtype.kind in "ui":
-            arr = pack_rgb(arr)
-        elif arr.ndim == 1 and arr.dtype.kind == "f" and arr.dtype.itemsize == 4:
-            arr = arr.view(np.dtype(np.uint32).newbyteorder(arr.dtype.byteorder))  # same bits
-        elif arr.ndim == 1 and arr.dtype.kind in "ui":
-            if arr.size and (arr.min() < 0 or arr.max() > 0xFFFFFFFF):
-                raise ValueError(f"field {name!r} must hold uint32 packed colours (see pack_rgb)")
-            arr = arr.astype(np.uint32)
-        else:
-            raise ValueError(
-                f"field {name!r} must be (N,) uint32 packed colours (see pack_rgb), (N,) float32 "
-                f"bit patterns or (N, 3|4) uint8 channels, got {arr.dtype} array of shape {arr.shape}"
-            )
         # Stored as uint32 bits, declared FLOAT32: the PCL/RViz convention.
-        return _OutField(name, arr.astype("<u4", copy=False), PointField.FLOAT32, 1)
+        return _OutField(name, _packed_colours(name, arr), PointField.FLOAT32, 1)
 
     kind, size = arr.dtype.kind, arr.dtype.itemsize
     if kind == "b":
@@ -547,6 +625,75 @@ def _copy_header(header: Header) -> Header:
         stamp=Time(sec=int(header.stamp.sec), nanosec=int(header.stamp.nanosec)),
         frame_id=str(header.frame_id),
     )
+
+
+def _grid(pts: NDArray, organized_shape: tuple[int, int] | None) -> tuple[int, int]:
+    """``(height, width)`` of the output cloud for ``(N, 3)`` or ``(H, W, 3)`` points."""
+    if pts.dtype.kind not in "uif" or pts.ndim not in (2, 3) or pts.shape[-1] != 3:
+        raise ValueError(
+            f"points must be a real array of shape (N, 3) or (H, W, 3), got {pts.dtype} "
+            f"array of shape {pts.shape}"
+        )
+    if pts.ndim == 3:
+        if organized_shape is not None and tuple(organized_shape) != pts.shape[:2]:
+            raise ValueError(
+                f"organized_shape {tuple(organized_shape)} disagrees with points of shape "
+                f"{pts.shape}"
+            )
+        return pts.shape[0], pts.shape[1]
+    if organized_shape is None:
+        return 1, pts.shape[0]
+    height, width = (int(v) for v in organized_shape)
+    if height < 0 or width < 0 or height * width != pts.shape[0]:
+        raise ValueError(
+            f"organized_shape {tuple(organized_shape)} must have height * width == N = "
+            f"{pts.shape[0]} and no negative size"
+        )
+    return height, width
+
+
+def _record_layout(extras: list[_OutField]) -> tuple[list[PointField], np.dtype]:
+    """PointFields and the structured dtype (``itemsize = point_step``) of x, y, z + extras."""
+    point_fields = [
+        PointField(name=name, offset=4 * i, datatype=PointField.FLOAT32, count=1)
+        for i, name in enumerate(_XYZ)
+    ]
+    names, formats, offsets = list(_XYZ), ["<f4"] * 3, [0, 4, 8]
+    offset, alignment = 12, 4
+    for extra in extras:
+        element = extra.values.dtype.itemsize
+        offset = -(-offset // element) * element  # align to the element size
+        point_fields.append(
+            PointField(name=extra.name, offset=offset, datatype=extra.datatype, count=extra.count)
+        )
+        names.append(extra.name)
+        storage = extra.values.dtype.str  # e.g. '<i4'
+        formats.append(storage if extra.count == 1 else f"({extra.count},){storage}")
+        offsets.append(offset)
+        offset += element * extra.count
+        alignment = max(alignment, element)
+    point_step = -(-offset // alignment) * alignment
+    dtype = np.dtype(
+        {"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step}
+    )
+    return point_fields, dtype
+
+
+def _fill(flat: NDArray, extras: list[_OutField], dtype: np.dtype) -> tuple[array.array, bool]:
+    """Fill a new data buffer with the points and extras; also whether all are finite."""
+    n = len(flat)
+    # The message owns this buffer; fill it in place through a structured view.
+    data = array.array("B", b"\0") * (n * dtype.itemsize)
+    is_dense = True
+    if n:
+        record = np.frombuffer(data, dtype=dtype)
+        for i, name in enumerate(_XYZ):
+            record[name] = flat[:, i]
+            is_dense = is_dense and bool(np.isfinite(record[name]).all())
+        for extra in extras:
+            record[extra.name] = extra.values
+        del record  # release the buffer export so that the array.array stays resizable
+    return data, is_dense
 
 
 def xyz_to_cloud(
@@ -589,62 +736,15 @@ def xyz_to_cloud(
         empty, repeated ('x', 'y', 'z') or ``'_'``.
     """
     pts = np.asarray(points)
-    if pts.dtype.kind not in "uif" or pts.ndim not in (2, 3) or pts.shape[-1] != 3:
-        raise ValueError(
-            f"points must be a real array of shape (N, 3) or (H, W, 3), got {pts.dtype} "
-            f"array of shape {pts.shape}"
-        )
-    if pts.ndim == 3:
-        height, width = pts.shape[0], pts.shape[1]
-        if organized_shape is not None and tuple(organized_shape) != (height, width):
-            raise ValueError(
-                f"organized_shape {tuple(organized_shape)} disagrees with points of shape {pts.shape}"
-            )
-    elif organized_shape is not None:
-        height, width = (int(v) for v in organized_shape)
-        if height < 0 or width < 0 or height * width != pts.shape[0]:
-            raise ValueError(
-                f"organized_shape {tuple(organized_shape)} must have height * width == N = "
-                f"{pts.shape[0]} and no negative size"
-            )
-    else:
-        height, width = 1, pts.shape[0]
+    height, width = _grid(pts, organized_shape)
     n = height * width
     flat = pts.reshape(n, 3)
-
-    extras = [_out_field(name, values, n, (height, width)) for name, values in (fields or {}).items()]
-    point_fields = [
-        PointField(name=name, offset=4 * i, datatype=PointField.FLOAT32, count=1)
-        for i, name in enumerate(_XYZ)
+    extras = [
+        _out_field(name, values, n, (height, width)) for name, values in (fields or {}).items()
     ]
-    names, formats, offsets = list(_XYZ), ["<f4"] * 3, [0, 4, 8]
-    offset, alignment = 12, 4
-    for extra in extras:
-        element = extra.values.dtype.itemsize
-        offset = -(-offset // element) * element  # align to the element size
-        point_fields.append(
-            PointField(name=extra.name, offset=offset, datatype=extra.datatype, count=extra.count)
-        )
-        names.append(extra.name)
-        storage = extra.values.dtype.str  # e.g. '<i4'
-        formats.append(storage if extra.count == 1 else f"({extra.count},){storage}")
-        offsets.append(offset)
-        offset += element * extra.count
-        alignment = max(alignment, element)
-    point_step = -(-offset // alignment) * alignment
-    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step})
-
-    # The message owns this buffer; fill it in place through a structured view.
-    data = array.array("B", b"\0") * (n * point_step)
-    is_dense = True
-    if n:
-        record = np.frombuffer(data, dtype=dtype)
-        for i, name in enumerate(_XYZ):
-            record[name] = flat[:, i]
-            is_dense = is_dense and bool(np.isfinite(record[name]).all())
-        for extra in extras:
-            record[extra.name] = extra.values
-        del record  # release the buffer export so that the array.array stays resizable
+    point_fields, dtype = _record_layout(extras)
+    point_step = dtype.itemsize
+    data, is_dense = _fill(flat, extras, dtype)
 
     return PointCloud2(
         header=_copy_header(header),

@@ -70,7 +70,10 @@ def make_cloud(
     Padding bytes, and fields named ``'_'`` (padding by PCL's convention), are filled with PAD.
     """
     if point_step is None:
-        point_step = max((s.offset + struct.calcsize("<" + TYPES[s.datatype][0]) * s.count for s in specs), default=0)
+        point_step = max(
+            (s.offset + struct.calcsize("<" + TYPES[s.datatype][0]) * s.count for s in specs),
+            default=0,
+        )
     if row_step is None:
         row_step = point_step * width
     endian = ">" if bigendian else "<"
@@ -87,7 +90,10 @@ def make_cloud(
         header=Header(frame_id=frame_id),
         height=height,
         width=width,
-        fields=[PointField(name=s.name, offset=s.offset, datatype=s.datatype, count=s.count) for s in specs],
+        fields=[
+            PointField(name=s.name, offset=s.offset, datatype=s.datatype, count=s.count)
+            for s in specs
+        ],
         is_bigendian=bigendian,
         point_step=point_step,
         row_step=row_step,
@@ -111,7 +117,15 @@ def decode(msg, name):
 
 def snapshot(msg):
     fields = [(f.name, f.offset, f.datatype, f.count) for f in msg.fields]
-    return (bytes(msg.data), fields, msg.height, msg.width, msg.point_step, msg.row_step, msg.is_bigendian)
+    return (
+        bytes(msg.data),
+        fields,
+        msg.height,
+        msg.width,
+        msg.point_step,
+        msg.row_step,
+        msg.is_bigendian,
+    )
 
 
 def assert_same_floats(actual, expected):
@@ -124,7 +138,7 @@ def assert_same_floats(actual, expected):
 
 
 def xyz_rgb_specs(point_step_layout):
-    """x y z FLOAT32 + rgb, PCL's padded 32-byte layout or the packed 16-byte one."""
+    """X y z FLOAT32 + rgb, PCL's padded 32-byte layout or the packed 16-byte one."""
     rgb_offset = 16 if point_step_layout == 32 else 12
     return [Spec("x", 0, F32), Spec("y", 4, F32), Spec("z", 8, F32), Spec("rgb", rgb_offset, F32)]
 
@@ -187,7 +201,9 @@ def test_float64_xyz_keeps_full_precision():
 def test_mixed_float32_and_float64_xyz_big_endian():
     xyz = np.array([[1.5, -2.25, 3.125], [0.0, 1e-3, -7.0]])
     specs = [Spec("z", 0, F32), Spec("x", 4, F64), Spec("y", 12, F32)]
-    msg = make_cloud(specs, {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]}, height=1, width=2, bigendian=True)
+    msg = make_cloud(
+        specs, {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]}, height=1, width=2, bigendian=True
+    )
     assert_same_floats(cloud_to_xyz(msg), xyz.astype(np.float32).astype(np.float64))
 
 
@@ -209,7 +225,7 @@ def test_row_step_padding_is_skipped():
 
 
 def organized_with_nans():
-    """A 3x4 organized cloud whose points 1, 6 (NaN), 9 and 11 (-Inf, +Inf: REP 117) are invalid."""
+    """Build a 3x4 organized cloud whose points 1, 6 (NaN), 9, 11 (-Inf, +Inf) are invalid."""
     rng = np.random.default_rng(4)
     xyz = random_xyz(rng, 12)
     xyz[1, 0] = np.nan
@@ -217,7 +233,12 @@ def organized_with_nans():
     xyz[9, 0] = -np.inf
     xyz[11, 2] = np.inf
     labels = np.arange(100, 112, dtype=np.int32)
-    specs = [Spec("x", 0, F32), Spec("y", 4, F32), Spec("z", 8, F32), Spec("label", 12, PointField.INT32)]
+    specs = [
+        Spec("x", 0, F32),
+        Spec("y", 4, F32),
+        Spec("z", 8, F32),
+        Spec("label", 12, PointField.INT32),
+    ]
     msg = make_cloud(
         specs, {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "label": labels}, height=3, width=4
     )
@@ -230,7 +251,9 @@ def test_organized_nans_kept():
     assert grid.shape == (3, 4, 3)
     assert_same_floats(grid, xyz.reshape(3, 4, 3))
     assert_same_floats(cloud_to_xyz(msg, skip_nans=False), xyz)
-    assert np.array_equal(cloud_to_fields(msg, ["label"], keep_organized=True)["label"], labels.reshape(3, 4))
+    assert np.array_equal(
+        cloud_to_fields(msg, ["label"], keep_organized=True)["label"], labels.reshape(3, 4)
+    )
 
 
 def test_organized_nans_dropped_and_mask_maps_back():
@@ -290,15 +313,32 @@ def test_count_greater_than_one_fields(bigendian):
 
 def test_rgb_declared_uint32_and_rgba_are_uint32_too():
     packed = np.array([0x00FF0000, 0x0000FF00, 0x800000FF], dtype=np.uint32)
-    specs = [Spec("x", 0, F32), Spec("y", 4, F32), Spec("z", 8, F32), Spec("rgba", 12, PointField.UINT32)]
-    msg = make_cloud(specs, {"x": [0, 1, 2], "y": [0, 0, 0], "z": [1, 1, 1], "rgba": packed}, height=1, width=3)
+    specs = [
+        Spec("x", 0, F32),
+        Spec("y", 4, F32),
+        Spec("z", 8, F32),
+        Spec("rgba", 12, PointField.UINT32),
+    ]
+    msg = make_cloud(
+        specs, {"x": [0, 1, 2], "y": [0, 0, 0], "z": [1, 1, 1], "rgba": packed}, height=1, width=3
+    )
     rgba = cloud_to_fields(msg, ["rgba"])["rgba"]
     assert rgba.dtype == np.uint32
-    assert unpack_rgb(rgba, alpha=True).tolist() == [[255, 0, 0, 0], [0, 255, 0, 0], [0, 0, 255, 128]]
+    assert unpack_rgb(rgba, alpha=True).tolist() == [
+        [255, 0, 0, 0],
+        [0, 255, 0, 0],
+        [0, 0, 255, 128],
+    ]
 
 
 def test_padding_fields_named_underscore_may_repeat_and_are_not_read():
-    specs = [Spec("x", 0, F32), Spec("_", 4, PointField.UINT8, 4), Spec("y", 8, F32), Spec("_", 12, F32), Spec("z", 16, F32)]
+    specs = [
+        Spec("x", 0, F32),
+        Spec("_", 4, PointField.UINT8, 4),
+        Spec("y", 8, F32),
+        Spec("_", 12, F32),
+        Spec("z", 16, F32),
+    ]
     msg = make_cloud(specs, {"x": [1], "y": [2], "z": [3]}, height=1, width=1)
     assert cloud_to_xyz(msg).tolist() == [[1.0, 2.0, 3.0]]
     assert structured_view(msg).dtype.names == ("x", "y", "z")
@@ -357,10 +397,15 @@ def test_structured_view_is_zero_copy_and_read_only():
 
 def test_duck_typed_message_with_ndarray_or_list_data():
     msg = xyz_to_cloud(np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]), Header())
-    attrs = {k: getattr(msg, k) for k in ("height", "width", "fields", "is_bigendian", "point_step", "row_step")}
+    attrs = {
+        k: getattr(msg, k)
+        for k in ("height", "width", "fields", "is_bigendian", "point_step", "row_step")
+    }
     as_ndarray = SimpleNamespace(data=np.frombuffer(bytes(msg.data), dtype=np.uint8), **attrs)
     as_list = SimpleNamespace(data=list(msg.data), **attrs)
-    as_strided = SimpleNamespace(data=np.repeat(np.frombuffer(bytes(msg.data), np.uint8), 2)[::2], **attrs)
+    as_strided = SimpleNamespace(
+        data=np.repeat(np.frombuffer(bytes(msg.data), np.uint8), 2)[::2], **attrs
+    )
     for duck in (as_ndarray, as_list, as_strided):
         assert cloud_to_xyz(duck).tolist() == [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]
 
@@ -375,7 +420,9 @@ def test_cdr_round_trip_through_rclpy_and_rosbags():
     raw = rclpy_serialization.serialize_message(msg)
 
     back = rclpy_serialization.deserialize_message(raw, PointCloud2)
-    from_bag = typesys.get_typestore(typesys.Stores.ROS2_JAZZY).deserialize_cdr(raw, "sensor_msgs/msg/PointCloud2")
+    from_bag = typesys.get_typestore(typesys.Stores.ROS2_JAZZY).deserialize_cdr(
+        raw, "sensor_msgs/msg/PointCloud2"
+    )
     for received in (back, from_bag):
         assert_same_floats(cloud_to_xyz(received, dtype=np.float32), xyz)
         assert np.array_equal(cloud_to_fields(received, ["rgb"])["rgb"], packed)
@@ -413,7 +460,7 @@ def test_empty_cloud_fields_keep_their_dtype():
 
 
 def valid_cloud(**overrides):
-    """A valid 2x3 x/y/z/rgb cloud; ``overrides`` replace message attributes afterwards."""
+    """Build a valid 2x3 x/y/z/rgb cloud; ``overrides`` replace message attributes."""
     msg = make_cloud(
         xyz_rgb_specs(16),
         {"x": np.arange(6), "y": np.ones(6), "z": np.zeros(6), "rgb": np.zeros(6)},
@@ -427,7 +474,7 @@ def valid_cloud(**overrides):
 
 
 def fields_with(**changes):
-    """The x/y/z/rgb field table with one field's attributes changed, by name."""
+    """Return the x/y/z/rgb field table with one field's attributes changed, by name."""
     fields = []
     for spec in xyz_rgb_specs(16):
         attrs = spec._asdict()
@@ -441,14 +488,26 @@ MALFORMED = {
         dict(fields=fields_with()[:2] + fields_with()[3:]),
         r"no field 'z' \(fields: 'x', 'y', 'rgb'\); x, y and z are required",
     ),
-    "datatype 0": (dict(fields=fields_with(rgb={"datatype": 0})), r"'rgb' has datatype 0; allowed datatypes are 1 \(INT8\)"),
-    "datatype 9": (dict(fields=fields_with(y={"datatype": 9})), r"'y' has datatype 9; allowed .* 8 \(FLOAT64\)"),
+    "datatype 0": (
+        dict(fields=fields_with(rgb={"datatype": 0})),
+        r"'rgb' has datatype 0; allowed datatypes are 1 \(INT8\)",
+    ),
+    "datatype 9": (
+        dict(fields=fields_with(y={"datatype": 9})),
+        r"'y' has datatype 9; allowed .* 8 \(FLOAT64\)",
+    ),
     "x as INT32": (
         dict(fields=fields_with(x={"datatype": PointField.INT32})),
         "'x' is INT32; x, y and z must be FLOAT32 or FLOAT64 with count 1",
     ),
-    "z with count 3": (dict(fields=fields_with(z={"count": 3, "offset": 4})), "'z' is FLOAT32 x 3; x, y and z must"),
-    "count 0": (dict(fields=fields_with(rgb={"count": 0})), "'rgb' has count 0; count must be >= 1"),
+    "z with count 3": (
+        dict(fields=fields_with(z={"count": 3, "offset": 4})),
+        "'z' is FLOAT32 x 3; x, y and z must",
+    ),
+    "count 0": (
+        dict(fields=fields_with(rgb={"count": 0})),
+        "'rgb' has count 0; count must be >= 1",
+    ),
     "field past point_step": (
         dict(fields=fields_with(rgb={"offset": 14})),
         r"'rgb' \(FLOAT32 x 1\) occupies bytes \[14, 18\) of each point but point_step is 16",
@@ -471,7 +530,10 @@ MALFORMED = {
         dict(data=array.array("B", bytes(100))),
         re.escape("data has 100 bytes, expected row_step*height = 48*2 = 96"),
     ),
-    "height without data": (dict(height=3), re.escape("data has 96 bytes, expected row_step*height = 48*3 = 144")),
+    "height without data": (
+        dict(height=3),
+        re.escape("data has 96 bytes, expected row_step*height = 48*3 = 144"),
+    ),
 }
 
 
@@ -498,7 +560,9 @@ def test_point_cloud2_error_is_a_value_error():
 
 def test_overlapping_fields_within_point_step_are_legal():
     # rgb and rgba overlapping (both at 12) is seen in the wild and is not an error
-    fields = fields_with() + [PointField(name="rgba", offset=12, datatype=PointField.UINT32, count=1)]
+    fields = fields_with() + [
+        PointField(name="rgba", offset=12, datatype=PointField.UINT32, count=1)
+    ]
     msg = valid_cloud(fields=fields)
     out = cloud_to_fields(msg, ["rgb", "rgba"])
     assert np.array_equal(out["rgb"], out["rgba"])
@@ -508,13 +572,17 @@ def test_bad_arguments_raise_value_error():
     msg, _, _ = organized_with_nans()
     with pytest.raises(ValueError, match="dtype must be a floating type"):
         cloud_to_xyz(msg, dtype=np.int32)
-    with pytest.raises(ValueError, match=re.escape("mask must be a bool array of shape (12,) or (3, 4)")):
+    with pytest.raises(
+        ValueError, match=re.escape("mask must be a bool array of shape (12,) or (3, 4)")
+    ):
         cloud_to_fields(msg, ["label"], mask=np.ones(11, dtype=bool))
     with pytest.raises(ValueError, match="mask must be a bool array"):
         cloud_to_fields(msg, ["label"], mask=np.arange(12))
     with pytest.raises(ValueError, match="cannot be combined"):
         cloud_to_fields(msg, ["label"], mask=np.ones(12, dtype=bool), keep_organized=True)
-    with pytest.raises(PointCloud2Error, match=r"no field 'rgb' \(fields: 'x', 'y', 'z', 'label'\)"):
+    with pytest.raises(
+        PointCloud2Error, match=r"no field 'rgb' \(fields: 'x', 'y', 'z', 'label'\)"
+    ):
         cloud_to_fields(msg, ["rgb"])
 
 
@@ -533,7 +601,9 @@ def test_xyz_to_cloud_layout_decoded_independently():
     msg = xyz_to_cloud(xyz, header, fields={"rgb": pack_rgb(colours), "object_id": ids})
 
     assert isinstance(msg.data, array.array) and msg.data.typecode == "B"
-    assert msg.header == header and msg.header is not header and msg.header.stamp is not header.stamp
+    assert (
+        msg.header == header and msg.header is not header and msg.header.stamp is not header.stamp
+    )
     assert [(f.name, f.offset, f.datatype, f.count) for f in msg.fields] == [
         ("x", 0, F32, 1),
         ("y", 4, F32, 1),
@@ -552,10 +622,16 @@ def test_xyz_to_cloud_layout_decoded_independently():
 
 
 def test_xyz_to_cloud_rgb_follows_pcl_packing():
-    msg = xyz_to_cloud(np.zeros((3, 3)), Header(), fields={"rgb": np.array([[255, 0, 0], [0, 128, 0], [1, 2, 3]], np.uint8)})
+    msg = xyz_to_cloud(
+        np.zeros((3, 3)),
+        Header(),
+        fields={"rgb": np.array([[255, 0, 0], [0, 128, 0], [1, 2, 3]], np.uint8)},
+    )
     packed = cloud_to_fields(msg, ["rgb"])["rgb"]
     assert packed.tolist() == [0x00FF0000, 0x00008000, 0x00010203]
-    from_float_bits = xyz_to_cloud(np.zeros((3, 3)), Header(), fields={"rgb": packed.view(np.float32).astype(">f4")})
+    from_float_bits = xyz_to_cloud(
+        np.zeros((3, 3)), Header(), fields={"rgb": packed.view(np.float32).astype(">f4")}
+    )
     assert np.array_equal(cloud_to_fields(from_float_bits, ["rgb"])["rgb"], packed)
     float_bits = np.array(decode(msg, "rgb"), dtype=np.float32).ravel()
     assert np.array_equal(float_bits.view(np.uint32), packed)
@@ -569,7 +645,11 @@ def test_xyz_to_cloud_aligns_fields_and_zeroes_padding():
     }
     msg = xyz_to_cloud(np.zeros((2, 3)), Header(), fields=fields)
     layout = [(f.name, f.offset, f.datatype, f.count) for f in msg.fields][3:]
-    assert layout == [("flag", 12, PointField.UINT8, 1), ("intensity", 16, F64, 1), ("normal", 24, F32, 3)]
+    assert layout == [
+        ("flag", 12, PointField.UINT8, 1),
+        ("intensity", 16, F64, 1),
+        ("normal", 24, F32, 3),
+    ]
     assert msg.point_step == 40  # 36 rounded up to the float64 alignment
     data = bytes(msg.data)
     assert data[13:16] == b"\0\0\0" and data[36:40] == b"\0\0\0\0"
@@ -597,7 +677,9 @@ def test_xyz_to_cloud_organized_and_is_dense():
 
 
 def test_xyz_to_cloud_empty():
-    msg = xyz_to_cloud(np.empty((0, 3)), Header(frame_id="map"), fields={"rgb": np.empty(0, np.uint32)})
+    msg = xyz_to_cloud(
+        np.empty((0, 3)), Header(frame_id="map"), fields={"rgb": np.empty(0, np.uint32)}
+    )
     assert (msg.height, msg.width, len(msg.data)) == (1, 0, 0)
     assert msg.is_dense and msg.header.frame_id == "map"
     assert cloud_to_xyz(msg).shape == (0, 3)
@@ -607,15 +689,35 @@ def test_xyz_to_cloud_empty():
 @pytest.mark.parametrize(
     "points, kwargs, match",
     [
-        (np.zeros((4, 2)), {}, re.escape("points must be a real array of shape (N, 3) or (H, W, 3)")),
+        (
+            np.zeros((4, 2)),
+            {},
+            re.escape("points must be a real array of shape (N, 3) or (H, W, 3)"),
+        ),
         (np.zeros((4, 3), bool), {}, "points must be a real array"),
-        (np.zeros((4, 3)), {"organized_shape": (3, 2)}, re.escape("organized_shape (3, 2) must have height * width == N = 4")),
+        (
+            np.zeros((4, 3)),
+            {"organized_shape": (3, 2)},
+            re.escape("organized_shape (3, 2) must have height * width == N = 4"),
+        ),
         (np.zeros((2, 2, 3)), {"organized_shape": (1, 4)}, "disagrees with points"),
         (np.zeros((4, 3)), {"fields": {"x": np.zeros(4)}}, "extra field name 'x' is not allowed"),
         (np.zeros((4, 3)), {"fields": {"": np.zeros(4)}}, "extra field name '' is not allowed"),
-        (np.zeros((4, 3)), {"fields": {"label": np.zeros(3)}}, re.escape("field 'label' must have shape (4,) or (4, count)")),
-        (np.zeros((4, 3)), {"fields": {"label": np.array([0, 1, 2, 2**40])}}, "outside int32 range"),
-        (np.zeros((4, 3)), {"fields": {"label": np.zeros(4, complex)}}, "has dtype complex128; allowed are"),
+        (
+            np.zeros((4, 3)),
+            {"fields": {"label": np.zeros(3)}},
+            re.escape("field 'label' must have shape (4,) or (4, count)"),
+        ),
+        (
+            np.zeros((4, 3)),
+            {"fields": {"label": np.array([0, 1, 2, 2**40])}},
+            "outside int32 range",
+        ),
+        (
+            np.zeros((4, 3)),
+            {"fields": {"label": np.zeros(4, complex)}},
+            "has dtype complex128; allowed are",
+        ),
         (np.zeros((4, 3)), {"fields": {"rgb": np.zeros(4, np.float64)}}, "field 'rgb' must be"),
         (np.zeros((4, 3)), {"fields": {"rgb": np.array([0, 1, 2, -1])}}, "uint32 packed colours"),
     ],
@@ -649,14 +751,18 @@ def test_pack_and_unpack_rgb():
 
 @st.composite
 def random_layouts(draw):
-    """Field order, offsets, paddings, row padding, byte order and x/y/z types at random,
-    with values drawn as raw bit patterns (NaN, Inf, subnormals, -0 included)."""
+    """Draw field order, offsets, paddings, row padding, byte order and x/y/z types.
+
+    Values are drawn as raw bit patterns (NaN, Inf, subnormals, -0 included).
+    """
     xyz_types = {name: draw(st.sampled_from([F32, F64])) for name in "xyz"}
     extras = {
         f"f{i}": (draw(st.sampled_from(sorted(TYPES))), draw(st.integers(1, 3)))
         for i in range(draw(st.integers(0, 3)))
     }
-    entries = [(n, t, 1) for n, t in xyz_types.items()] + [(n, t, c) for n, (t, c) in extras.items()]
+    entries = [(n, t, 1) for n, t in xyz_types.items()] + [
+        (n, t, c) for n, (t, c) in extras.items()
+    ]
     offset, specs = 0, []
     for name, datatype, count in draw(st.permutations(entries)):
         offset += draw(st.integers(0, 5))  # any padding, unaligned offsets included
@@ -678,7 +784,15 @@ def random_layouts(draw):
             values[special] = rng.choice([np.nan, np.inf, -np.inf, -0.0, 0.0], size=special.sum())
         columns[spec.name] = values
     bigendian = draw(st.booleans())
-    msg = make_cloud(specs, columns, height=height, width=width, point_step=point_step, row_step=row_step, bigendian=bigendian)
+    msg = make_cloud(
+        specs,
+        columns,
+        height=height,
+        width=width,
+        point_step=point_step,
+        row_step=row_step,
+        bigendian=bigendian,
+    )
     return msg, columns
 
 
@@ -734,7 +848,9 @@ def test_property_xyz_to_cloud_round_trip(seed, shape, extra, with_rgb):
     if with_rgb:
         fields["rgb"] = rng.integers(0, 2**24, size=n, dtype=np.uint32)
     for i, (dtype, count) in enumerate(extra):
-        raw = rng.integers(0, 256, size=(n, count * np.dtype(dtype).itemsize), dtype=np.uint8).view(dtype)
+        raw = rng.integers(0, 256, size=(n, count * np.dtype(dtype).itemsize), dtype=np.uint8).view(
+            dtype
+        )
         fields[f"e{i}"] = raw[:, 0] if count == 1 else raw
     points = xyz.reshape(*shape, 3) if len(shape) == 2 else xyz
 

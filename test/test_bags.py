@@ -1,5 +1,6 @@
-"""rosbag2 files: ``geomodel synth --bag``, ``geomodel bag`` (offline, the node's chain) and
-``play`` into a live node.
+"""rosbag2 files: ``geomodel synth --bag``, ``geomodel bag`` and ``play`` into a node.
+
+``geomodel bag`` runs the node's chain offline.
 
 Bags are written and read back with ``rosbags``; outputs are checked against the ground
 truth of the synthetic scenes.
@@ -33,14 +34,17 @@ from geomodel_ros.ros.node import ModelerNode
 from geomodel_ros.tools.synth import render_scene
 from msg_adapters.markers import LABEL_NAMESPACE, PLANE_THICKNESS
 from msg_adapters.pointcloud2 import xyz_to_cloud
+from ros_helpers import wait_until
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 TOPIC = bags.DEFAULT_TOPIC
 TIMEOUT = 30.0
-#: Size tolerance of the markers against the ground truth (clean renders) [m].
-SIZE_TOL = 0.004
-#: Centre tolerance [m].
-CENTER_TOL = 0.008
+#: Size tolerance of the markers against the ground truth (clean renders) [m]: what the
+#: method achieves on these scenes (largest error measured 0.75 mm, the tiny_box cuboid's
+#: height; apart's objects within 0.05 mm).
+SIZE_TOL = 0.001
+#: Centre tolerance [m] (largest error measured 0.40 mm, the tiny_box cuboid).
+CENTER_TOL = 0.001
 
 
 def run(capsys, argv) -> tuple[int, str, str]:
@@ -59,7 +63,7 @@ def read_bag(path: Path) -> dict[str, list[tuple[int, bytes]]]:
 
 
 def content(raw: bytes, msgtype: str):
-    """A deserialized message in a comparable form."""
+    """Deserialize a message into a comparable form."""
     msg = TYPESTORE.deserialize_cdr(raw, msgtype)
     if msgtype == bags.POINTCLOUD2:
         return (repr(msg.header), msg.height, msg.width, repr(msg.fields), msg.point_step,
@@ -370,7 +374,7 @@ class Spinning:
         self.thread.join(TIMEOUT)
 
 
-def test_replay_into_the_node_models_every_frame(context, tmp_path):
+def test_replay_into_the_node_models_the_frames_it_gets_in_order(context, tmp_path):
     bag = tmp_path / "replay"
     truth = bags.write_synth_bag(bag, ["tiny_box"], frames=3, rate=10.0)
     node = ModelerNode(context=context, parameter_overrides=[
@@ -392,14 +396,23 @@ def test_replay_into_the_node_models_every_frame(context, tmp_path):
                              QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
     spinning = Spinning(context, node, peer)
     try:
-        # 10 Hz recorded, x0.1: one frame per second, several times the modeling time
-        published = bags.play(bag, rate=0.1, context=context, wait_timeout=TIMEOUT)
+        published = bags.play(bag, context=context, wait_timeout=TIMEOUT)
         assert published == 3
+        # Reliable, depth 10: the node receives every frame; frames that arrive while one
+        # is modeled may be dropped (newest wins), but the last one is always modeled.
+        wait_until(lambda: node.stats().received == 3, "the node to receive every frame")
+        stamps = truth["scenes"][0]["stamps_ns"]
         with cond:
-            assert cond.wait_for(lambda: len(got) == 3, TIMEOUT), f"got {len(got)} of 3"
+            assert cond.wait_for(lambda: got and stamp_ns(got[-1].markers[0]) == stamps[-1],
+                                 TIMEOUT), f"the last frame was not modeled: {len(got)} arrays"
+        wait_until(lambda: sum(getattr(node.stats(), k) for k in ("processed", "dropped",
+                                                                   "failed")) == 3,
+                   "the node to account for every frame")
         stats = node.stats()
-        assert (stats.received, stats.processed, stats.dropped, stats.failed) == (3, 3, 0, 0)
-        assert [stamp_ns(m.markers[0]) for m in got] == truth["scenes"][0]["stamps_ns"]
+        assert stats.failed == 0 and stats.processed + stats.dropped == 3
+        assert stats.processed == len(got)
+        got_stamps = [stamp_ns(m.markers[0]) for m in got]
+        assert got_stamps == sorted(set(got_stamps)) and set(got_stamps) <= set(stamps)
         for msg in got:
             check_markers_against_truth(msg.markers, truth["scenes"][0]["objects"])
     finally:

@@ -1,7 +1,8 @@
-"""The core (algorithm, synth, CLI, file IO) imports and runs with every ROS module blocked."""
+"""The core imports and runs with every ROS module blocked; the layers import what they may."""
 
 from __future__ import annotations
 
+import ast
 import os
 import subprocess
 import sys
@@ -75,3 +76,70 @@ def test_core_imports_and_models_without_ros():
     lines = proc.stdout.strip().splitlines()
     assert lines[0] == "plane,cuboid"
     assert "ros__parameters:" in proc.stdout   # `geomodel params` ran
+
+
+# ---------------------------------------------------------------------------------------
+# layers: who may import what (read from the source, so a lazy import counts too)
+# ---------------------------------------------------------------------------------------
+
+#: Packages that define ROS messages (and rclpy's message (de)serialization): only
+#: msg_adapters may import them.
+MESSAGE_PACKAGES = ("sensor_msgs", "std_msgs", "visualization_msgs", "geometry_msgs",
+                    "builtin_interfaces", "diagnostic_msgs", "rcl_interfaces",
+                    "rclpy.serialization")
+
+
+def _imports(path: Path) -> list[str]:
+    """Every module named by an import statement of ``path`` (relative ones resolved)."""
+    package = ".".join(path.relative_to(ROOT).with_suffix("").parts[:-1])
+    names = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = package.rsplit(".", node.level - 1)[0] if node.level else ""
+            module = ".".join(filter(None, [base, node.module or ""]))
+            names += [module] + [f"{module}.{a.name}" for a in node.names]
+    return names
+
+
+def _within(name: str, packages) -> bool:
+    return any(name == p or name.startswith(p + ".") for p in packages)
+
+
+def _sources(folder: str) -> list[Path]:
+    files = sorted((ROOT / folder).rglob("*.py"))
+    assert files, folder
+    return files
+
+
+def test_imports_helper_sees_absolute_relative_and_lazy_imports():
+    probe = ROOT / "msg_adapters" / "markers.py"
+    names = _imports(probe)
+    assert "msg_adapters.pointcloud2.xyz_to_cloud" in names  # from .pointcloud2 import ...
+    assert "visualization_msgs.msg.MarkerArray" in names
+    # an import inside a function (bags._play_qos) counts too
+    assert "rclpy.qos.QoSProfile" in _imports(ROOT / "geomodel_ros" / "ros" / "bags.py")
+    assert _within("rclpy.serialization.serialize_message", MESSAGE_PACKAGES)
+    assert not _within("rclpy.node", MESSAGE_PACKAGES)
+
+
+def test_msg_adapters_import_only_core_types_of_geomodel_ros():
+    for path in _sources("msg_adapters"):
+        ours = [n for n in _imports(path) if _within(n, ["geomodel_ros"])]
+        bad = [n for n in ours if not _within(n, ["geomodel_ros.core"])]
+        assert not bad, f"{path.relative_to(ROOT)} imports {bad}"
+
+
+def test_only_msg_adapters_touch_message_packages():
+    for path in _sources("geomodel_ros"):
+        bad = [n for n in _imports(path) if _within(n, MESSAGE_PACKAGES)]
+        assert not bad, f"{path.relative_to(ROOT)} imports {bad}; go through msg_adapters"
+
+
+def test_core_imports_nothing_of_the_ros_layer_or_the_tools():
+    for path in _sources("geomodel_ros/core"):
+        bad = [n for n in _imports(path)
+               if _within(n, ["geomodel_ros", "msg_adapters", "rclpy"])
+               and not _within(n, ["geomodel_ros.core"])]
+        assert not bad, f"{path.relative_to(ROOT)} imports {bad}"

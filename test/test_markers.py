@@ -179,7 +179,7 @@ def test_ids_are_object_ids_and_unique_per_namespace():
 def test_plane_is_a_thin_cube_with_the_plane_pose():
     (m,) = by_ns(primitives_to_markers(SCENE, HEADER), "plane")
     assert m.type == Marker.CUBE
-    assert (m.scale.x, m.scale.y, m.scale.z) == pytest.approx((0.4, 0.3, PLANE_THICKNESS))
+    assert (m.scale.x, m.scale.y, m.scale.z) == (0.4, 0.3, PLANE_THICKNESS)
     assert np.allclose(marker_position(m), SCENE[0].center)
     assert np.allclose(marker_rotation(m), ROT, atol=1e-12)
 
@@ -187,14 +187,14 @@ def test_plane_is_a_thin_cube_with_the_plane_pose():
 def test_cuboid_is_a_cube_with_its_extents_along_its_axes():
     (m,) = by_ns(primitives_to_markers(SCENE, HEADER), "cuboid")
     assert m.type == Marker.CUBE
-    assert (m.scale.x, m.scale.y, m.scale.z) == pytest.approx((0.08, 0.06, 0.05))
+    assert (m.scale.x, m.scale.y, m.scale.z) == (0.08, 0.06, 0.05)
     assert np.allclose(marker_rotation(m), ROT, atol=1e-12)
 
 
 def test_cylinder_scale_is_diameter_and_height_with_marker_z_on_the_axis():
     (m,) = by_ns(primitives_to_markers(SCENE, HEADER), "cylinder")
     assert m.type == Marker.CYLINDER
-    assert (m.scale.x, m.scale.y, m.scale.z) == pytest.approx((0.1, 0.1, 0.06))
+    assert (m.scale.x, m.scale.y, m.scale.z) == (0.1, 0.1, 0.06)
     assert np.allclose(marker_position(m), SCENE[2].center)
     assert np.allclose(marker_rotation(m)[:, 2], ROT[:, 2], atol=1e-12)
 
@@ -202,7 +202,7 @@ def test_cylinder_scale_is_diameter_and_height_with_marker_z_on_the_axis():
 def test_sphere_scale_is_the_diameter():
     (m,) = by_ns(primitives_to_markers(SCENE, HEADER), "sphere")
     assert m.type == Marker.SPHERE
-    assert (m.scale.x, m.scale.y, m.scale.z) == pytest.approx((0.05, 0.05, 0.05))
+    assert (m.scale.x, m.scale.y, m.scale.z) == (0.05, 0.05, 0.05)
     assert np.allclose(marker_position(m), SCENE[4].center)
 
 
@@ -379,7 +379,8 @@ def test_markers_to_primitives_inverts_primitives_to_markers():
     q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     rot = q * np.sign(np.linalg.det(q))
     prims = [
-        Primitive(1, "plane", np.array([0.0, 0.1, 0.8]), rot, {"length": 0.4, "width": 0.3}, 10, 0.0),
+        Primitive(1, "plane", np.array([0.0, 0.1, 0.8]), rot, {"length": 0.4, "width": 0.3},
+                  10, 0.0),
         Primitive(2, "cuboid", np.array([0.1, 0.0, 0.6]), rot, {"length": 0.05, "width": 0.06,
                                                                 "height": 0.07}, 10, 0.0),
         Primitive(3, "cylinder", np.array([-0.1, 0.0, 0.6]), rot, {"radius": 0.02, "height": 0.08},

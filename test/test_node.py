@@ -1,8 +1,8 @@
 """The ``modeler`` node with real rclpy pub/sub in one process (private Context per test).
 
-The core is the real :func:`geomodel_ros.core.pipeline.model_scene`, wrapped by
-:class:`CoreProbe`, which records its calls and can hold the worker (newest-frame-wins
-test) or fail a frame.
+The core is the real :func:`geomodel_ros.core.modeling.model_scene`, wrapped by
+:class:`CoreProbe` and passed to the node (``ModelerNode(model_scene=...)``); the probe
+records its calls and can hold the worker (newest-frame-wins test) or fail a frame.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from geomodel_ros.core import modeling as pipeline
+from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.ros.node import NODE_PARAMETERS, ModelerNode
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError
 from geomodel_ros.tools.synth import render_scene
@@ -71,7 +71,7 @@ class CoreProbe:
         self.entered = threading.Semaphore(0)
         self.fail_next = 0
 
-    def __call__(self, points, params, organized_shape=None):
+    def __call__(self, points, params, *, organized_shape=None):
         self.calls.append({"n": len(points), "params": params,
                            "organized_shape": organized_shape, "dtype": points.dtype})
         self.entered.release()
@@ -84,19 +84,18 @@ class CoreProbe:
 
 
 @pytest.fixture
-def core(monkeypatch):
-    probe = CoreProbe(pipeline.model_scene)
-    monkeypatch.setattr(pipeline, "model_scene", probe, raising=False)
-    return probe
+def core():
+    return CoreProbe(model_scene)
 
 
 class Harness:
     """The node under test + a peer node publishing clouds and collecting outputs."""
 
-    def __init__(self, context: Context, overrides: dict | None = None) -> None:
+    def __init__(self, context: Context, core: CoreProbe,
+                 overrides: dict | None = None) -> None:
         values = {"qos_reliability": "reliable", "qos_depth": 5, **(overrides or {})}
         self.node = ModelerNode(
-            context=context,
+            context=context, model_scene=core,
             cli_args=["--ros-args", "-r", "points:=/test/points"],
             parameter_overrides=[Parameter(k, value=v) for k, v in values.items()],
         )
@@ -132,7 +131,7 @@ def make_harness(context, core):
     made: list[Harness] = []
 
     def make(**overrides) -> Harness:
-        h = Harness(context, overrides)
+        h = Harness(context, core, overrides)
         made.append(h)
         return h
 
@@ -376,7 +375,7 @@ def test_parameter_sets_are_validated_and_applied_from_the_next_frame(make_harne
                                                       max_radius=5.0)
 
 
-def test_output_switches_take_effect(make_harness, core):
+def test_output_switches_take_effect(make_harness):
     h = make_harness()
     results = h.node.set_parameters([Parameter("publish_segments", value=False),
                                      Parameter("publish_reconstruction", value=False)])
@@ -385,7 +384,6 @@ def test_output_switches_take_effect(make_harness, core):
     h.markers.wait()
     wait_until(lambda: h.node.stats().processed == 1, "the frame to be processed")
     assert len(h.segments) == 0 and len(h.recon) == 0
-    assert h.node.stats().last_timing["reconstruction_s"] < 1e-3
 
 
 @pytest.mark.parametrize("overrides, error, match", [

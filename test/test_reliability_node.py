@@ -6,18 +6,18 @@ conditions with timeouts instead of fixed sleeps (the only timed waits pace a pu
 * A burst of malformed and degenerate clouds interleaved with good ones: the node keeps
   running, accounts for every frame, and models the next good frame correctly.
 * Rejected parameter sets change nothing: same parameters, same markers for the same cloud.
-* Sustained load faster than the node can model: processed + dropped + failed ==
-  received (up to the frame in the mailbox and the one in progress), no failures, latency
-  of processed frames does not grow (no queue), memory does not grow.
+* Input faster than the node can model (frames arriving while one is in progress; the
+  core is held at a gate, so the outcome does not depend on timing): every frame is
+  accounted for, only the newest waiting frame is modeled, in stamp order (no queue), no
+  failures, well-formed outputs.  Rates, latency and memory under sustained load are
+  measured by ``python -m geomodel_ros.tools.bench_load``, not asserted here.
 """
 
 from __future__ import annotations
 
 import array
 import math
-import statistics
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -30,6 +30,7 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
+from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.ros.node import ModelerNode
 from geomodel_ros.tools.synth import render_scene
 from msg_adapters.pointcloud2 import xyz_to_cloud
@@ -41,40 +42,61 @@ from ros_helpers import scene_cloud as _scene_cloud
 
 
 class MarkerLog:
-    """Every MarkerArray with its arrival time (wall clock, like the stamps we send)."""
+    """Every MarkerArray in arrival order."""
 
     def __init__(self, node: Node, topic: str) -> None:
-        self.items: list[tuple[float, MarkerArray]] = []
+        self.items: list[MarkerArray] = []
         self._cond = threading.Condition()
         self.sub = node.create_subscription(MarkerArray, topic, self._on, RELIABLE)
 
     def _on(self, msg: MarkerArray) -> None:
-        now = time.time()
         with self._cond:
-            self.items.append((now, msg))
+            self.items.append(msg)
             self._cond.notify_all()
 
     def wait_for_stamp(self, sec: int, timeout: float = TIMEOUT) -> MarkerArray:
         def found():
-            return next((m for _, m in self.items
+            return next((m for m in self.items
                          if m.markers and m.markers[0].header.stamp.sec == sec), None)
 
         with self._cond:
             if not self._cond.wait_for(lambda: found() is not None, timeout):
-                got = [m.markers[0].header.stamp.sec for _, m in self.items if m.markers]
+                got = [m.markers[0].header.stamp.sec for m in self.items if m.markers]
                 pytest.fail(f"no MarkerArray stamped {sec} within {timeout} s (got {got})")
             return found()
 
-    def snapshot(self) -> list[tuple[float, MarkerArray]]:
+    def snapshot(self) -> list[MarkerArray]:
         with self._cond:
             return list(self.items)
 
 
+class GatedCore:
+    """The real ``model_scene`` behind a gate: frames pile up while one is held."""
+
+    def __init__(self) -> None:
+        self.gate = threading.Event()
+        self.gate.set()
+        self._lock = threading.Lock()
+        self._calls = 0
+
+    @property
+    def calls(self) -> int:
+        with self._lock:
+            return self._calls
+
+    def __call__(self, points, params, *, organized_shape=None):
+        with self._lock:
+            self._calls += 1
+        if not self.gate.wait(TIMEOUT):
+            raise RuntimeError("test gate never opened")
+        return model_scene(points, params, organized_shape=organized_shape)
+
+
 class Harness:
-    def __init__(self, context: Context, **overrides) -> None:
+    def __init__(self, context: Context, core=model_scene, **overrides) -> None:
         values = {"qos_reliability": "reliable", "qos_depth": 5, **overrides}
         self.node = ModelerNode(
-            context=context,
+            context=context, model_scene=core,
             cli_args=["--ros-args", "-r", "points:=/rel/points"],
             parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
         self.peer = Node("rel_peer", context=context)
@@ -156,7 +178,7 @@ def marker_signature(markers: MarkerArray) -> list[tuple]:
 # --------------------------------------------------------------------------- bad input
 def _raw_cloud(points, sec: int, *, datatype=PointField.FLOAT32, big=False, names="xyz",
                height=1) -> PointCloud2:
-    """A hand-built x, y, z cloud (any datatype, byte order and field names)."""
+    """Build an x, y, z cloud by hand (any datatype, byte order and field names)."""
     pts = np.asarray(points, dtype=np.float64)
     element = np.dtype({PointField.FLOAT32: "f4", PointField.FLOAT64: "f8",
                         PointField.INT16: "i2"}[datatype]).newbyteorder(">" if big else "<")
@@ -242,7 +264,7 @@ def test_burst_of_bad_clouds_never_stops_the_node(harness):
     s = h.node.stats()
     assert s.received == published
     assert s.failed >= 1  # the malformed ones the worker got to
-    for _, markers in h.markers.snapshot():
+    for markers in h.markers.snapshot():
         assert_markers_sane(markers)
 
     # the node is alive and models the next good frame correctly
@@ -306,63 +328,33 @@ def test_rejected_parameter_sets_change_nothing(harness):
 
 
 # --------------------------------------------------------------------------- load
-def _rss_kib() -> int:
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-    raise RuntimeError("no VmRSS in /proc/self/status")
-
-
-def test_sustained_load_drops_frames_without_queueing_or_leaking(harness):
-    h = harness(qos_depth=1)
+def test_frames_arriving_during_modeling_are_dropped_not_queued(harness):
+    core = GatedCore()
+    h = harness(core=core, qos_depth=1)
     organized = render_scene("apart").organized
-    clouds = [xyz_to_cloud(organized, stamp(0)) for _ in range(2)]
-    rate_hz, duration_s, warmup_s = 12.0, 16.0, 4.0
-    period = 1.0 / rate_hz
-
-    start = time.monotonic()
-    published, rss_warm, tick = 0, None, threading.Event()
-    while (elapsed := time.monotonic() - start) < duration_s:
-        if rss_warm is None and elapsed >= warmup_s:
-            rss_warm = _rss_kib()
-        msg = clouds[published % 2]
-        now = time.time()
-        msg.header.stamp = Time(sec=int(now), nanosec=int((now % 1.0) * 1e9))
-        h.pub.publish(msg)
-        published += 1
-        # in flight: at most the frame in the mailbox and the one being modeled
-        s = h.node.stats()
-        assert s.received - (s.processed + s.dropped + s.failed) <= 2, s
-        tick.wait(max(0.0, start + published * period - time.monotonic()))  # pacing only
-    # The newest frame always wins, so this last one is modeled once everything before it
-    # is processed or dropped.  (DDS itself may replace samples in the depth-1 reader
-    # history before the node's callback sees them: those are never "received".)
-    h.pub.publish(xyz_to_cloud(organized, stamp(7)))
-    published += 1
-    h.markers.wait_for_stamp(7)
-    wait_until(h.settled, "the node to go idle")
-    rss_end = _rss_kib()
+    rounds, burst = 3, 5
+    sec, expected_stamps = 0, []
+    for r in range(rounds):
+        core.gate.clear()
+        sec += 1
+        h.publish_and_wait_received(xyz_to_cloud(organized, stamp(sec)))
+        wait_until(lambda: core.calls == 2 * r + 1, "the worker to hold the frame")
+        expected_stamps.append(sec)
+        for _ in range(burst):  # all arrive while the first one is being modeled
+            sec += 1
+            h.publish_and_wait_received(xyz_to_cloud(organized, stamp(sec)))
+        expected_stamps.append(sec)  # the newest replaced the others in the mailbox
+        core.gate.set()
+        h.markers.wait_for_stamp(sec)
+        wait_until(h.settled, "the node to go idle")
 
     s = h.node.stats()
-    assert s.failed == 0
-    assert s.processed + s.dropped == s.received <= published
-    assert s.dropped > 0, "the load was not faster than the node (test too weak)"
-    assert s.processed >= 10, s
-
+    assert (s.received, s.processed, s.dropped, s.failed) == (
+        rounds * (1 + burst), 2 * rounds, rounds * (burst - 1), 0)
+    assert core.calls == 2 * rounds
     items = h.markers.snapshot()
-    assert len(items) == s.processed
-    items = items[:-1]  # the sentinel has a synthetic stamp
-    latencies = []
-    for arrived, markers in items:
+    # modeled in arrival order, never an older frame after a newer one
+    assert [m.markers[0].header.stamp.sec for m in items] == expected_stamps
+    for markers in items:
         assert_markers_sane(markers)
-        assert {"plane", "cuboid", "cylinder", "sphere"} <= shape_namespaces(markers)
-        st = markers.markers[0].header.stamp
-        latencies.append(arrived - (st.sec + st.nanosec * 1e-9))
-    third = len(latencies) // 3
-    first, last = statistics.median(latencies[:third]), statistics.median(latencies[-third:])
-    print(f"load: published {published}, received {s.received}, processed {s.processed}, "
-          f"dropped {s.dropped}; latency median first/last third {first:.3f}/{last:.3f} s; "
-          f"RSS {rss_warm} -> {rss_end} KiB")
-    assert last <= 2.0 * first + 0.25, (first, last, latencies)  # no queue builds up
-    assert rss_end <= 1.2 * rss_warm, (rss_warm, rss_end)
+        assert shape_namespaces(markers) == {"plane", "cuboid", "cylinder", "sphere"}

@@ -9,8 +9,8 @@
   serialized bytes (no deserialization), like ``ros2 bag play``.
 
 Bags are read and written with ``rosbags`` (pure Python; ``rosbag2_py`` is not needed).
-Messages are (de)serialized with ``rclpy.serialization``, which needs no ``rclpy.init``;
-only :func:`play` starts DDS.
+Messages are built, read and (de)serialized only through :mod:`msg_adapters` (no
+``rclpy.init`` needed); only :func:`play` starts DDS.
 """
 
 from __future__ import annotations
@@ -26,18 +26,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.interfaces import (Connection, Qos, QosDurability, QosHistory, QosLiveliness,
                                 QosReliability, QosTime)
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
-from sensor_msgs.msg import PointCloud2
-from std_msgs.msg import Header
 
-from msg_adapters.pointcloud2 import PointCloud2Error, xyz_to_cloud
-from geomodel_ros.ros.processing import ModelingError, process_cloud
+from geomodel_ros.ros.processing import (FrameResult, ModelingError, SceneModeler,
+                                         process_cloud)
 
 from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.modeling import model_scene as core_model_scene
+
+from msg_adapters.header import make_header
+from msg_adapters.interfaces import PointCloud2
+from msg_adapters.pointcloud2 import PointCloud2Error, xyz_to_cloud
+from msg_adapters.serialization import DeserializationError, deserialize_cloud, serialize
 
 __all__ = [
     "BagError",
@@ -121,10 +124,6 @@ def _close_writer(writer: Writer) -> None:
         writer.close()
 
 
-def _stamp_ns(header: Any) -> int:
-    return int(header.stamp.sec) * 10**9 + int(header.stamp.nanosec)
-
-
 # ---------------------------------------------------------------------------------------
 # synthetic bags
 # ---------------------------------------------------------------------------------------
@@ -200,10 +199,9 @@ def write_synth_bag(path: str | os.PathLike[str], names: Sequence[str], *, frame
             for _ in range(int(frames)):
                 scene = render_scene(name, noise=SENSOR_NOISE if noise else None, rng=rng)
                 t_ns = SYNTH_START_NS + int(round(k * period_ns))
-                header = Header(frame_id=frame_id)
-                header.stamp.sec, header.stamp.nanosec = divmod(t_ns, 10**9)
-                msg = xyz_to_cloud(scene.organized.astype(np.float32), header)
-                writer.write(conn, t_ns, serialize_message(msg))
+                msg = xyz_to_cloud(scene.organized.astype(np.float32),
+                                   make_header(frame_id, t_ns))
+                writer.write(conn, t_ns, serialize(msg))
                 entry["frames"].append(k)
                 entry["stamps_ns"].append(t_ns)
                 k += 1
@@ -239,7 +237,7 @@ def _describe(exc: BaseException) -> str:
 
 def _messages(reader: Reader, path: Path, connections: Sequence[Connection]
               ) -> Iterator[tuple[Connection, int, bytes]]:
-    """The reader's records, with any storage failure turned into :class:`BagError`."""
+    """Yield the reader's records, with any storage failure turned into :class:`BagError`."""
     it = reader.messages(connections=connections)
     while True:
         try:
@@ -327,12 +325,64 @@ class BagSummary:
     seconds: float = 0.0
 
 
+@dataclass(frozen=True)
+class _Outputs:
+    """Connections of the output bag: the copied input and the node's output topics."""
+
+    cloud: Connection
+    markers: Connection
+    segments: Connection | None
+    reconstruction: Connection | None
+
+
+def _add_outputs(writer: Writer, name: str, conns: Sequence[Connection], ns: str,
+                 segments: bool, reconstruction: bool) -> _Outputs:
+    """Create the output bag's connections (input QoS kept, outputs as the node offers)."""
+    qos = conns[0].ext.offered_qos_profiles if hasattr(conns[0].ext,
+                                                      "offered_qos_profiles") else []
+
+    def add(topic: str, msgtype: str) -> Connection:
+        return writer.add_connection(topic, msgtype, typestore=_TYPESTORE,
+                                     offered_qos_profiles=[_NODE_OUTPUT_QOS])
+
+    return _Outputs(
+        cloud=writer.add_connection(name, POINTCLOUD2, typestore=_TYPESTORE,
+                                    offered_qos_profiles=qos),
+        markers=add(f"{ns}/primitives", MARKER_ARRAY),
+        segments=add(f"{ns}/segments", POINTCLOUD2) if segments else None,
+        reconstruction=add(f"{ns}/reconstruction", POINTCLOUD2) if reconstruction else None)
+
+
+def _model_record(raw: bytes, params: ModelingParams, segments: bool, reconstruction: bool,
+                  model_scene: SceneModeler) -> tuple[FrameResult | None, str | None]:
+    """Model one serialized cloud: the node's outputs, or None and why it was skipped."""
+    try:
+        msg = deserialize_cloud(raw)
+        return process_cloud(msg, params, segments=segments, reconstruction=reconstruction,
+                             model_scene=model_scene), None
+    except PointCloud2Error as exc:
+        return None, f"malformed PointCloud2: {exc}"
+    except ModelingError as exc:
+        return None, f"modeling failed: {exc}"
+    except DeserializationError as exc:
+        return None, f"cannot deserialize PointCloud2: {exc}"
+
+
+def _write_outputs(writer: Writer, outs: _Outputs, t_ns: int, frame: FrameResult) -> None:
+    writer.write(outs.markers, t_ns, serialize(frame.markers))
+    if outs.segments is not None and frame.segments is not None:
+        writer.write(outs.segments, t_ns, serialize(frame.segments))
+    if outs.reconstruction is not None and frame.reconstruction is not None:
+        writer.write(outs.reconstruction, t_ns, serialize(frame.reconstruction))
+
+
 def process_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
                 params: ModelingParams | None = None, topic: str | None = None,
                 storage: str | None = None, namespace: str = OUTPUT_NAMESPACE,
                 segments: bool = True, reconstruction: bool = True,
                 progress: Callable[[int, int], None] | None = None,
-                warn: Callable[[str], None] | None = None) -> BagSummary:
+                warn: Callable[[str], None] | None = None,
+                model_scene: SceneModeler = core_model_scene) -> BagSummary:
     """Model every PointCloud2 of a bag offline, as the ``modeler`` node would.
 
     Parameters
@@ -357,6 +407,8 @@ def process_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
         Called after each cloud (``n`` = clouds on the topic).
     warn : callable(str), optional
         Called with a one-line reason for every skipped cloud.
+    model_scene : SceneModeler
+        The scene modeling (default: the core's ``model_scene``, as the node runs it).
 
     Returns
     -------
@@ -387,47 +439,19 @@ def process_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
         total = sum(c.msgcount for c in conns)
         writer = _open_writer(dst_path, storage or _input_storage(src_path))
         try:
-            qos = conns[0].ext.offered_qos_profiles if hasattr(conns[0].ext,
-                                                              "offered_qos_profiles") else []
-            out_in = writer.add_connection(name, POINTCLOUD2, typestore=_TYPESTORE,
-                                           offered_qos_profiles=qos)
-            out_markers = writer.add_connection(f"{ns}/primitives", MARKER_ARRAY,
-                                                typestore=_TYPESTORE,
-                                                offered_qos_profiles=[_NODE_OUTPUT_QOS])
-            out_segments = out_recon = None
-            if segments:
-                out_segments = writer.add_connection(f"{ns}/segments", POINTCLOUD2,
-                                                     typestore=_TYPESTORE,
-                                                     offered_qos_profiles=[_NODE_OUTPUT_QOS])
-            if reconstruction:
-                out_recon = writer.add_connection(f"{ns}/reconstruction", POINTCLOUD2,
-                                                  typestore=_TYPESTORE,
-                                                  offered_qos_profiles=[_NODE_OUTPUT_QOS])
+            outs = _add_outputs(writer, name, conns, ns, segments, reconstruction)
             for _, t_ns, raw in _messages(reader, src_path, conns):
                 summary.frames += 1
-                writer.write(out_in, t_ns, raw)
-                reason = None
-                try:
-                    msg = deserialize_message(raw, PointCloud2)
-                    frame = process_cloud(msg, params, segments=segments,
-                                          reconstruction=reconstruction)
-                except PointCloud2Error as exc:
-                    reason = f"malformed PointCloud2: {exc}"
-                except ModelingError as exc:
-                    reason = f"modeling failed: {exc}"
-                except Exception as exc:  # noqa: BLE001 - rclpy's CDR errors have no public type
-                    reason = f"cannot deserialize PointCloud2: {_describe(exc)}"
-                if reason is not None:
+                writer.write(outs.cloud, t_ns, raw)
+                frame, reason = _model_record(raw, params, segments, reconstruction,
+                                              model_scene)
+                if frame is None:
                     summary.skipped.append(f"message {summary.frames} (bag time {t_ns} ns) "
                                            f"skipped: {reason}")
                     if warn is not None:
                         warn(summary.skipped[-1])
                 else:
-                    writer.write(out_markers, t_ns, serialize_message(frame.markers))
-                    if out_segments is not None and frame.segments is not None:
-                        writer.write(out_segments, t_ns, serialize_message(frame.segments))
-                    if out_recon is not None and frame.reconstruction is not None:
-                        writer.write(out_recon, t_ns, serialize_message(frame.reconstruction))
+                    _write_outputs(writer, outs, t_ns, frame)
                     summary.processed += 1
                 if progress is not None:
                     progress(summary.frames, total)
@@ -459,7 +483,7 @@ def _parse_remaps(remap: Mapping[str, str] | Sequence[str] | None) -> dict[str, 
 
 
 def _play_qos(conns: Sequence[Connection]):
-    """The QoS ``ros2 bag play`` offers for a topic recorded with these connections."""
+    """Return the QoS ``ros2 bag play`` offers for a topic recorded with these connections."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     reliability, durability = ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE
@@ -471,6 +495,45 @@ def _play_qos(conns: Sequence[Connection]):
             durability = DurabilityPolicy.TRANSIENT_LOCAL
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=PLAY_QOS_DEPTH,
                       reliability=reliability, durability=durability)
+
+
+def _wait_for_subscribers(pubs: Mapping[str, Any], wait_timeout: float,
+                          min_subscribers: int, stop: threading.Event) -> bool:
+    """Wait until a publisher has ``min_subscribers``; False if ``stop`` was set first.
+
+    Raises
+    ------
+    BagError
+        If none has them after ``wait_timeout`` [s] (0: do not wait).
+    """
+    deadline = time.monotonic() + wait_timeout
+    while wait_timeout > 0 and max(p.get_subscription_count() for p in pubs.values()) \
+            < min_subscribers:
+        if time.monotonic() > deadline:
+            raise BagError(
+                f"no subscriber on {', '.join(p.topic_name for p in pubs.values())} "
+                f"after {wait_timeout:g} s; start the consumer first (same "
+                f"ROS_DOMAIN_ID) or use --remap")
+        if stop.wait(0.01):
+            return False
+    return True
+
+
+def _publish_once(reader: Reader, bag: Path, conns: Sequence[Connection],
+                  pubs: Mapping[str, Any], rate: float, stop: threading.Event) -> int:
+    """Publish the records once at the recorded rate / ``rate``; records published."""
+    published = 0
+    t0_bag: int | None = None
+    t0_wall = time.monotonic()
+    for conn, t_ns, raw in _messages(reader, bag, conns):
+        if t0_bag is None:
+            t0_bag = t_ns
+        delay = t0_wall + (t_ns - t0_bag) / 1e9 / rate - time.monotonic()
+        if delay > 0 and stop.wait(delay):
+            break
+        pubs[conn.topic].publish(raw)
+        published += 1
+    return published
 
 
 def play(path: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False,
@@ -562,28 +625,11 @@ def play(path: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False,
                 for n in names}
         if on_start is not None:
             on_start({n: p.topic_name for n, p in pubs.items()})
-        deadline = time.monotonic() + wait_timeout
-        while wait_timeout > 0 and max(p.get_subscription_count() for p in pubs.values()) \
-                < min_subscribers:
-            if time.monotonic() > deadline:
-                raise BagError(
-                    f"no subscriber on {', '.join(p.topic_name for p in pubs.values())} "
-                    f"after {wait_timeout:g} s; start the consumer first (same "
-                    f"ROS_DOMAIN_ID) or use --remap")
-            if stop.wait(0.01):
-                return published
+        if not _wait_for_subscribers(pubs, wait_timeout, min_subscribers, stop):
+            return published
         all_conns = [c for n in names for c in conns[n]]
         while not stop.is_set():
-            t0_bag: int | None = None
-            t0_wall = time.monotonic()
-            for conn, t_ns, raw in _messages(reader, bag, all_conns):
-                if t0_bag is None:
-                    t0_bag = t_ns
-                delay = t0_wall + (t_ns - t0_bag) / 1e9 / rate - time.monotonic()
-                if delay > 0 and stop.wait(delay):
-                    break
-                pubs[conn.topic].publish(raw)
-                published += 1
+            published += _publish_once(reader, bag, all_conns, pubs, rate, stop)
             if not loop:
                 break
     except KeyboardInterrupt:

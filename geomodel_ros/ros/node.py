@@ -1,8 +1,8 @@
-"""ROS 2 node ``modeler``: PointCloud2 in, modeled primitives out.
+r"""ROS 2 node ``modeler``: PointCloud2 in, modeled primitives out.
 
 Run it as::
 
-    ros2 run geomodel_ros modeler --ros-args --params-file config/modeler.yaml \\
+    ros2 run geomodel_ros modeler --ros-args --params-file config/modeler.yaml \
         -r points:=/camera/depth/points
 
 Topics (names relative to the node, so ``-r`` and namespaces work):
@@ -24,8 +24,9 @@ published reliable, keep last ``qos_depth`` (compatible with reliable and best-e
 subscribers such as RViz and planners).
 
 The node is a thin wire: :func:`geomodel_ros.ros.processing.process_cloud` (adapter -> core
-:func:`geomodel_ros.core.pipeline.model_scene` -> adapters, shared with the offline bag tool
-``geomodel bag``) -> publish.  Modeling runs in a worker thread fed by a one-slot
+:func:`geomodel_ros.core.modeling.model_scene`, or the ``model_scene`` passed in -> adapters,
+shared with the offline bag tool ``geomodel bag``) -> publish; every message is built and
+read through :mod:`msg_adapters`.  Modeling runs in a worker thread fed by a one-slot
 mailbox: a frame that arrives while another waits replaces it (newest frame wins) and is
 counted as dropped.  A malformed message or a frame
 the core fails on is logged (throttled) and skipped; the node keeps running.
@@ -43,24 +44,25 @@ import traceback
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-import numpy as np
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType, SetParametersResult)
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from sensor_msgs.msg import PointCloud2
-from visualization_msgs.msg import MarkerArray
 
-from geomodel_ros.ros.processing import ModelingError, PointCloud2Error, process_cloud
+from geomodel_ros.ros.processing import (FrameResult, ModelingError, PointCloud2Error,
+                                         SceneModeler, process_cloud)
 
 from geomodel_ros.core.fastmath import retain_freed_memory
-from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError, ParamSpec
+from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError
+from geomodel_ros.core.modeling import model_scene as core_model_scene
+
+from msg_adapters.diagnostics import diagnostics_message
+from msg_adapters.header import header_of, stamp_ns, stamp_text
+from msg_adapters.interfaces import DiagnosticArray, MarkerArray, PointCloud2
+from msg_adapters.parameters import option_descriptor, set_parameters_result, spec_descriptor
 
 __all__ = ["ModelerNode", "NODE_PARAMETERS", "NodeOptions", "FrameStats", "main"]
 
@@ -154,7 +156,7 @@ class _Mailbox:
             return replaced
 
     def take(self) -> Any:
-        """The next item, or None once the mailbox is closed."""
+        """Return the next item, or None once the mailbox is closed."""
         with self._cond:
             while self._item is None and not self._closed:
                 self._cond.wait()
@@ -169,43 +171,13 @@ class _Mailbox:
             self._cond.notify_all()
 
 
-def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
-    unit = f" [{spec.unit}]" if spec.unit else ""
-    rng = "" if spec.low is None and spec.high is None else f" Range [{spec.low}, {spec.high}]."
-    d = ParameterDescriptor(name=spec.name, description=f"{spec.description}{unit}{rng}")
-    if spec.type is bool:
-        d.type = ParameterType.PARAMETER_BOOL
-    elif spec.type is int:
-        d.type = ParameterType.PARAMETER_INTEGER
-        if spec.low is not None or spec.high is not None:
-            lo = -(2**63) if spec.low is None else int(spec.low)
-            hi = 2**63 - 1 if spec.high is None else int(spec.high)
-            d.integer_range = [IntegerRange(from_value=lo, to_value=hi, step=1)]
-    else:
-        d.type = ParameterType.PARAMETER_DOUBLE
-        if spec.low is not None or spec.high is not None:
-            lo = -np.finfo(np.float64).max if spec.low is None else float(spec.low)
-            hi = np.finfo(np.float64).max if spec.high is None else float(spec.high)
-            d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
-    return d
-
-
-def _node_descriptor(p: _NodeParam) -> ParameterDescriptor:
-    d = ParameterDescriptor(name=p.name, description=p.description, read_only=p.read_only,
-                            additional_constraints=p.constraints)
-    if isinstance(p.default, bool):
-        d.type = ParameterType.PARAMETER_BOOL
-    elif isinstance(p.default, int):
-        d.type = ParameterType.PARAMETER_INTEGER
-        if p.low is not None and p.high is not None:
-            d.integer_range = [IntegerRange(from_value=p.low, to_value=p.high, step=1)]
-    else:
-        d.type = ParameterType.PARAMETER_STRING
-    return d
+def _option_descriptor(p: _NodeParam):
+    return option_descriptor(p.name, p.default, p.description, read_only=p.read_only,
+                             constraints=p.constraints, low=p.low, high=p.high)
 
 
 def _stamp(msg: PointCloud2) -> str:
-    return f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
+    return stamp_text(stamp_ns(msg))
 
 
 class ModelerNode(Node):
@@ -215,6 +187,9 @@ class ModelerNode(Node):
     ----------
     node_name : str
         Default ``"modeler"`` (the key of ``config/modeler.yaml``).
+    model_scene : SceneModeler
+        The scene modeling run on every frame (default: the core's ``model_scene``); tests
+        and benchmarks pass a stand-in.
     **kwargs
         Passed to :class:`rclpy.node.Node` (``context``, ``cli_args``, ``namespace``,
         ``parameter_overrides``, ...).
@@ -228,8 +203,10 @@ class ModelerNode(Node):
         If an initial value has the wrong type or is out of its declared range.
     """
 
-    def __init__(self, node_name: str = "modeler", **kwargs: Any) -> None:
+    def __init__(self, node_name: str = "modeler", *,
+                 model_scene: SceneModeler = core_model_scene, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
+        self._model_scene = model_scene
         self._spec_names = frozenset(p.name for p in PARAMETERS)
         self._option_names = frozenset(p.name for p in NODE_PARAMETERS)
         try:
@@ -240,11 +217,30 @@ class ModelerNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        depth = self._options.qos_depth
-        qos_in = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+        self._create_publishers()
+        self._stats = FrameStats()
+        self._stats_lock = threading.Lock()
+        self._diag_last = (time.monotonic(), 0, 0, 0)
+        self._mailbox = _Mailbox()
+        self._closing = False
+        self._worker = threading.Thread(target=self._run, name=f"{node_name}-worker",
+                                        daemon=True)
+        self._worker.start()
+        qos_in = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self._options.qos_depth,
                             reliability=_RELIABILITY[self._options.qos_reliability],
                             durability=qos_profile_sensor_data.durability)
-        qos_out = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+        self._subscription = self.create_subscription(PointCloud2, "points", self._on_cloud,
+                                                      qos_in)
+        self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(
+            f"modeling clouds from '{self._subscription.topic_name}' "
+            f"({self._options.qos_reliability}, depth {self._options.qos_depth}); publishing "
+            f"'{self._pub_markers.topic_name}', '{self._pub_segments.topic_name}', "
+            f"'{self._pub_reconstruction.topic_name}'")
+
+    def _create_publishers(self) -> None:
+        """Create the output publishers (reliable, keep last ``qos_depth``; /diagnostics)."""
+        qos_out = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self._options.qos_depth,
                              reliability=ReliabilityPolicy.RELIABLE)
         self._pub_markers = self.create_publisher(MarkerArray, "~/primitives", qos_out)
         self._pub_segments = self.create_publisher(PointCloud2, "~/segments", qos_out)
@@ -254,23 +250,6 @@ class ModelerNode(Node):
         self._diag_lock = threading.Lock()
         if self._options.diagnostics:
             self._ensure_diagnostics_publisher()
-
-        self._stats = FrameStats()
-        self._stats_lock = threading.Lock()
-        self._diag_last = (time.monotonic(), 0, 0, 0)
-        self._mailbox = _Mailbox()
-        self._closing = False
-        self._worker = threading.Thread(target=self._run, name=f"{node_name}-worker",
-                                        daemon=True)
-        self._worker.start()
-        self._subscription = self.create_subscription(PointCloud2, "points", self._on_cloud,
-                                                      qos_in)
-        self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
-        self.get_logger().info(
-            f"modeling clouds from '{self._subscription.topic_name}' "
-            f"({self._options.qos_reliability}, depth {depth}); publishing "
-            f"'{self._pub_markers.topic_name}', '{self._pub_segments.topic_name}', "
-            f"'{self._pub_reconstruction.topic_name}'")
 
     # ---------------------------------------------------------------------------------
     # state
@@ -286,7 +265,7 @@ class ModelerNode(Node):
         return self._options
 
     def stats(self) -> FrameStats:
-        """A snapshot of the frame counters."""
+        """Return a snapshot of the frame counters."""
         with self._stats_lock:
             return replace(self._stats, last_timing=dict(self._stats.last_timing))
 
@@ -295,8 +274,9 @@ class ModelerNode(Node):
     # ---------------------------------------------------------------------------------
 
     def _initial_parameters(self) -> tuple[ModelingParams, NodeOptions]:
-        self.declare_parameters("", [(p.name, p.default, _descriptor(p)) for p in PARAMETERS])
-        self.declare_parameters("", [(p.name, p.default, _node_descriptor(p))
+        self.declare_parameters("", [(p.name, p.default, spec_descriptor(p))
+                                     for p in PARAMETERS])
+        self.declare_parameters("", [(p.name, p.default, _option_descriptor(p))
                                      for p in NODE_PARAMETERS])
         # Initial values are checked as a whole (the per-parameter callbacks are registered
         # afterwards, so that e.g. min_radius and max_radius can both move in the YAML).
@@ -310,15 +290,15 @@ class ModelerNode(Node):
                 f"allowed; use one of: {', '.join(_RELIABILITY)}")
         return params, options
 
-    def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+    def _validate_parameters(self, parameters: list[Parameter]):
         """Accept or reject a set of parameters; no side effects."""
         changes = {p.name: p.value for p in parameters if p.name in self._spec_names}
         if changes:
             try:
                 ModelingParams.from_mapping(changes, base=self._params)
             except ParameterError as exc:
-                return SetParametersResult(successful=False, reason=str(exc))
-        return SetParametersResult(successful=True)
+                return set_parameters_result(str(exc))
+        return set_parameters_result()
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
         """Make accepted parameters effective (from the next frame on)."""
@@ -386,25 +366,33 @@ class ModelerNode(Node):
         with self._stats_lock:
             self._stats.failed += 1
 
-    def _process(self, msg: PointCloud2, received_at: float) -> None:
+    def _model(self, msg: PointCloud2) -> FrameResult | None:
+        """Run the frame through :func:`process_cloud`; None (logged) if it failed."""
         options = self._options
-        t0 = time.perf_counter()
         try:
-            frame = process_cloud(msg, self._params, segments=options.publish_segments,
-                                  reconstruction=options.publish_reconstruction)
+            return process_cloud(msg, self._params, segments=options.publish_segments,
+                                 reconstruction=options.publish_reconstruction,
+                                 model_scene=self._model_scene)
         except PointCloud2Error as exc:
             self._count_failure()
+            frame_id, _ = header_of(msg)
             self.get_logger().warning(
-                f"skipping malformed PointCloud2 (frame '{msg.header.frame_id}', stamp "
+                f"skipping malformed PointCloud2 (frame '{frame_id}', stamp "
                 f"{_stamp(msg)}): {exc}", throttle_duration_sec=WARN_THROTTLE_S)
-            return
         except ModelingError as exc:
             self._count_failure()
+            frame_id, _ = header_of(msg)
             self.get_logger().warning(
-                f"modeling failed on frame '{msg.header.frame_id}' {_stamp(msg)} "
+                f"modeling failed on frame '{frame_id}' {_stamp(msg)} "
                 f"({exc.valid_points} points), frame skipped: {exc}",
                 throttle_duration_sec=WARN_THROTTLE_S)
             self.get_logger().debug("".join(traceback.format_exception(exc.__cause__ or exc)))
+        return None
+
+    def _process(self, msg: PointCloud2, received_at: float) -> None:
+        t0 = time.perf_counter()
+        frame = self._model(msg)
+        if frame is None:
             return
         t5 = time.perf_counter()
         timing = {k: v for k, v in frame.timing.items() if not k.startswith("core_")}
@@ -441,15 +429,12 @@ class ModelerNode(Node):
         t_prev, processed_prev, dropped_prev, failed_prev = self._diag_last
         self._diag_last = (now, s.processed, s.dropped, s.failed)
         rate = (s.processed - processed_prev) / max(now - t_prev, 1e-9)
-        status = DiagnosticStatus(name=f"{self.get_name()}: modeling",
-                                  hardware_id=self.get_fully_qualified_name())
         if s.failed > failed_prev:
-            status.level, status.message = DiagnosticStatus.WARN, "frames failed"
+            level, message = "warn", "frames failed"
         elif s.dropped > dropped_prev:
-            status.level, status.message = DiagnosticStatus.WARN, \
-                "frames dropped: input faster than processing"
+            level, message = "warn", "frames dropped: input faster than processing"
         else:
-            status.level, status.message = DiagnosticStatus.OK, "ok"
+            level, message = "ok", "ok"
         values = {
             "rate_hz": f"{rate:.2f}",
             "frames_received": str(s.received),
@@ -459,10 +444,10 @@ class ModelerNode(Node):
             "last_latency_s": f"{s.last_latency_s:.4f}",
             "last_processing_s": f"{s.last_timing.get('total_s', math.nan):.4f}",
         }
-        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
-        msg = DiagnosticArray(status=[status])
-        msg.header.stamp = self.get_clock().now().to_msg()  # the time of this report
-        self._pub_diagnostics.publish(msg)
+        # stamped with the time of this report
+        self._pub_diagnostics.publish(diagnostics_message(
+            f"{self.get_name()}: modeling", self.get_fully_qualified_name(), level, message,
+            values, self.get_clock().now().nanoseconds))
 
     # ---------------------------------------------------------------------------------
     # shutdown

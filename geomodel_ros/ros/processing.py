@@ -5,28 +5,44 @@ frame; the node (:mod:`geomodel_ros.ros.node`) and the offline bag tool
 (:mod:`geomodel_ros.ros.bags`) both call it, so that a bag processed offline gives the same
 outputs as the node would publish for it.
 
-It uses messages (``sensor_msgs``, ``visualization_msgs``) but never ``rclpy`` itself: no
-``rclpy.init``, no node, no executor.
+Messages are read and built only through :mod:`msg_adapters`; nothing here needs
+``rclpy``: no ``rclpy.init``, no node, no executor.  The scene-modeling function is passed
+in (:class:`SceneModeler`, default the core's
+:func:`~geomodel_ros.core.modeling.model_scene`), so that tests and benchmarks can give a
+stand-in without patching module globals.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
-from sensor_msgs.msg import PointCloud2
-from visualization_msgs.msg import MarkerArray
 
-from geomodel_ros.core import modeling as pipeline
+from geomodel_ros.core.modeling import model_scene as core_model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import ModelingResult
 from geomodel_ros.core.reconstruction import reconstruct
 
+from msg_adapters.interfaces import MarkerArray, PointCloud2
 from msg_adapters.markers import primitives_to_markers, reconstruction_cloud, segments_cloud
-from msg_adapters.pointcloud2 import PointCloud2Error, cloud_to_xyz
+from msg_adapters.pointcloud2 import PointCloud2Error, cloud_to_scene
 
-__all__ = ["FrameResult", "ModelingError", "PointCloud2Error", "process_cloud"]
+__all__ = ["FrameResult", "ModelingError", "PointCloud2Error", "SceneModeler", "process_cloud"]
+
+
+class SceneModeler(Protocol):
+    """What :func:`process_cloud` calls to model a scene (the core's ``model_scene``).
+
+    Takes ``points`` ((N, 3) float64 [m], NaN rows allowed), the parameters and the
+    ``organized_shape`` ((H, W) or None); returns ``(labels, result)`` with ``labels`` an
+    (N,) integer array (-1 = no object) and ``result`` a :class:`ModelingResult`.
+    """
+
+    def __call__(self, points: np.ndarray, params: ModelingParams, *,
+                 organized_shape: tuple[int, int] | None = None
+                 ) -> tuple[np.ndarray, ModelingResult]: ...
 
 
 class ModelingError(RuntimeError):
@@ -74,8 +90,24 @@ class FrameResult:
     timing: dict[str, float] = field(default_factory=dict)
 
 
+def _model(points: np.ndarray, organized: tuple[int, int] | None, n_valid: int,
+           params: ModelingParams, model_scene: SceneModeler
+           ) -> tuple[np.ndarray, ModelingResult]:
+    """Run ``model_scene`` and check its labels; any failure as :class:`ModelingError`."""
+    try:
+        labels, result = model_scene(points, params, organized_shape=organized)
+        labels = np.asarray(labels)
+        if labels.shape != (len(points),) or labels.dtype.kind not in "ui":
+            raise ValueError(f"model_scene returned {labels.dtype} labels of shape "
+                             f"{labels.shape} for {len(points)} points")
+    except Exception as exc:  # noqa: BLE001 - reported as one typed error
+        raise ModelingError(f"{type(exc).__name__}: {exc}", n_valid) from exc
+    return labels, result
+
+
 def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = True,
-                  reconstruction: bool = True) -> FrameResult:
+                  reconstruction: bool = True,
+                  model_scene: SceneModeler = core_model_scene) -> FrameResult:
     """Model one point cloud and build the node's output messages.
 
     Parameters
@@ -89,6 +121,8 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
         Modeling and segmentation parameters (deterministic for a given ``params.seed``).
     segments, reconstruction : bool
         Build :attr:`FrameResult.segments` / :attr:`FrameResult.reconstruction`.
+    model_scene : SceneModeler
+        The scene modeling (default: the core's ``model_scene``).
 
     Returns
     -------
@@ -107,22 +141,13 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     t0 = time.perf_counter()
     # Every row, NaNs included: labels stay aligned with the input's points (and pixels,
     # for an organized cloud).
-    points = cloud_to_xyz(msg, keep_organized=True).reshape(-1, 3)
-    organized = (int(msg.height), int(msg.width)) if msg.height > 1 else None
+    points, organized, header = cloud_to_scene(msg)
     n_valid = int(np.count_nonzero(np.isfinite(points).all(axis=1)))
     t1 = time.perf_counter()
     timing["convert_s"] = t1 - t0
 
     if n_valid:
-        try:
-            # Looked up on the module at call time (tests wrap it).
-            labels, result = pipeline.model_scene(points, params, organized_shape=organized)
-            labels = np.asarray(labels)
-            if labels.shape != (len(points),) or labels.dtype.kind not in "ui":
-                raise ValueError(f"model_scene returned {labels.dtype} labels of shape "
-                                 f"{labels.shape} for {len(points)} points")
-        except Exception as exc:  # noqa: BLE001 - reported as one typed error
-            raise ModelingError(f"{type(exc).__name__}: {exc}", n_valid) from exc
+        labels, result = _model(points, organized, n_valid, params, model_scene)
         timing.update({f"core_{k}": float(v) for k, v in result.timing.items()})
     else:
         labels = np.full(len(points), -1, dtype=np.int64)
@@ -131,17 +156,17 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     t2 = time.perf_counter()
     timing["model_s"] = t2 - t1
 
-    markers = primitives_to_markers(objects, msg.header)
+    markers = primitives_to_markers(objects, header)
     t3 = time.perf_counter()
     timing["markers_s"] = t3 - t2
     segments_msg = recon_msg = None
     if segments:
-        segments_msg = segments_cloud(points, labels, msg.header, organized_shape=organized)
+        segments_msg = segments_cloud(points, labels, header, organized_shape=organized)
     t4 = time.perf_counter()
     timing["segments_s"] = t4 - t3
     if reconstruction:
         rpts, rids = reconstruct(objects, params.reconstruction_spacing)
-        recon_msg = reconstruction_cloud(rpts, rids, msg.header)
+        recon_msg = reconstruction_cloud(rpts, rids, header)
     timing["reconstruction_s"] = time.perf_counter() - t4
     return FrameResult(markers=markers, segments=segments_msg, reconstruction=recon_msg,
                        result=result, labels=labels.astype(np.int64, copy=False),

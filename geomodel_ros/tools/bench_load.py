@@ -45,6 +45,7 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from geomodel_ros.tools.paths import FASTDDS_LARGE_DATA, REPO
@@ -57,17 +58,16 @@ os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_LARGE_DATA))
 
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
-from builtin_interfaces.msg import Time  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
-from sensor_msgs.msg import PointCloud2  # noqa: E402
-from std_msgs.msg import Header  # noqa: E402
-from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
-from msg_adapters.pointcloud2 import xyz_to_cloud  # noqa: E402
+from msg_adapters.diagnostics import read_status_values  # noqa: E402
+from msg_adapters.header import NS_PER_S, StampedFrame, make_header, set_stamp  # noqa: E402
+from msg_adapters.interfaces import DiagnosticArray, MarkerArray, PointCloud2  # noqa: E402
+from msg_adapters.markers import marker_array_frame, marker_array_problem  # noqa: E402
+from msg_adapters.pointcloud2 import cloud_size, cloud_to_xyz, xyz_to_cloud  # noqa: E402
 
 __all__ = ["main"]
 
@@ -79,7 +79,7 @@ _RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 def _clouds(kind: str, count: int) -> list[PointCloud2]:
     """Input messages (stamps are set at publish time)."""
-    header = Header(frame_id=FRAME)
+    header = make_header(FRAME)
     if kind == "paper":
         from geomodel_ros.tools.synth import render_scene
 
@@ -97,9 +97,11 @@ def _clouds(kind: str, count: int) -> list[PointCloud2]:
 
 def _single_frame_s(clouds: list[PointCloud2], params_file: str | None, repeats: int = 3
                     ) -> float:
-    """Median time [s] the node's per-frame work (``process_cloud``: conversion, segmentation,
-    modeling, output messages) takes on these clouds, measured here, one frame at a time,
-    before the load starts."""
+    """Measure the median time [s] of the node's per-frame work on these clouds.
+
+    The work is ``process_cloud`` (conversion, segmentation, modeling, output messages),
+    measured here, one frame at a time, before the load starts.
+    """
     from geomodel_ros.ros.processing import process_cloud
 
     from geomodel_ros.core.params import ModelingParams, load_params_file
@@ -127,26 +129,6 @@ def _rss_mib(pid: int) -> float:
     return math.nan
 
 
-def _malformed(markers: MarkerArray, stamp: Time) -> str | None:
-    """Why a MarkerArray is malformed, or None."""
-    if not markers.markers or markers.markers[0].action != Marker.DELETEALL:
-        return "does not start with DELETEALL"
-    for m in markers.markers:
-        if m.header.frame_id != FRAME or (m.header.stamp.sec, m.header.stamp.nanosec) != \
-                (stamp.sec, stamp.nanosec):
-            return f"marker {m.ns}/{m.id} has another header than its input"
-        if m.action == Marker.DELETEALL:
-            continue
-        p, q = m.pose.position, m.pose.orientation
-        if not all(math.isfinite(v) for v in (p.x, p.y, p.z, q.x, q.y, q.z, q.w)):
-            return f"marker {m.ns}/{m.id} has a non-finite pose"
-        if not all(math.isfinite(v) and v > 0 for v in (m.scale.x, m.scale.y, m.scale.z)):
-            return f"marker {m.ns}/{m.id} has a non-positive or non-finite scale"
-        if any(not all(math.isfinite(v) for v in (pt.x, pt.y, pt.z)) for pt in m.points):
-            return f"marker {m.ns}/{m.id} has non-finite points"
-    return None
-
-
 class _Recorder:
     """Peer node: publishes the clouds, records markers and the node's diagnostics."""
 
@@ -166,22 +148,22 @@ class _Recorder:
 
     def _on_markers(self, msg: MarkerArray) -> None:
         now = time.time()
-        if not msg.markers:
+        frame = marker_array_frame(msg)
+        if frame is None:
             with self.lock:
                 self.malformed.append("empty MarkerArray")
             return
-        stamp = msg.markers[0].header.stamp
-        why = _malformed(msg, stamp)
+        why = marker_array_problem(msg, StampedFrame(FRAME, frame.stamp_ns))
         with self.lock:
-            self.latencies.append((now, now - (stamp.sec + 1e-9 * stamp.nanosec)))
+            self.latencies.append((now, now - frame.stamp_ns / NS_PER_S))
             if why:
                 self.malformed.append(why)
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            if status.hardware_id.endswith("/modeler"):
-                with self.lock:
-                    self.diagnostics = {kv.key: kv.value for kv in status.values}
+        values = read_status_values(msg, "/modeler")
+        if values is not None:
+            with self.lock:
+                self.diagnostics = values
 
 
 def _wait(predicate, timeout: float) -> bool:
@@ -209,14 +191,20 @@ def _stop(proc: subprocess.Popen) -> int:
     return int(proc.returncode)
 
 
-def run(args: argparse.Namespace) -> dict:
-    rate = args.rate or DEFAULT_RATE[args.cloud]
-    clouds = _clouds(args.cloud, args.kinect_scenes)
-    valid = int(np.count_nonzero(np.isfinite(np.frombuffer(
-        clouds[0].data, dtype=np.float32).reshape(-1, clouds[0].point_step // 4)[:, 0])))
-    params = args.params or (str(REPO / "config" / "kinect.yaml")
-                             if args.cloud == "kinect" else None)
-    single_s = _single_frame_s(clouds, params)
+@dataclass
+class _LoadRun:
+    """What the publishing loop saw."""
+
+    published: int = 0
+    published_warm: int = 0
+    elapsed: float = 0.0
+    crashed_at: float | None = None
+    rss_series: list[tuple[float, float]] = field(default_factory=list)  # (s, MiB), 1 Hz
+
+
+def _start_node(args: argparse.Namespace, params: str | None
+                ) -> tuple[subprocess.Popen, list[str], str]:
+    """Start the node process; its handle, command line and log file name."""
     cmd = [sys.executable, "-m", "geomodel_ros.ros.node", "--ros-args", "-r", f"points:={TOPIC}",
            "-p", f"qos_reliability:={'reliable' if args.reliable else 'best_effort'}"]
     if params:
@@ -226,11 +214,55 @@ def run(args: argparse.Namespace) -> dict:
                                                         os.environ.get("PYTHONPATH")])))
     log = tempfile.NamedTemporaryFile("w+", prefix="bench_load_node_", suffix=".log",
                                       delete=False)
-    print(f"{args.cloud}: {clouds[0].height} x {clouds[0].width} ({valid} valid points, "
-          f"{len(clouds[0].data) / 1e6:.1f} MB per message, {len(clouds)} distinct) at "
-          f"{rate:g} Hz for {args.minutes:g} min; node log {log.name}", flush=True)
     proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
+    return proc, cmd, log.name
 
+
+def _publish_load(rec: _Recorder, proc: subprocess.Popen, clouds: list[PointCloud2],
+                  rate: float, args: argparse.Namespace) -> _LoadRun:
+    """Publish the clouds at ``rate`` for ``args.minutes``, sampling the node's RSS at 1 Hz."""
+    period = 1.0 / rate
+    start = time.monotonic()
+    end = start + 60.0 * args.minutes
+    out = _LoadRun()
+    next_rss = start
+    tick = threading.Event()
+    while (now := time.monotonic()) < end:
+        if proc.poll() is not None:
+            out.crashed_at = now - start
+            break
+        msg = clouds[out.published % len(clouds)]
+        t = time.time()
+        set_stamp(msg, int(t) * NS_PER_S + int((t % 1.0) * 1e9))
+        rec.pub.publish(msg)
+        out.published += 1
+        if now >= next_rss:
+            out.rss_series.append((now - start, _rss_mib(proc.pid)))
+            next_rss = now + 1.0
+            if not out.published_warm and now - start >= args.warmup:
+                out.published_warm = out.published
+        tick.wait(max(0.0, start + out.published * period - time.monotonic()))  # pacing
+    out.elapsed = time.monotonic() - start
+    return out
+
+
+def _drain(rec: _Recorder, proc: subprocess.Popen) -> None:
+    """Wait for the node's last diagnostics (1 Hz) after the input stopped."""
+    with rec.lock:
+        seen = dict(rec.diagnostics)
+    _wait(lambda: proc.poll() is not None or rec.diagnostics.get("frames_received") !=
+          seen.get("frames_received"), 5.0)
+    _wait(lambda: proc.poll() is not None or (
+        rec.diagnostics.get("frames_processed") is not None
+        and int(rec.diagnostics["frames_received"]) == int(rec.diagnostics["frames_processed"])
+        + int(rec.diagnostics["frames_dropped"]) + int(rec.diagnostics["frames_failed"])),
+        30.0)
+    _wait(lambda: proc.poll() is not None, 2.5)  # one more diagnostics period
+
+
+def _run_under_load(args: argparse.Namespace, proc: subprocess.Popen, log_name: str,
+                    clouds: list[PointCloud2], rate: float) -> tuple[_LoadRun, int, _Recorder]:
+    """Peer node up, load published, node drained and stopped; its exit status."""
     context = Context()
     rclpy.init(args=[], context=context)
     rec = _Recorder(context, args.reliable)
@@ -238,97 +270,93 @@ def run(args: argparse.Namespace) -> dict:
     executor.add_node(rec.node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-    report: dict = {"cloud": args.cloud, "rate_hz": rate, "minutes": args.minutes,
-                    "points": valid, "command": cmd, "single_frame_ms": 1000.0 * single_s}
-    crashed_at = None
     try:
         if not _wait(lambda: rec.pub.get_subscription_count() >= 1
                      and rec.node.count_publishers("/modeler/primitives") >= 1
                      or proc.poll() is not None, 60.0) or proc.poll() is not None:
             raise RuntimeError(f"the node did not come up (exit status {proc.poll()}); "
-                               f"see {log.name}")
-        period = 1.0 / rate
-        start = time.monotonic()
-        end = start + 60.0 * args.minutes
-        published = 0
-        rss_series: list[tuple[float, float]] = []  # (seconds since start, MiB), 1 Hz
-        next_rss = start
-        published_warm = 0
-        tick = threading.Event()
-        while (now := time.monotonic()) < end:
-            if proc.poll() is not None:
-                crashed_at = now - start
-                break
-            msg = clouds[published % len(clouds)]
-            t = time.time()
-            msg.header.stamp = Time(sec=int(t), nanosec=int((t % 1.0) * 1e9))
-            rec.pub.publish(msg)
-            published += 1
-            if now >= next_rss:
-                rss_series.append((now - start, _rss_mib(proc.pid)))
-                next_rss = now + 1.0
-                if not published_warm and now - start >= args.warmup:
-                    published_warm = published
-            tick.wait(max(0.0, start + published * period - time.monotonic()))  # pacing
-        elapsed = time.monotonic() - start
-        # the last diagnostics (1 Hz) after the input stopped
-        with rec.lock:
-            seen = dict(rec.diagnostics)
-        _wait(lambda: proc.poll() is not None or rec.diagnostics.get("frames_received") !=
-              seen.get("frames_received"), 5.0)
-        _wait(lambda: proc.poll() is not None or (
-            rec.diagnostics.get("frames_processed") is not None
-            and int(rec.diagnostics["frames_received"]) == int(rec.diagnostics["frames_processed"])
-            + int(rec.diagnostics["frames_dropped"]) + int(rec.diagnostics["frames_failed"])),
-            30.0)
-        _wait(lambda: proc.poll() is not None, 2.5)  # one more diagnostics period
+                               f"see {log_name}")
+        load = _publish_load(rec, proc, clouds, rate, args)
+        _drain(rec, proc)
     finally:
         exit_status = _stop(proc)
         executor.shutdown(timeout_sec=5.0)
         spinner.join(5.0)
         rec.node.destroy_node()
         rclpy.try_shutdown(context=context)
+    return load, exit_status, rec
 
+
+def run(args: argparse.Namespace) -> dict:
+    """Run the load and return the report (see the module docstring)."""
+    rate = args.rate or DEFAULT_RATE[args.cloud]
+    clouds = _clouds(args.cloud, args.kinect_scenes)
+    valid = int(np.count_nonzero(np.isfinite(cloud_to_xyz(clouds[0], keep_organized=True)[..., 0])))
+    params = args.params or (str(REPO / "config" / "kinect.yaml")
+                             if args.cloud == "kinect" else None)
+    single_s = _single_frame_s(clouds, params)
+    proc, cmd, log_name = _start_node(args, params)
+    size = cloud_size(clouds[0])
+    print(f"{args.cloud}: {size.height} x {size.width} ({valid} valid points, "
+          f"{size.nbytes / 1e6:.1f} MB per message, {len(clouds)} distinct) at "
+          f"{rate:g} Hz for {args.minutes:g} min; node log {log_name}", flush=True)
+    load, exit_status, rec = _run_under_load(args, proc, log_name, clouds, rate)
+    report: dict = {"cloud": args.cloud, "rate_hz": rate, "minutes": args.minutes,
+                    "points": valid, "command": cmd, "single_frame_ms": 1000.0 * single_s}
     with rec.lock:
         diag = dict(rec.diagnostics)
         arrivals = list(rec.latencies)
         malformed = list(rec.malformed)
-    lat_ms = 1000.0 * np.array([lat for _, lat in arrivals]) if arrivals else np.array([])
-    received = int(diag.get("frames_received", -1))
-    processed = int(diag.get("frames_processed", -1))
+    report.update(_frame_counts(diag, load, len(arrivals)))
+    report.update(_latency_report(arrivals, single_s))
     report.update({
-        "duration_s": elapsed,
-        "published": published,
+        "rss_mib": _rss_summary(load.rss_series, args.warmup, load.elapsed),
+        "published_during_warmup": load.published_warm,
+        "crashed": load.crashed_at is not None,
+        "crashed_after_s": load.crashed_at,
+        "node_exit_status": exit_status,
+        "malformed_outputs": len(malformed),
+        "malformed_examples": malformed[:5],
+        "node_log": log_name,
+    })
+    return report
+
+
+def _frame_counts(diag: dict[str, str], load: _LoadRun, marker_arrays: int) -> dict:
+    received = int(diag.get("frames_received", -1))
+    return {
+        "duration_s": load.elapsed,
+        "published": load.published,
         "received": received,
-        "processed": processed,
+        "processed": int(diag.get("frames_processed", -1)),
         "dropped": int(diag.get("frames_dropped", -1)),
         "failed": int(diag.get("frames_failed", -1)),
-        "lost_in_transport": published - received if received >= 0 else None,
-        "marker_arrays": len(arrivals),
-        "processed_rate_hz": len(arrivals) / elapsed if elapsed > 0 else math.nan,
+        "lost_in_transport": load.published - received if received >= 0 else None,
+        "marker_arrays": marker_arrays,
+        "processed_rate_hz": marker_arrays / load.elapsed if load.elapsed > 0 else math.nan,
+    }
+
+
+def _latency_report(arrivals: list[tuple[float, float]], single_s: float) -> dict:
+    lat_ms = 1000.0 * np.array([lat for _, lat in arrivals]) if arrivals else np.array([])
+    return {
         "latency_ms": {"median": float(np.median(lat_ms)) if lat_ms.size else math.nan,
                        "p95": float(np.percentile(lat_ms, 95)) if lat_ms.size else math.nan,
                        "max": float(lat_ms.max()) if lat_ms.size else math.nan},
         "latency_ms_first_last_third": _thirds(lat_ms),
         "latency_p95_over_single_frame": float(np.percentile(lat_ms, 95)) / (1000.0 * single_s)
         if lat_ms.size else math.nan,
-        "rss_mib": _rss_summary(rss_series, args.warmup, elapsed),
-        "published_during_warmup": published_warm,
-        "crashed": crashed_at is not None,
-        "crashed_after_s": crashed_at,
-        "node_exit_status": exit_status,
-        "malformed_outputs": len(malformed),
-        "malformed_examples": malformed[:5],
-        "node_log": log.name,
-    })
-    return report
+    }
 
 
 def _rss_summary(series: list[tuple[float, float]], warmup: float, elapsed: float,
                  window: float = 60.0) -> dict:
-    """RSS [MiB] after warm-up and at the end, each the median of a ``window`` of 1 Hz
-    samples (single samples swing by tens of MiB with the allocator's high-water marks),
-    their growth [%], and the maximum of each half of the run (a leak raises the second)."""
+    """Summarize the node's RSS [MiB] over the run.
+
+    After warm-up and at the end, each the median of a ``window`` of 1 Hz samples (single
+    samples swing by tens of MiB with the allocator's high-water marks), their growth [%],
+    and the maximum of each half of the run (a leak raises the second).
+    """
     t = np.array([s for s, _ in series])
     v = np.array([m for _, m in series])
     ok = np.isfinite(v)

@@ -2,9 +2,9 @@
 
 Run as ``python -m geomodel_ros.tools.bench_node [--scene scene3] [--frames 20]``.
 
-1. **Node overhead** (conversion in, markers and clouds out, publish) per frame: the core
-   is replaced by a stand-in that returns a precomputed result of the real
-   :func:`~geomodel_ros.core.pipeline.model_scene` for the same scene, so only the node's own
+1. **Node overhead** (conversion in, markers and clouds out, publish) per frame: the node
+   is given a stand-in for the scene modeling that returns a precomputed result of the real
+   :func:`~geomodel_ros.core.modeling.model_scene` for the same scene, so only the node's own
    work is timed (stage times come from :meth:`ModelerNode.stats`).  The publish ->
    MarkerArray-received latency is also given for this case.
 2. **End to end** with the real core: publish -> MarkerArray received.
@@ -29,21 +29,20 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # before rclpy starts
 
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
-from builtin_interfaces.msg import Time  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from sensor_msgs.msg import PointCloud2  # noqa: E402
-from std_msgs.msg import Header  # noqa: E402
-from visualization_msgs.msg import MarkerArray  # noqa: E402
 
-from msg_adapters.pointcloud2 import xyz_to_cloud  # noqa: E402
+from msg_adapters.header import NS_PER_S, make_header  # noqa: E402
+from msg_adapters.interfaces import MarkerArray, PointCloud2  # noqa: E402
+from msg_adapters.pointcloud2 import cloud_size, xyz_to_cloud  # noqa: E402
 
-from geomodel_ros.core import modeling as pipeline  # noqa: E402
 from geomodel_ros.core.fastmath import retain_freed_memory  # noqa: E402
+from geomodel_ros.core.modeling import model_scene  # noqa: E402
 from geomodel_ros.ros.node import ModelerNode  # noqa: E402
+from geomodel_ros.ros.processing import SceneModeler  # noqa: E402
 from geomodel_ros.core.params import ModelingParams  # noqa: E402
 from geomodel_ros.tools.synth import SCENE_NAMES, render_scene  # noqa: E402
 
@@ -96,14 +95,14 @@ def _wait(predicate, what: str, timeout: float = 30.0) -> None:
         time.sleep(0.002)
 
 
-def _run(cloud: PointCloud2, frames: int, core) -> tuple[list[float], list[dict[str, float]]]:
+def _run(cloud: PointCloud2, frames: int, core: SceneModeler
+         ) -> tuple[list[float], list[dict[str, float]]]:
     """Latencies [s] and node stage timings of ``frames`` frames through a fresh node."""
     domain = int(os.environ.get("ROS_DOMAIN_ID", 1 + os.getpid() % 100))
     context = Context()
     rclpy.init(args=[], context=context, domain_id=domain)
-    saved = getattr(pipeline, "model_scene")
-    pipeline.model_scene = core
-    node = ModelerNode(context=context, cli_args=["--ros-args", "-r", "points:=/bench/points"],
+    node = ModelerNode(context=context, model_scene=core,
+                       cli_args=["--ros-args", "-r", "points:=/bench/points"],
                        parameter_overrides=[Parameter("qos_reliability", value="reliable"),
                                             Parameter("diagnostics", value=False)])
     peer = _Peer(context)
@@ -133,7 +132,6 @@ def _run(cloud: PointCloud2, frames: int, core) -> tuple[list[float], list[dict[
         node.destroy_node()
         peer.node.destroy_node()
         rclpy.try_shutdown(context=context)
-        pipeline.model_scene = saved
 
 
 def _row(name: str, values_s: list[float]) -> str:
@@ -152,20 +150,19 @@ def main(argv: list[str] | None = None) -> int:
     retain_freed_memory()  # as the node's main does
 
     scene = render_scene(args.scene)
-    header = Header(stamp=Time(sec=1, nanosec=0), frame_id="camera_optical")
-    cloud = xyz_to_cloud(scene.organized, header)
+    cloud = xyz_to_cloud(scene.organized, make_header("camera_optical", 1 * NS_PER_S))
     h, w = scene.organized.shape[:2]
     rows = scene.organized.reshape(-1, 3).astype(np.float32).astype(np.float64)
-    labels, result = pipeline.model_scene(rows, ModelingParams(), organized_shape=(h, w))
+    labels, result = model_scene(rows, ModelingParams(), organized_shape=(h, w))
 
-    def precomputed(points, params, organized_shape=None):
+    def precomputed(_points, _params, **_organized_shape):
         return labels, result
 
     print(f"scene {args.scene}: {h} x {w} organized cloud, {len(scene.points)} valid points, "
           f"{len(result.objects)} objects; {args.frames} frames; "
-          f"{len(cloud.data) / 1e6:.1f} MB per input message")
+          f"{cloud_size(cloud).nbytes / 1e6:.1f} MB per input message")
     lat_null, tim_null = _run(cloud, args.frames, precomputed)
-    lat_real, tim_real = _run(cloud, args.frames, pipeline.model_scene)
+    lat_real, tim_real = _run(cloud, args.frames, model_scene)
 
     print(f"\n  {'node overhead (core = precomputed result)':<44s} {'median ms':>9s} "
           f"{'p95 ms':>9s}")

@@ -34,6 +34,9 @@ os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_LARGE_DATA))
 
 import numpy as np  # noqa: E402
 
+from msg_adapters.header import stamp_ns  # noqa: E402
+from msg_adapters.markers import marker_array_frame  # noqa: E402
+
 __all__ = ["run_demo", "main"]
 
 ROOT = REPO
@@ -41,7 +44,7 @@ TOPIC = "/camera/depth/points"
 
 
 def _node_command(params_file: Path) -> list[str]:
-    """The installed ``modeler`` console script (as ``ros2 run`` would start it)."""
+    """Return the installed ``modeler`` console script (as ``ros2 run`` would start it)."""
     script = Path(sys.prefix) / "lib" / "geomodel_ros" / "modeler"
     exe = [str(script)] if script.exists() else [sys.executable, "-m", "geomodel_ros.ros.node"]
     return exe + ["--ros-args", "--params-file", str(params_file), "-r", f"points:={TOPIC}",
@@ -54,8 +57,8 @@ class _Recorder:
     def __init__(self, context) -> None:
         from rclpy.node import Node
         from rclpy.qos import QoSProfile, ReliabilityPolicy
-        from sensor_msgs.msg import PointCloud2
-        from visualization_msgs.msg import MarkerArray
+
+        from msg_adapters.interfaces import MarkerArray, PointCloud2
 
         self.node = Node("geomodel_demo_recorder", context=context)
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -67,23 +70,19 @@ class _Recorder:
         self.node.create_subscription(MarkerArray, "/modeler/primitives", self._on_markers, qos)
         self.node.create_subscription(PointCloud2, "/modeler/segments", self._on_segments, qos)
 
-    @staticmethod
-    def _key(stamp) -> int:
-        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
     def _on_input(self, msg) -> None:
         with self.lock:
-            self.inputs[self._key(msg.header.stamp)] = time.monotonic()
+            self.inputs[stamp_ns(msg)] = time.monotonic()
 
     def _on_markers(self, msg) -> None:
-        if msg.markers:
-            stamp = msg.markers[-1].header.stamp
+        frame = marker_array_frame(msg)
+        if frame is not None:
             with self.lock:
-                self.markers[self._key(stamp)] = (time.monotonic(), msg)
+                self.markers[frame.stamp_ns] = (time.monotonic(), msg)
 
     def _on_segments(self, msg) -> None:
         with self.lock:
-            self.segments[self._key(msg.header.stamp)] = msg
+            self.segments[stamp_ns(msg)] = msg
 
 
 def _match(truth: list[dict], detected) -> list[tuple[dict, object]]:
@@ -124,41 +123,132 @@ def _table(truth: list[dict], detected) -> tuple[str, int]:
     return "\n".join(lines), found
 
 
-def run_demo(out_dir: str | Path = "demo_out", scenes: Sequence[str] = ("scene1", "scene2",
-             "scene3"), frames: int = 2, rate: float = 1.0, pictures: bool = True,
-             timeout_s: float = 120.0) -> int:
-    """Run the demo; returns the process exit code (0 when every frame was modeled)."""
+def _wait_until_ready(recorder: _Recorder, node_proc: subprocess.Popen,
+                      timeout_s: float = 60.0) -> bool:
+    """Wait until the node is up; False if it is not after ``timeout_s`` or has exited.
+
+    Up means: it subscribed to the input (besides the recorder) and its outputs were
+    discovered.
+    """
+    ready = time.monotonic() + timeout_s
+    while time.monotonic() < ready and node_proc.poll() is None:
+        if recorder.node.count_subscribers(TOPIC) >= 2 and \
+                recorder.node.count_publishers("/modeler/primitives") >= 1:
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def _replay(bag: Path, truth: dict, rate: float, context, recorder: _Recorder,
+            node_proc: subprocess.Popen, timeout_s: float) -> None:
+    """Play the bag into the node until every frame has a result (at most three times)."""
+    from geomodel_ros.ros.bags import play
+
+    # DDS can lose the first frames while a new publisher and the node's reader
+    # match; frames without a result are replayed (at most three times in all).
+    for attempt in range(3):
+        print(f"[demo] replaying {truth['frames']} frames at {rate} Hz over DDS "
+              f"(loopback){' again' if attempt else ''} ...", flush=True)
+        play(bag, rate=rate, context=context, wait_timeout=60.0, min_subscribers=2)
+        deadline = time.monotonic() + min(timeout_s, 15.0 + 3.0 * truth["frames"])
+        while time.monotonic() < deadline and node_proc.poll() is None:
+            with recorder.lock:
+                if len(recorder.markers) >= truth["frames"]:
+                    break
+            time.sleep(0.05)
+        with recorder.lock:
+            if len(recorder.markers) >= truth["frames"] or node_proc.poll() is not None:
+                return
+
+
+def _pictures(segments_msg, detected, scene: dict, out: Path) -> None:
+    from geomodel_ros.tools.render import render_figures
+    from msg_adapters.pointcloud2 import cloud_to_fields, cloud_to_xyz_and_mask
+
+    pts, _ = cloud_to_xyz_and_mask(segments_msg, skip_nans=False)
+    ids = cloud_to_fields(segments_msg, ["object_id"])["object_id"]
+    files = render_figures(pts, np.asarray(ids).astype(np.int64).ravel(), detected,
+                           out / scene["name"], title_prefix=f"{scene['name']}: ",
+                           intrinsics=scene.get("intrinsics"))
+    print(f"  pictures: {', '.join(str(f) for f in files)}\n", flush=True)
+
+
+def _report_scene(scene: dict, recorded: tuple[dict, dict, dict], out: Path,
+                  pictures: bool) -> int:
+    """Print one scene's table (and write its pictures); objects found."""
+    from msg_adapters.markers import markers_to_primitives
+
+    markers, inputs, segments = recorded
+    stamps = [s for s in scene["stamps_ns"] if s in markers]
+    lat = [1000.0 * (markers[s][0] - inputs[s]) for s in stamps if s in inputs]
+    print(f"== {scene['name']}: {len(stamps)}/{len(scene['stamps_ns'])} frames modeled"
+          + (f", latency input -> primitives median {statistics.median(lat):.0f} ms "
+             f"(max {max(lat):.0f} ms)" if lat else ""))
+    if not stamps:
+        return 0
+    last = stamps[-1]
+    detected = markers_to_primitives(markers[last][1])
+    table, found = _table(scene["objects"], detected)
+    print(table)
+    print(f"  {found}/{len(scene['objects'])} objects found with the right type; "
+          f"{len(detected)} primitives published\n")
+    if pictures and last in segments:
+        _pictures(segments[last], detected, scene, out)
+    return found
+
+
+def _stop_node(node_proc: subprocess.Popen, out: Path) -> None:
+    """SIGINT the node (escalate after 10 s) and write its output to ``out/node.log``."""
+    if node_proc.poll() is None:
+        node_proc.send_signal(signal.SIGINT)
+        try:
+            node_proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            node_proc.kill()
+    log = node_proc.stdout.read() if node_proc.stdout else ""
+    (out / "node.log").write_text(log)
+
+
+def _render_bag(out: Path, scenes: Sequence[str], frames: int, rate: float) -> tuple[Path, dict]:
+    """Write the scenes' bag under ``out``; its path and ground truth."""
     import json
     import shutil
 
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
+    from geomodel_ros.ros.bags import ground_truth_path, write_synth_bag
 
-    from msg_adapters.markers import markers_to_primitives
-    from msg_adapters.pointcloud2 import cloud_to_fields, cloud_to_xyz_and_mask
-
-    from geomodel_ros.ros.bags import ground_truth_path, play, write_synth_bag
-
-    out = Path(out_dir)
     bag = out / "scenes_bag"
     if bag.exists():
         shutil.rmtree(bag)
     out.mkdir(parents=True, exist_ok=True)
-    t0 = time.monotonic()
     print(f"[demo] rendering {', '.join(scenes)} ({frames} frames each) into {bag} ...",
           flush=True)
     write_synth_bag(bag, list(scenes), frames=frames, rate=rate, topic=TOPIC)
-    truth = json.loads(ground_truth_path(bag).read_text())
+    return bag, json.loads(ground_truth_path(bag).read_text())
 
-    domain = int(os.environ.get("ROS_DOMAIN_ID", 1 + os.getpid() % 100))
+
+def _start_node(domain: int) -> subprocess.Popen:
     env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
            "ROS_DOMAIN_ID": str(domain)}
     cmd = _node_command(ROOT / "config" / "modeler.yaml")
-    print(f"[demo] starting the node: {' '.join(Path(c).name if i == 0 else c for i, c in enumerate(cmd))}",
-          flush=True)
-    node_proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                 text=True)
+    shown = " ".join(Path(c).name if i == 0 else c for i, c in enumerate(cmd))
+    print(f"[demo] starting the node: {shown}", flush=True)
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+
+
+def run_demo(out_dir: str | Path = "demo_out", scenes: Sequence[str] = ("scene1", "scene2",
+             "scene3"), frames: int = 2, rate: float = 1.0, pictures: bool = True,
+             timeout_s: float = 120.0) -> int:
+    """Run the demo; returns the process exit code (0 when every frame was modeled)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    out = Path(out_dir)
+    t0 = time.monotonic()
+    bag, truth = _render_bag(out, scenes, frames, rate)
+    domain = int(os.environ.get("ROS_DOMAIN_ID", 1 + os.getpid() % 100))
+    node_proc = _start_node(domain)
     context = Context()
     rclpy.init(args=[], context=context, domain_id=domain)
     recorder = _Recorder(context)
@@ -166,83 +256,28 @@ def run_demo(out_dir: str | Path = "demo_out", scenes: Sequence[str] = ("scene1"
     executor.add_node(recorder.node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-    code = 1
     try:
-        # The node is ready when it subscribes to the input (besides this recorder) and
-        # its outputs are discovered.
-        ready = time.monotonic() + 60.0
-        while time.monotonic() < ready and node_proc.poll() is None:
-            if recorder.node.count_subscribers(TOPIC) >= 2 and \
-                    recorder.node.count_publishers("/modeler/primitives") >= 1:
-                break
-            time.sleep(0.05)
-        else:
+        if not _wait_until_ready(recorder, node_proc):
             print("[demo] the node did not come up (see demo_out/node.log)", flush=True)
             return 1
-        # DDS can lose the first frames while a new publisher and the node's reader
-        # match; frames without a result are replayed (at most three times in all).
-        for attempt in range(3):
-            print(f"[demo] replaying {truth['frames']} frames at {rate} Hz over DDS "
-                  f"(loopback){' again' if attempt else ''} ...", flush=True)
-            play(bag, rate=rate, context=context, wait_timeout=60.0, min_subscribers=2)
-            deadline = time.monotonic() + min(timeout_s, 15.0 + 3.0 * truth["frames"])
-            while time.monotonic() < deadline and node_proc.poll() is None:
-                with recorder.lock:
-                    if len(recorder.markers) >= truth["frames"]:
-                        break
-                time.sleep(0.05)
-            with recorder.lock:
-                if len(recorder.markers) >= truth["frames"] or node_proc.poll() is not None:
-                    break
+        _replay(bag, truth, rate, context, recorder, node_proc, timeout_s)
         with recorder.lock:
-            markers = dict(recorder.markers)
-            inputs = dict(recorder.inputs)
-            segments = dict(recorder.segments)
-        print(f"[demo] the node published results for {len(markers)} of {truth['frames']} "
+            recorded = (dict(recorder.markers), dict(recorder.inputs), dict(recorder.segments))
+        print(f"[demo] the node published results for {len(recorded[0])} of {truth['frames']} "
               f"frames\n", flush=True)
-        all_found = all_total = 0
-        for scene in truth["scenes"]:
-            stamps = [s for s in scene["stamps_ns"] if s in markers]
-            lat = [1000.0 * (markers[s][0] - inputs[s]) for s in stamps if s in inputs]
-            print(f"== {scene['name']}: {len(stamps)}/{len(scene['stamps_ns'])} frames modeled"
-                  + (f", latency input -> primitives median {statistics.median(lat):.0f} ms "
-                     f"(max {max(lat):.0f} ms)" if lat else ""))
-            if not stamps:
-                continue
-            last = stamps[-1]
-            detected = markers_to_primitives(markers[last][1])
-            table, found = _table(scene["objects"], detected)
-            all_found += found
-            all_total += len(scene["objects"])
-            print(table)
-            print(f"  {found}/{len(scene['objects'])} objects found with the right type; "
-                  f"{len(detected)} primitives published\n")
-            if pictures and last in segments:
-                from geomodel_ros.tools.render import render_figures
-
-                pts, mask = cloud_to_xyz_and_mask(segments[last], skip_nans=False)
-                ids = cloud_to_fields(segments[last], ["object_id"])["object_id"]
-                files = render_figures(pts, np.asarray(ids).astype(np.int64).ravel(), detected,
-                                       out / scene["name"], title_prefix=f"{scene['name']}: ",
-                                       intrinsics=scene.get("intrinsics"))
-                print(f"  pictures: {', '.join(str(f) for f in files)}\n", flush=True)
-        code = 0 if markers and len(markers) == truth["frames"] else 1
+        all_found = sum(_report_scene(scene, recorded, out, pictures)
+                        for scene in truth["scenes"])
+        all_total = sum(len(scene["objects"]) for scene in truth["scenes"]
+                        if any(s in recorded[0] for s in scene["stamps_ns"]))
         print(f"[demo] {all_found}/{all_total} ground-truth objects found; "
               f"done in {time.monotonic() - t0:.0f} s", flush=True)
+        return 0 if recorded[0] and len(recorded[0]) == truth["frames"] else 1
     finally:
         executor.shutdown(timeout_sec=5.0)
         spinner.join(timeout=5.0)
         recorder.node.destroy_node()
         rclpy.try_shutdown(context=context)
-        if node_proc.poll() is None:
-            node_proc.send_signal(signal.SIGINT)
-            try:
-                node_proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                node_proc.kill()
-        log = node_proc.stdout.read() if node_proc.stdout else ""
-        (out / "node.log").write_text(log)
-    return code
+        _stop_node(node_proc, out)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
