@@ -30,7 +30,7 @@ from geomodel_ros.tools.synth import (SENSOR_NOISE, Box, Cylinder, Sphere, rende
                                       scene_geometry)
 from geomodel_ros.tools.synth.scenes import (DESK_CENTER, DESK_NORMAL, SCENE_NAMES,
                                              SEGMENTATION_CAMERA, SEGMENTATION_SCENE_NAMES,
-                                             _rest_on_desk, _standing)
+                                             _desk, _rest_on_desk, _standing)
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 MM = 1e-3
@@ -390,6 +390,21 @@ def test_all_nan_organized_cloud_gives_no_segments():
     assert seg.labels.shape == (181 * 320,) and seg.labels.dtype == np.int64
     assert np.all(seg.labels == -1)
     assert seg.support_ids == [] and seg.support_planes == {} and len(seg.object_ids) == 0
+
+
+def test_bare_desk_is_one_support_and_no_object():
+    # Every working point in the support, none left for objects (this used to raise
+    # IndexError).
+    organized, gt = SEGMENTATION_CAMERA.render([_desk()], ids=[0])
+    valid = gt.ravel() == 0
+    assert valid.sum() > 20000
+    seg = segment_scene(organized, ModelingParams())
+    assert seg.support_ids == [0]
+    np.testing.assert_array_equal(seg.labels[valid], 0)
+    np.testing.assert_array_equal(seg.labels[~valid], -1)
+    normal, d = seg.support_planes[0]
+    assert normal @ DESK_NORMAL > np.cos(np.radians(0.5))
+    assert abs(d + DESK_NORMAL @ DESK_CENTER) < 0.5 * MM
 
 
 @pytest.mark.parametrize("shape", [(0, 3), (0, 0, 3), (4, 0, 3)])

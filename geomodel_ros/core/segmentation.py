@@ -166,8 +166,9 @@ def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
         comp[rest_idx] = _convex_objects(wp[rest_idx], params)
     rest = comp >= 0
     size = np.bincount(comp[rest], weights=counts[rest], minlength=int(comp.max()) + 1)
-    good = size >= params.seg_min_cluster_points
-    return comp, rest & good[np.where(rest, comp, 0)]
+    comp_ok = rest.copy()
+    comp_ok[rest] = (size >= params.seg_min_cluster_points)[comp[rest]]
+    return comp, comp_ok
 
 
 def _size_ranks(comp: NDArray[np.int64], counts: NDArray[np.int64]) -> NDArray[np.int64]:
