@@ -313,8 +313,8 @@ def join_occluded_parts(points: NDArray[np.float64], normals: NDArray[np.float64
             if reach > params.seg_max_occlusion_gap or sets.find(a) == sets.find(b):
                 continue
             gap = _closest_gap(segs, a, b, params)
-            if gap is not None and _surface_continues(segs, normals, gap, params) \
-                    and _gap_is_hidden(segs, gap, params.seg_voxel_size):
+            if (gap is not None and _surface_continues(segs, normals, gap, params)
+                    and _gap_is_hidden(segs, gap, params.seg_voxel_size)):
                 sets.union(a, b)
     return sets.relabel(comp, valid)
 
