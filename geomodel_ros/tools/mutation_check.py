@@ -89,6 +89,12 @@ MUTANTS: tuple[Mutant, ...] = (
            "if self.min_radius >= self.max_radius:", "if self.min_radius > 10 * self.max_radius:"),
     Mutant("tracking: retired ids reused", "geomodel_ros/core/tracking.py",
            "        self._next_id += 1\n", ""),
+    Mutant("segmentation: convexity vote accepts concave creases",
+           "geomodel_ros/core/segmentation.py",
+           "good = convexity[cross] >= -tolerance", "good = convexity[cross] <= tolerance"),
+    Mutant("support: small planes taken as supports", "geomodel_ros/core/support.py",
+           "if len(keep) * cell_area < params.seg_min_support_area:",
+           "if len(keep) * cell_area < 0.01 * params.seg_min_support_area:"),
     Mutant("fastmath: centroid divided by n - 1", "geomodel_ros/core/fastmath.py",
            "return np.ones(n) @ p / n if n", "return np.ones(n) @ p / max(n - 1, 1) if n"),
 )
