@@ -32,7 +32,8 @@ def test_whole_tree_is_lint_clean():
 
 def test_lint_catches_a_violation(tmp_path):
     bad = tmp_path / "bad.py"
-    bad.write_text('"""Module."""\n\nimport os\n\n\ndef f(unused):\n    """Return one."""\n    return 1\n')
+    bad.write_text('"""Module."""\n\nimport os\n\n\n'
+                   'def f(unused):\n    """Return one."""\n    return 1\n')
     proc = subprocess.run([*_ruff(), "check", "--config", str(ROOT / "ruff.toml"),
                            "--output-format", "concise", "--no-cache", str(bad)],
                           capture_output=True, text=True)
