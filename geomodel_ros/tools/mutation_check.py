@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-__all__ = ["Mutant", "MUTANTS", "run_mutant", "main"]
+__all__ = ["Mutant", "MUTANTS", "run_mutant", "test_files", "main"]
 
 
 @dataclass(frozen=True)
@@ -100,6 +100,21 @@ MUTANTS: tuple[Mutant, ...] = (
 )
 
 
+#: Test files run first (fast unit tests of the core): most mutants fail there, and the
+#: suite stops at the first failure. Every other test file follows.
+FIRST = ("test_reconstruction.py", "test_fitting_units.py", "test_strategies.py",
+         "test_fitters.py", "test_surface_type.py", "test_model_graph.py", "test_faces.py",
+         "test_obb.py", "test_ray_to_cylinder.py", "test_params.py", "test_tracking.py",
+         "test_segmentation_joins.py", "test_pipeline.py", "test_segmentation.py")
+
+
+def test_files(repo: Path) -> list[str]:
+    """Every test file of ``repo``: :data:`FIRST` in its order, then the rest by name."""
+    names = sorted(p.name for p in (repo / "test").glob("test_*.py"))
+    return [f"test/{n}" for n in FIRST if n in names] + \
+        [f"test/{n}" for n in names if n not in FIRST]
+
+
 def run_mutant(repo: Path, mutant: Mutant, timeout: float) -> dict:
     """Apply ``mutant`` in ``repo``, run the suite, restore; the outcome as a dict."""
     path = repo / mutant.path
@@ -111,8 +126,8 @@ def run_mutant(repo: Path, mutant: Mutant, timeout: float) -> dict:
     t0 = time.perf_counter()
     try:
         proc = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
-                               "test"], cwd=repo, env=env, capture_output=True, text=True,
-                              timeout=timeout)
+                               *test_files(repo)], cwd=repo, env=env, capture_output=True,
+                              text=True, timeout=timeout)
         failed = proc.returncode != 0
         first = next((ln for ln in proc.stdout.splitlines() if ln.startswith("FAILED")), "")
     except subprocess.TimeoutExpired:
