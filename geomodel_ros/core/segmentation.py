@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 from geomodel_ros.core.errors import as_points
 from geomodel_ros.core.faces import WorkingCloud, estimate_normals, link_graph, split_faces, voxelize
 from geomodel_ros.core.geometry import perpendicular_basis
+from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.fastmath import row_norms, rows_finite, take_rows
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, ransac, refine
@@ -381,6 +382,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     t0 = time.perf_counter()
     params = params if params is not None else ModelingParams()
     pts = as_points(points, allow_organized=True)
+    pts = without_far_points(pts, params)
     rng = np.random.default_rng(params.seed if rng is None else rng)
     n = len(pts)
     labels = np.full(n, -1, dtype=np.int64)
