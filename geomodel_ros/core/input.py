@@ -10,11 +10,15 @@ Every entry of the core that voxelizes a scene (:func:`~geomodel_ros.core.modeli
 A scene with more than ``max_points`` valid points is averaged on a voxel grid first
 (:func:`downsample`): the smallest voxel of the sequence ``seg_voxel_size * GROWTH**k`` that
 leaves at most ``max_points`` voxels. Memory then grows with ``max_points``, not with the
-input, apart from a few copies of the input array itself.
+input, apart from a few copies of the input array itself. The segmentation then works at
+that voxel (:func:`working_params`: its neighbour links and plane areas are measured in
+voxels), and counts (``seg_min_cluster_points``, ``min_object_points``, an object's
+``point_count``) are counts of voxels.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import numpy as np
@@ -23,9 +27,10 @@ from numpy.typing import NDArray
 from geomodel_ros.core.errors import InputError
 from geomodel_ros.core.faces import voxelize
 from geomodel_ros.core.fastmath import rows_finite, take_rows
-from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.params import PARAMETERS, ModelingParams
 
-__all__ = ["DOWNSAMPLE_GROWTH", "Downsampled", "downsample", "in_range", "without_far_points"]
+__all__ = ["DOWNSAMPLE_GROWTH", "Downsampled", "downsample", "in_range", "without_far_points",
+           "working_params"]
 
 #: Ratio of successive voxel edges tried by :func:`downsample`: the voxel used is at most
 #: this factor coarser than the smallest one that would do, and a 5M-point floor needs
@@ -33,6 +38,9 @@ __all__ = ["DOWNSAMPLE_GROWTH", "Downsampled", "downsample", "in_range", "withou
 DOWNSAMPLE_GROWTH = 1.25
 #: Most voxel edges :func:`downsample` tries (1.25**200 is about 1e19: no cloud needs as many).
 MAX_DOWNSAMPLE_STEPS = 200
+#: Largest allowed ``seg_voxel_size`` [m]: the segmentation of a downsampled scene works at
+#: the downsampling voxel, up to this.
+_SEG_VOXEL_MAX = float(next(p.high for p in PARAMETERS if p.name == "seg_voxel_size"))
 
 
 def in_range(points: NDArray[np.float64], max_range: float) -> NDArray[np.bool_]:
@@ -115,3 +123,13 @@ def downsample(points: NDArray[np.float64], rows: NDArray[np.int64], params: Mod
         size *= DOWNSAMPLE_GROWTH
     raise InputError(f"no voxel up to {size:.3g} m leaves at most max_points = "
                      f"{params.max_points} points")
+
+
+def working_params(params: ModelingParams, voxel_size: float) -> ModelingParams:
+    """``params`` for a scene downsampled at ``voxel_size`` [m].
+
+    The segmentation voxel becomes ``voxel_size`` (at most the largest allowed
+    ``seg_voxel_size``): at its own, finer voxel every voxel centroid would be isolated
+    (neighbour links are limited to ``seg_max_edge_factor`` segmentation voxels).
+    """
+    return dataclasses.replace(params, seg_voxel_size=min(voxel_size, _SEG_VOXEL_MAX))

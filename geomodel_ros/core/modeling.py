@@ -25,7 +25,7 @@ from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane, build_faces
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategies
-from geomodel_ros.core.input import downsample, in_range
+from geomodel_ros.core.input import downsample, in_range, working_params
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, ModelingResult, Primitive, PrimitiveType
 
@@ -238,8 +238,9 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
         Scene cloud in the sensor frame (non-finite rows and rows farther than
         ``params.max_range`` from the origin allowed, labelled -1). With more than
         ``params.max_points`` of the others, the scene is averaged on a voxel grid first
-        (:func:`geomodel_ros.core.input.downsample`); every row then gets the label of its
-        voxel, and sizes are exact to that voxel.
+        (:func:`geomodel_ros.core.input.downsample`) and segmented at that voxel; every
+        row then gets the label of its voxel, sizes are exact to that voxel, and point
+        counts are voxel counts.
     params : ModelingParams, optional
     organized_shape : (H, W), optional
         Image shape when ``points`` are the rows of an organized cloud (N = H * W).
@@ -270,7 +271,7 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
     ds = downsample(pts, np.flatnonzero(usable), params)
     del usable
     t_down = time.perf_counter() - t0
-    wlabels, result = _segment_and_model(ds.points, params, rng)
+    wlabels, result = _segment_and_model(ds.points, working_params(params, ds.voxel_size), rng)
     labels = np.full(len(pts), -1, dtype=np.int64)
     labels[ds.rows] = wlabels[ds.inverse]
     result.timing["downsample_s"] = t_down
