@@ -164,6 +164,19 @@ def test_range_is_inclusive_and_measured_from_the_origin():
     np.testing.assert_array_equal(in_range(pts, 5.0), [True, False, True, False, False, False])
 
 
+def test_range_gate_is_exact_near_the_corners_of_the_range_cube():
+    # |(5, 5, 5)| = 8.66 m and |(5.7, 5.7, 5.7)| = 9.87 m are inside 10 m although beyond
+    # the cube of half-edge 10 / sqrt(3) = 5.77 m on some axis; |(6, 6, 6)| = 10.39 m is not.
+    pts = np.array([[5.0, 5.0, 5.0], [5.7, 5.7, 5.7], [6.0, 6.0, 6.0], [0.0, 0.0, -9.99],
+                    [np.nan] * 3, [0.1, 0.2, 0.3]])
+    np.testing.assert_array_equal(in_range(pts, 10.0), [True, True, False, True, False, True])
+    # every coordinate within the cube (|x| <= 5 m): only the NaN row is out
+    inside = np.array([[0.1, 0.2, 0.3], [np.nan, 1.0, 1.0], [-5.0, 5.0, -5.0]])
+    np.testing.assert_array_equal(in_range(inside, 10.0), [True, False, True])
+    assert not in_range(np.array([[np.inf, 0.0, 0.0]]), 10.0)[0]
+    assert in_range(np.zeros((0, 3)), 10.0).shape == (0,)
+
+
 # ---------------------------------------------------------------------------------------
 # max_range at its range ends
 # ---------------------------------------------------------------------------------------

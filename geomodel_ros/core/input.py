@@ -19,6 +19,7 @@ voxels), and counts (``seg_min_cluster_points``, ``min_object_points``, an objec
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -43,12 +44,31 @@ MAX_DOWNSAMPLE_STEPS = 200
 _SEG_VOXEL_MAX = float(next(p.high for p in PARAMETERS if p.name == "seg_voxel_size"))
 
 
+def _inside_box(points: NDArray[np.float64], max_range: float) -> bool:
+    """Tell whether every finite row of ``points`` (N, 3) [m] is within ``max_range`` [m].
+
+    True when all finite coordinates lie in the cube of half-edge ``max_range / sqrt(3)``
+    (then every finite row does); False means "not sure". Two NaN-ignoring reductions,
+    several times faster than the squared norms of the rows: the usual cloud passes this
+    test and needs nothing else. Infinite or all-NaN coordinates give False.
+    """
+    if points.size == 0:
+        return True
+    top = float(np.fmax.reduce(points, axis=None))
+    bottom = float(np.fmin.reduce(points, axis=None))
+    if not (math.isfinite(top) and math.isfinite(bottom)):
+        return False
+    return max(abs(top), abs(bottom)) * math.sqrt(3.0) <= max_range
+
+
 def in_range(points: NDArray[np.float64], max_range: float) -> NDArray[np.bool_]:
     """Mark the rows of ``points`` (N, 3) [m] that are finite and within ``max_range`` [m].
 
-    One pass: a NaN or infinite row has a NaN or infinite squared norm, which fails the
-    comparison; huge finite values overflow to inf in the square (silenced) and fail too.
+    A NaN or infinite row has a NaN or infinite squared norm, which fails the comparison;
+    huge finite values overflow to inf in the square (silenced) and fail too.
     """
+    if _inside_box(points, max_range):
+        return rows_finite(points)
     with np.errstate(over="ignore", invalid="ignore"):
         sq = np.einsum("ij,ij->i", points, points)
     return sq <= max_range * max_range
@@ -62,7 +82,12 @@ def without_far_points(points: NDArray[np.float64], params: ModelingParams
     that the caller's array is never modified. Non-finite rows are left as they are (they
     are invalid already).
     """
-    far = np.flatnonzero(~in_range(points, params.max_range))
+    if _inside_box(points, params.max_range):
+        return points
+    with np.errstate(over="ignore", invalid="ignore"):
+        sq = np.einsum("ij,ij->i", points, points)
+    # NaN rows fail the comparison; rows with an inf pass it but are not finite.
+    far = np.flatnonzero(sq > params.max_range * params.max_range)
     far = far[rows_finite(points[far])]
     if far.size == 0:
         return points

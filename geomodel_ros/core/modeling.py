@@ -219,6 +219,16 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
     flab = None if face_labels is None else _check_labels(face_labels, len(pts), "face_labels")
     rng = np.random.default_rng(params.seed if rng is None else rng)
     idx_all = np.flatnonzero(in_range(pts, params.max_range) & (lab >= 0))
+    return _model_rows(pts, idx_all, lab, flab, params, rng, supports, t0)
+
+
+def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArray[np.int64],
+                flab: NDArray[np.int64] | None, params: ModelingParams, rng: np.random.Generator,
+                supports: dict[int, Plane] | None, t0: float) -> ModelingResult:
+    """Model the objects of the rows ``idx_all`` (usable, labelled) of ``pts`` (N, 3) [m].
+
+    The body of :func:`model_objects` after its checks; ``t0`` is its start time [s].
+    """
     objects: list[Primitive] = []
     if idx_all.size:
         order, ids, starts, ends = _group_by_label(idx_all, lab[idx_all])
@@ -264,6 +274,8 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
     if organized_shape is not None and organized_shape[0] * organized_shape[1] != len(pts):
         raise InputError(f"organized_shape {organized_shape} does not match {len(pts)} points")
     rng = np.random.default_rng(params.seed if rng is None else rng)
+    if len(pts) <= params.max_points:
+        return _segment_and_model(pts, params, rng)
     usable = in_range(pts, params.max_range)
     if np.count_nonzero(usable) <= params.max_points:
         return _segment_and_model(pts, params, rng)
@@ -285,7 +297,10 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     from geomodel_ros.core.segmentation import segment_scene
 
     seg = segment_scene(pts, params, rng=rng)
-    result = model_objects(pts, seg.labels, params, rng=rng, supports=seg.support_planes)
+    # The segmentation labels only finite rows within max_range: no further checks.
+    t0 = time.perf_counter()
+    result = _model_rows(pts, np.flatnonzero(seg.labels >= 0), seg.labels, None, params, rng,
+                         seg.support_planes, t0)
     result.timing.update(seg.timing)
     result.timing["total_s"] = result.timing["modeling_s"] + seg.timing["segmentation_s"]
     return seg.labels, result

@@ -62,7 +62,8 @@ peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 print(json.dumps({"points": len(pts), "loaded_kib": loaded, "peak_kib": peak,
                   "model_scene_s": took, "objects": len(result.objects),
                   "labelled": int((labels >= 0).sum()),
-                  "types": [o.type.value for o in result.objects]}))
+                  "types": [o.type.value for o in result.objects],
+                  "timing": result.timing}))
 """
 
 
@@ -170,6 +171,9 @@ def main(argv: list[str] | None = None) -> int:
           f"model_scene {out['model_scene_s']:.1f} s, peak RSS {out['peak_kib'] * mib:.0f} MiB "
           f"({out['loaded_kib'] * mib:.0f} MiB after loading the cloud); "
           f"{out['objects']} objects, {out['labelled']} points labelled")
+    stages = ("downsample_s", "segmentation_s", "modeling_s")
+    print("  " + ", ".join(f"{k[:-2]} {out['timing'][k]:.1f} s" for k in stages
+                           if k in out["timing"]))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=2))
     return 0
