@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from geomodel_ros.core.errors import InputError
-from geomodel_ros.core.faces import voxelize
+from geomodel_ros.core.faces import count_voxels, voxelize
 from geomodel_ros.core.input import DOWNSAMPLE_GROWTH, in_range
 from geomodel_ros.core.modeling import model_objects, model_scene
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError
@@ -229,6 +229,11 @@ def test_voxelize_checks_the_grid_in_floats_before_integer_arithmetic():
     np.testing.assert_array_equal(inverse, [0, 1, 0])
     np.testing.assert_array_equal(counts, [2, 1])
     np.testing.assert_allclose(centroids, [[0.1, 0.15, 0.2], [1e6, 1e6, 1e6]])
+    assert count_voxels(pts, 1.0) == 2          # the sparse box: sorted keys
+    assert count_voxels(pts, 0.25) == 3         # (0.2, 0.3, 0.4) is now in cell (0, 1, 1)
+    assert count_voxels(pts[[0, 2]], 1.0) == 1  # a dense box of one cell
+    with pytest.raises(InputError, match="too large for a voxel grid"):
+        count_voxels(far, 1e-4)
     # With groups the key space multiplies: 1e18 cells x 10 groups no longer fits.
     with pytest.raises(InputError):
         voxelize(pts, 1.0, groups=np.array([0, 9, 0]))

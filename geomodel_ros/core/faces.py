@@ -23,7 +23,8 @@ from geomodel_ros.core.errors import InputError
 from geomodel_ros.core.fastmath import centroid, knn, robust_sigma
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, refine
 
-__all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_working_cloud",
+__all__ = ["WorkingCloud", "FaceSet", "voxelize", "count_voxels", "estimate_normals",
+           "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
            "split_faces", "faces_from_labels", "working_voxel_size", "link_graph",
            "split_plane_unions", "face_plane"]
@@ -91,6 +92,49 @@ def _grid_spans(low: NDArray[np.float64], high: NDArray[np.float64], voxel_size:
     return [int(v) for v in spans]
 
 
+def _cell_keys(pt: NDArray[np.float64], voxel_size: float,
+               groups: NDArray[np.int64] | None) -> NDArray[np.int64]:
+    """One int64 key per point of ``pt`` (3, N) [m]: its voxel (and group), from 0.
+
+    Integer cell coordinates shifted to start at 0, flattened row-major over the occupied
+    box (then over the groups); the box is checked in floats first (:func:`_grid_spans`).
+    """
+    scaled = pt * (1.0 / voxel_size)
+    np.floor(scaled, out=scaled)
+    g = None if groups is None else np.asarray(groups, dtype=np.int64)
+    low = scaled.min(axis=1, keepdims=True)
+    span = _grid_spans(low.ravel(), scaled.max(axis=1), voxel_size, g)
+    cols = scaled.astype(np.int64)
+    del scaled
+    cols -= low.astype(np.int64)
+    flat = cols[0] * (span[1] * span[2])
+    flat += cols[1] * span[2]
+    flat += cols[2]
+    del cols
+    if g is not None:
+        g = g - g.min()
+        flat += (span[0] * span[1] * span[2]) * g
+    return flat
+
+
+def count_voxels(points: NDArray[np.float64], voxel_size: float) -> int:
+    """Count the voxels of edge ``voxel_size`` [m] that ``points`` (N, 3) [m] occupy.
+
+    The count of :func:`voxelize` without its centroids and inverse (a plain sort instead
+    of a sort with inverse on sparse boxes: several times faster on millions of points).
+    """
+    if len(points) == 0:
+        return 0
+    flat = _cell_keys(np.ascontiguousarray(points.T), voxel_size, None)
+    cells = int(flat.max()) + 1
+    if cells <= max(DENSE_CELLS, DENSE_CELLS_PER_POINT * len(flat)):
+        occupied = np.zeros(cells, dtype=bool)
+        occupied[flat] = True
+        return int(np.count_nonzero(occupied))
+    flat.sort()
+    return int(np.count_nonzero(flat[1:] != flat[:-1])) + 1
+
+
 def voxelize(points: NDArray[np.float64], voxel_size: float,
              groups: NDArray[np.int64] | None = None
              ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
@@ -113,24 +157,9 @@ def voxelize(points: NDArray[np.float64], voxel_size: float,
     """
     if len(points) == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    # Integer cell coordinates on the transposed (3, N) points (numpy is slow along the
-    # short last axis of (N, 3)), shifted to start at 0, then one flat key per point.
+    # Keys on the transposed (3, N) points: numpy is slow along the short last axis of (N, 3).
     pt = np.ascontiguousarray(points.T)
-    scaled = pt * (1.0 / voxel_size)
-    np.floor(scaled, out=scaled)
-    g = None if groups is None else np.asarray(groups, dtype=np.int64)
-    low = scaled.min(axis=1, keepdims=True)
-    span = _grid_spans(low.ravel(), scaled.max(axis=1), voxel_size, g)
-    cols = scaled.astype(np.int64)
-    del scaled
-    cols -= low.astype(np.int64)
-    flat = cols[0] * (span[1] * span[2])
-    flat += cols[1] * span[2]
-    flat += cols[2]
-    del cols
-    if g is not None:
-        g = g - g.min()
-        flat += (span[0] * span[1] * span[2]) * g
+    flat = _cell_keys(pt, voxel_size, groups)
     cells = int(flat.max()) + 1
     if cells <= max(DENSE_CELLS, DENSE_CELLS_PER_POINT * len(flat)):
         # A dense table over the occupied box instead of sorting (same result as

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.errors import InputError
-from geomodel_ros.core.faces import voxelize
+from geomodel_ros.core.faces import count_voxels, voxelize
 from geomodel_ros.core.fastmath import rows_finite, take_rows
 from geomodel_ros.core.params import PARAMETERS, ModelingParams
 
@@ -141,10 +141,9 @@ def downsample(points: NDArray[np.float64], rows: NDArray[np.int64], params: Mod
     used = points if len(rows) == len(points) else take_rows(points, rows)
     size = params.seg_voxel_size
     for _ in range(MAX_DOWNSAMPLE_STEPS):
-        centroids, inverse, _ = voxelize(used, size)
-        if len(centroids) <= params.max_points:
+        if count_voxels(used, size) <= params.max_points:
+            centroids, inverse, _ = voxelize(used, size)
             return Downsampled(centroids, rows, inverse, size)
-        del centroids, inverse
         size *= DOWNSAMPLE_GROWTH
     raise InputError(f"no voxel up to {size:.3g} m leaves at most max_points = "
                      f"{params.max_points} points")
