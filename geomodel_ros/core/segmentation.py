@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from geomodel_ros.core.errors import as_points
 from geomodel_ros.core.faces import WorkingCloud, estimate_normals, split_faces, voxelize
+from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.fastmath import row_norms, rows_finite, take_rows
 from geomodel_ros.core.joins import join_contained_parts, join_occluded_parts, merge_patches
 from geomodel_ros.core.params import ModelingParams
@@ -90,6 +91,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     t0 = time.perf_counter()
     params = params if params is not None else ModelingParams()
     pts = as_points(points, allow_organized=True)
+    pts = without_far_points(pts, params)
     rng = np.random.default_rng(params.seed if rng is None else rng)
     labels = np.full(len(pts), -1, dtype=np.int64)
     finite = np.flatnonzero(rows_finite(pts))
