@@ -16,8 +16,8 @@ import struct
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
-from io import StringIO
-from typing import NamedTuple
+from io import TextIOWrapper
+from typing import BinaryIO, NamedTuple
 
 import lzf
 import numpy as np
@@ -27,7 +27,9 @@ from geomodel_ros.tools.cloud_file import (
     Cloud,
     CloudFileError,
     PathLike,
-    read_bytes,
+    count_lines,
+    open_cloud,
+    read_records,
     resolve_shape,
     to_xyz,
 )
@@ -385,20 +387,23 @@ def read_pcd(path: PathLike) -> Cloud:
 
     Notes
     -----
-    ``binary``: a single structured dtype view of the file buffer (``np.frombuffer``, no
-    copy). ``binary_compressed``: the LZF stream (``uint32`` compressed and uncompressed
-    sizes, little endian, then the data) decompresses to the fields one after another
-    (structure of arrays; a COUNT K field is N x K values, point after point); the fields
-    other than x y z are copied out of it. Bytes after the data (PCL pads files to a page)
-    are ignored.
+    Memory: the file is never held whole. ``binary`` records are read through a small
+    buffer straight into the output arrays (every field owns its memory); ``ascii`` text
+    is parsed from the file in chunks; ``binary_compressed`` holds the LZF stream
+    (``uint32`` compressed and uncompressed sizes, little endian, then the data), then the
+    decompressed data (the fields one after another, structure of arrays; a COUNT K field
+    is N x K values, point after point) while the fields are copied out of it. Bytes after
+    the data (PCL pads files to a page) are ignored.
     """
-    buf = read_bytes(path)
-    header, start = _parse_pcd_header(buf, path)
-    if header.data == "binary":
-        return _read_pcd_binary(buf, start, header, path)
-    if header.data == "binary_compressed":
-        return _read_pcd_compressed(buf, start, header, path)
-    return _read_pcd_ascii(buf, start, header, path)
+    stream, size, head = open_cloud(path)
+    with stream:
+        header, start = _parse_pcd_header(head, path)
+        del head
+        if header.data == "binary":
+            return _read_pcd_binary(stream, size, start, header, path)
+        if header.data == "binary_compressed":
+            return _read_pcd_compressed(stream, size, start, header, path)
+        return _read_pcd_ascii(stream, size, start, header, path)
 
 
 def _columns_to_cloud(
@@ -406,6 +411,11 @@ def _columns_to_cloud(
 ) -> Cloud:
     """Build the Cloud from one array per (non-padding) field, first axis N."""
     points = to_xyz(path, (columns.pop("x"), columns.pop("y"), columns.pop("z")))
+    return _pcd_cloud(header, points, columns)
+
+
+def _pcd_cloud(header: _PcdHeader, points: np.ndarray, columns: dict[str, np.ndarray]) -> Cloud:
+    """Build the Cloud from the points and the other fields (colours as raw uint32 bits)."""
     for color in _COLOR_FIELDS:
         values = columns.get(color)
         if values is not None and values.dtype.itemsize == 4 and values.dtype != np.uint32:
@@ -413,56 +423,62 @@ def _columns_to_cloud(
     return Cloud(points, columns, header.width, header.height, header.viewpoint)
 
 
-def _read_pcd_binary(buf: bytearray, start: int, header: _PcdHeader, path: PathLike) -> Cloud:
+def _read_pcd_binary(
+    stream: BinaryIO, size: int, start: int, header: _PcdHeader, path: PathLike
+) -> Cloud:
     dtype = header.record_dtype()
     needed = header.points * dtype.itemsize
-    available = len(buf) - start
+    available = size - start
     if available < needed:
         raise CloudFileError(
             f"{os.fspath(path)}: truncated PCD: DATA binary needs {needed} bytes "
             f"({header.points} points of {dtype.itemsize} bytes), the file has {available}"
         )
-    records = np.frombuffer(buf, dtype=dtype, count=header.points, offset=start)
-    columns = {n: records[n] for n in header.names if n != "_"}
-    return _columns_to_cloud(path, header, columns)
+    points, columns = read_records(
+        stream, path, start, dtype, header.points, lambda key: not key.startswith(" ")
+    )
+    return _pcd_cloud(header, points, columns)
 
 
 def _compressed_payload(
-    buf: bytearray, start: int, points: int, point_size: int, name: str
+    stream: BinaryIO, size: int, start: int, points: int, point_size: int, name: str
 ) -> bytes:
     """Check the two sizes before the LZF stream, then decompress it (``points`` records)."""
     expected = points * point_size
-    if len(buf) - start < 8:
+    if size - start < 8:
         if expected == 0:
             return b""
         raise CloudFileError(
-            f"{name}: truncated PCD: DATA binary_compressed has {len(buf) - start} bytes, "
+            f"{name}: truncated PCD: DATA binary_compressed has {size - start} bytes, "
             "needs at least the 8-byte size header"
         )
-    compressed_size, uncompressed_size = struct.unpack_from("<II", buf, start)
+    stream.seek(start)
+    compressed_size, uncompressed_size = struct.unpack("<II", stream.read(8))
     if uncompressed_size != expected:
         raise CloudFileError(
             f"{name}: corrupt PCD: binary_compressed uncompressed size {uncompressed_size} "
             f"!= {expected} ({points} points of {point_size} bytes)"
         )
-    available = len(buf) - start - 8
+    available = size - start - 8
     if compressed_size > available:
         raise CloudFileError(
             f"{name}: truncated PCD: binary_compressed says {compressed_size} compressed "
             f"bytes, the file has {available}"
         )
     try:
-        return lzf_decompress(memoryview(buf)[start + 8 : start + 8 + compressed_size], expected)
+        return lzf_decompress(stream.read(compressed_size), expected)
     except CloudFileError as exc:
         raise CloudFileError(f"{name}: {exc}") from None
 
 
 def _read_pcd_compressed(
-    buf: bytearray, start: int, header: _PcdHeader, path: PathLike
+    stream: BinaryIO, size: int, start: int, header: _PcdHeader, path: PathLike
 ) -> Cloud:
     dtypes = header.dtypes()
     point_size = sum(d.itemsize * c for d, c in zip(dtypes, header.counts, strict=True))
-    payload = _compressed_payload(buf, start, header.points, point_size, os.fspath(path))
+    payload = _compressed_payload(
+        stream, size, start, header.points, point_size, os.fspath(path)
+    )
     columns: dict[str, np.ndarray] = {}
     offset = 0
     for field_name, dtype, count in zip(header.names, dtypes, header.counts, strict=True):
@@ -476,7 +492,9 @@ def _read_pcd_compressed(
     return _columns_to_cloud(path, header, columns)
 
 
-def _read_pcd_ascii(buf: bytearray, start: int, header: _PcdHeader, path: PathLike) -> Cloud:
+def _read_pcd_ascii(
+    stream: BinaryIO, size: int, start: int, header: _PcdHeader, path: PathLike
+) -> Cloud:
     name = os.fspath(path)
     # Parse colour fields declared F as float64: PCL writes them as the packed uint32
     # integer (newer PCL) or as the float value of the bits (older writers).
@@ -489,7 +507,7 @@ def _read_pcd_ascii(buf: bytearray, start: int, header: _PcdHeader, path: PathLi
         key = field_name if field_name != "_" else f" pad {index}"
         parse_types.append((key, dtype, (count,)) if count > 1 else (key, dtype))
     dtype = np.dtype(parse_types)
-    lines = buf.count(b"\n", start) + (0 if buf.endswith(b"\n") else 1)
+    lines = count_lines(stream, start, size)
     if lines < header.points:  # checked first: loadtxt allocates max_rows rows up front
         raise CloudFileError(
             f"{name}: truncated PCD: DATA ascii has {lines} lines, POINTS says {header.points}"
@@ -497,18 +515,7 @@ def _read_pcd_ascii(buf: bytearray, start: int, header: _PcdHeader, path: PathLi
     if header.points == 0:
         records = np.zeros(0, dtype=dtype)
     else:
-        try:
-            text = bytes(buf[start:]).decode("ascii")
-        except UnicodeDecodeError:
-            raise CloudFileError(f"{name}: PCD DATA ascii section is not ASCII text") from None
-        try:
-            with warnings.catch_warnings():  # an empty DATA section is reported below
-                warnings.simplefilter("ignore", UserWarning)
-                records = np.loadtxt(
-                    StringIO(text), dtype=dtype, ndmin=1, max_rows=header.points, comments=None
-                )
-        except ValueError as exc:
-            raise CloudFileError(f"{name}: corrupt PCD DATA ascii: {exc}") from None
+        records = _parse_ascii(stream, start, dtype, header.points, name)
         if records.shape[0] != header.points:
             raise CloudFileError(
                 f"{name}: truncated PCD: DATA ascii has {records.shape[0]} rows, POINTS says "
@@ -523,6 +530,24 @@ def _read_pcd_ascii(buf: bytearray, start: int, header: _PcdHeader, path: PathLi
             values = _ascii_color_bits(values, dtype_)
         columns[field_name] = np.ascontiguousarray(values)
     return _columns_to_cloud(path, header, columns)
+
+
+def _parse_ascii(
+    stream: BinaryIO, start: int, dtype: np.dtype, points: int, name: str
+) -> np.ndarray:
+    """Parse ``points`` text lines from ``start`` into records, reading the file in chunks."""
+    stream.seek(start)
+    text = TextIOWrapper(stream, encoding="ascii", newline="\n")  # type: ignore[arg-type]
+    try:
+        with warnings.catch_warnings():  # an empty DATA section is reported by the caller
+            warnings.simplefilter("ignore", UserWarning)
+            return np.loadtxt(text, dtype=dtype, ndmin=1, max_rows=points, comments=None)
+    except UnicodeDecodeError:
+        raise CloudFileError(f"{name}: PCD DATA ascii section is not ASCII text") from None
+    except ValueError as exc:
+        raise CloudFileError(f"{name}: corrupt PCD DATA ascii: {exc}") from None
+    finally:
+        text.detach()  # leave the file to its owner
 
 
 def _ascii_color_bits(values: np.ndarray, dtype: np.dtype) -> np.ndarray:

@@ -8,9 +8,13 @@ before data are viewed, and problems raise :class:`CloudFileError` naming what w
 
 from __future__ import annotations
 
+import itertools
 import os
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from io import TextIOWrapper
+from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
@@ -19,7 +23,9 @@ from geomodel_ros.tools.cloud_file import (
     Cloud,
     CloudFileError,
     PathLike,
-    read_bytes,
+    count_lines,
+    open_cloud,
+    read_records,
     resolve_shape,
     to_xyz,
 )
@@ -136,8 +142,15 @@ def read_ply(path: PathLike) -> Cloud:
         truncated or corrupt.
     """
     name = os.fspath(path)
-    buf = read_bytes(path)
-    fmt, elements, start = _parse_ply_header(buf, path)
+    stream, size, head = open_cloud(path)
+    with stream:
+        return _read_ply(stream, size, head, name)
+
+
+def _read_ply(stream: BinaryIO, size: int, head: bytearray, name: str) -> Cloud:
+    """Read the vertices after the header in ``head`` (see :func:`read_ply`)."""
+    fmt, elements, start = _parse_ply_header(head, name)
+    del head
     vertex_index = next((i for i, e in enumerate(elements) if e.name == "vertex"), None)
     if vertex_index is None:
         raise CloudFileError(f"{name}: PLY file has no 'vertex' element")
@@ -155,21 +168,22 @@ def read_ply(path: PathLike) -> Cloud:
         )
     if len(set(props)) != len(props):
         raise CloudFileError(f"{name}: PLY vertex element names a property twice")
-    if fmt == "ascii":
-        records = _ascii_vertices(buf, start, elements, vertex_index, name)
-    else:
-        records = _binary_vertices(buf, start, elements, vertex_index, fmt, name)
-    points = to_xyz(path, (records["x"], records["y"], records["z"]))
-    fields = {
-        p: records[p].astype(records[p].dtype.newbyteorder("="), copy=False)
-        for p in props
-        if p not in ("x", "y", "z")
-    }
+    if fmt != "ascii":
+        points, fields = _binary_vertices(stream, size, start, elements, vertex_index, fmt, name)
+        return Cloud(points, {p: fields[p] for p in props if p not in ("x", "y", "z")})
+    records = _ascii_vertices(stream, size, start, elements, vertex_index, name)
+    points = to_xyz(name, (records["x"], records["y"], records["z"]))
+    fields = {p: np.ascontiguousarray(records[p]) for p in props if p not in ("x", "y", "z")}
     return Cloud(points, fields)
 
 
 def _ascii_vertices(
-    buf: bytearray, start: int, elements: list[_PlyElement], vertex_index: int, name: str
+    stream: BinaryIO,
+    size: int,
+    start: int,
+    elements: list[_PlyElement],
+    vertex_index: int,
+    name: str,
 ) -> np.ndarray:
     """Parse the vertex lines of an ascii body into a structured array (one row a vertex)."""
     vertex = elements[vertex_index]
@@ -178,21 +192,23 @@ def _ascii_vertices(
     skip = sum(e.count for e in elements[:vertex_index])
     if n == 0:
         return np.zeros(0, dtype=dtype)
-    try:
-        lines = bytes(buf[start:]).decode("ascii").splitlines()
-    except UnicodeDecodeError:
-        raise CloudFileError(f"{name}: PLY ascii body is not ASCII text") from None
-    if len(lines) < skip + n:
+    lines = count_lines(stream, start, size)
+    if lines < skip + n:
         raise CloudFileError(
-            f"{name}: truncated PLY: {len(lines)} body lines, the header needs at "
-            f"least {skip + n}"
+            f"{name}: truncated PLY: {lines} body lines, the header needs at least {skip + n}"
         )
+    stream.seek(start)
+    text = TextIOWrapper(stream, encoding="ascii", newline=None)  # type: ignore[arg-type]
     try:
         with warnings.catch_warnings():  # blank lines are reported below
             warnings.simplefilter("ignore", UserWarning)
-            records = np.loadtxt(lines[skip : skip + n], dtype=dtype, ndmin=1)
+            records = np.loadtxt(itertools.islice(text, skip, skip + n), dtype=dtype, ndmin=1)
+    except UnicodeDecodeError:
+        raise CloudFileError(f"{name}: PLY ascii body is not ASCII text") from None
     except ValueError as exc:
         raise CloudFileError(f"{name}: corrupt PLY ascii vertex data: {exc}") from None
+    finally:
+        text.detach()  # leave the file to its owner
     if records.shape[0] != n:
         raise CloudFileError(
             f"{name}: corrupt PLY: {n - records.shape[0]} of the {n} vertex lines are blank"
@@ -201,14 +217,18 @@ def _ascii_vertices(
 
 
 def _binary_vertices(
-    buf: bytearray,
+    stream: BinaryIO,
+    size: int,
     start: int,
     elements: list[_PlyElement],
     vertex_index: int,
     fmt: str,
     name: str,
-) -> np.ndarray:
-    """View the vertex records of a binary body (after checking the file holds them all)."""
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Read the vertex records of a binary body (after checking the file holds them all).
+
+    Returns the (N, 3) float64 points and every other property as its own array.
+    """
     offset = start
     for element in elements[:vertex_index]:
         if element.has_list:
@@ -222,12 +242,12 @@ def _binary_vertices(
     n = vertex.count
     dtype = np.dtype([(p, _PLY_FORMATS[fmt] + code) for p, code in vertex.properties])
     needed = n * dtype.itemsize
-    if len(buf) - offset < needed:
+    if size - offset < needed:
         raise CloudFileError(
             f"{name}: truncated PLY: {n} vertices need {needed} bytes, the file has "
-            f"{max(len(buf) - offset, 0)}"
+            f"{max(size - offset, 0)}"
         )
-    return np.frombuffer(buf, dtype=dtype, count=n, offset=offset)
+    return read_records(stream, name, offset, dtype, n, lambda _: True)
 
 
 def write_ply(
