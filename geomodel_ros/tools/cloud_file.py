@@ -162,8 +162,8 @@ def read_bytes(path: PathLike) -> bytearray:
 #: accept (1 MiB) plus room for the line that crosses that limit.
 HEAD_BYTES = (1 << 20) + (1 << 16)
 #: Size of the buffer binary records are read through. Small next to the clouds it reads
-#: (a few MB against hundreds), large enough that the per-chunk Python overhead is nil.
-CHUNK_BYTES = 1 << 22
+#: (1 MiB against tens or hundreds), large enough that the per-chunk overhead is nil.
+CHUNK_BYTES = 1 << 20
 
 
 def open_cloud(path: PathLike) -> tuple[BinaryIO, int, bytearray]:
@@ -270,6 +270,43 @@ def count_lines(stream: BinaryIO, offset: int, size: int) -> int:
         lines += block.count(b"\n")
         last = block[-1:]
     return lines + (0 if last == b"\n" else 1)
+
+
+#: Text format of each value kind in :func:`ascii_text`: the fewest digits that read back
+#: to the same bits. float32 needs 9 significant digits (its 24-bit significand spans
+#: 10^7.2); float64 uses Python's repr, the shortest string that round-trips (at most 17
+#: digits). NaN of any sign or payload is written ``nan``, as PCL does.
+_ASCII_FORMATS = {"f4": "%.9g", "f8": "%r"}
+
+
+def ascii_text(columns: list[np.ndarray]) -> str:
+    """Format one text line per point, values separated by single spaces.
+
+    Parameters
+    ----------
+    columns : list of (N,) or (N, K) arrays
+        Integer, float32 or float64 values; a (N, K) array gives K values per line.
+
+    Returns
+    -------
+    str
+        ``N`` lines, each ending with a newline; empty for N = 0. Integers in full, floats
+        with round-trip precision (see :data:`_ASCII_FORMATS`).
+    """
+    n = columns[0].shape[0] if columns else 0
+    if n == 0:
+        return ""
+    formats: list[str] = []
+    values_by_column: list[list] = []
+    for values in columns:
+        flat = values.reshape(n, -1)  # n > 0 here
+        fmt = _ASCII_FORMATS[f"f{flat.dtype.itemsize}"] if flat.dtype.kind == "f" else "%d"
+        for k in range(flat.shape[1]):  # per value column, not per point
+            formats.append(fmt)
+            values_by_column.append(flat[:, k].tolist())
+    row = " ".join(formats)
+    # map() applies the row format to one tuple per point inside C, without a Python loop.
+    return "\n".join(map(row.__mod__, zip(*values_by_column))) + "\n"
 
 
 def to_xyz(path: PathLike, columns: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:

@@ -27,6 +27,7 @@ from geomodel_ros.tools.cloud_file import (
     Cloud,
     CloudFileError,
     PathLike,
+    ascii_text,
     count_lines,
     open_cloud,
     read_records,
@@ -42,6 +43,9 @@ from geomodel_ros.tools.cloud_file import (
 #: back-reference, produces 264 bytes. A size claiming more cannot be right, and refusing it
 #: keeps a corrupt header from making the decoder allocate memory the file cannot fill.
 _LZF_MAX_EXPANSION = 88
+#: Longest literal run of an LZF token: incompressible data grow by one control byte per
+#: this many bytes, which bounds the compressed size the writer allows for.
+_LZF_LITERAL_RUN = 32
 
 
 def lzf_decompress(data: bytes | bytearray | memoryview, expected_size: int) -> bytes:
@@ -633,7 +637,7 @@ def _field_column(field_name: object, raw: ArrayLike, n: int, width: int, height
 
 
 def _pcd_header(
-    columns: list[_Column], width: int, height: int, viewpoint: np.ndarray, binary: bool
+    columns: list[_Column], width: int, height: int, viewpoint: np.ndarray, data: str
 ) -> bytes:
     """Return the v0.7 header text, ending with the DATA line."""
     lines = [
@@ -647,7 +651,7 @@ def _pcd_header(
         f"HEIGHT {height}",
         "VIEWPOINT " + " ".join(_format_number(v) for v in viewpoint),
         f"POINTS {width * height}",
-        f"DATA {'binary' if binary else 'ascii'}",
+        f"DATA {data}",
         "",
     ]
     return "\n".join(lines).encode("ascii")
@@ -663,8 +667,9 @@ def write_pcd(
     binary: bool = True,
     viewpoint: ArrayLike | None = None,
     xyz_dtype: DTypeLike = np.float32,
+    compressed: bool = False,
 ) -> None:
-    """Write a PCD v0.7 file, ``DATA binary`` (default) or ``ascii``.
+    """Write a PCD v0.7 file, ``DATA binary`` (default), ``binary_compressed`` or ``ascii``.
 
     Parameters
     ----------
@@ -689,11 +694,15 @@ def write_pcd(
         ``tx ty tz qw qx qy qz``; default identity ``0 0 0 1 0 0 0``.
     xyz_dtype : {numpy.float32, numpy.float64}
         Storage type of x, y, z.
+    compressed : bool
+        With ``binary``: ``DATA binary_compressed`` (LZF, fields stored column by column,
+        as PCL writes it).
 
     Raises
     ------
     ValueError
-        If shapes, dtypes or names are not allowed.
+        If shapes, dtypes or names are not allowed, ``compressed`` is asked for with
+        ``binary=False``, or the data exceed the 4 GiB binary_compressed can hold.
     OSError
         If the file cannot be written.
     """
@@ -710,14 +719,20 @@ def write_pcd(
         _Column(axis, xyz[:, k], store, "F", xyz_type.itemsize, 1) for k, axis in enumerate("xyz")
     ]
     columns += [_field_column(k, v, n, width, height) for k, v in (fields or {}).items()]
-    _write_file(path, _pcd_header(columns, width, height, view, binary), columns, binary)
+    if compressed and not binary:
+        raise ValueError("compressed=True needs binary=True (DATA binary_compressed)")
+    data = ("binary_compressed" if compressed else "binary") if binary else "ascii"
+    _write_file(path, _pcd_header(columns, width, height, view, data), columns, data)
 
 
-def _write_file(path: PathLike, header: bytes, columns: list[_Column], binary: bool) -> None:
-    """Write the header, then the points as packed little-endian records or as text."""
+def _write_file(path: PathLike, header: bytes, columns: list[_Column], data: str) -> None:
+    """Write the header, then the points as packed little-endian records, LZF or text."""
     n = columns[0].values.shape[0]
-    if not binary:
-        body = _ascii_body(columns, n).encode("ascii")
+    if data != "binary":
+        if data == "ascii":
+            body = _ascii_body(columns, n).encode("ascii")
+        else:
+            body = _compressed_body(columns, n)
         with open(path, "wb") as stream:
             stream.write(header)
             stream.write(body)
@@ -734,22 +749,35 @@ def _write_file(path: PathLike, header: bytes, columns: list[_Column], binary: b
 
 
 def _ascii_body(columns: list[_Column], n: int) -> str:
-    """Return one text line per point, values separated by single spaces."""
-    if n == 0:
-        return ""
-    formats: list[str] = []
-    values_by_column: list[list] = []
+    """Return one text line per point (``rgb``/``rgba`` as the packed uint32 integer)."""
+    arrays = []
     for column in columns:
-        values = column.values.reshape(n, -1).astype(column.dtype, copy=False)
+        values = column.values.reshape(n, column.count).astype(column.dtype, copy=False)
         if column.name in _COLOR_FIELDS and column.dtype.itemsize == 4:
-            values, fmt = values.view(np.uint32), "%d"
-        elif column.dtype.kind == "f":
-            fmt = "%.9g" if column.dtype.itemsize == 4 else "%.17g"  # round-trip precision
-        else:
-            fmt = "%d"
-        for k in range(values.shape[1]):  # per value column, not per point
-            formats.append(fmt)
-            values_by_column.append(values[:, k].tolist())
-    row = " ".join(formats)
-    # map() applies the row format to one tuple per point inside C, without a Python loop.
-    return "\n".join(map(row.__mod__, zip(*values_by_column))) + "\n"
+            values = values.view(np.uint32)
+        arrays.append(values)
+    return ascii_text(arrays)
+
+
+def _compressed_body(columns: list[_Column], n: int) -> bytes:
+    """Return the ``binary_compressed`` data: two uint32 sizes, then LZF of the columns.
+
+    The columns are stored one after another (structure of arrays; a COUNT K field as
+    N x K values, point after point), little endian, then compressed as one LZF stream;
+    the sizes are the compressed and the uncompressed length, as PCL writes them.
+    """
+    payload = bytearray(n * sum(c.dtype.itemsize * c.count for c in columns))
+    offset = 0
+    for column in columns:
+        block = np.frombuffer(payload, dtype=column.dtype, count=n * column.count, offset=offset)
+        block.reshape(n, column.count)[...] = column.values.reshape(n, column.count)
+        offset += block.nbytes
+    if not payload:
+        return struct.pack("<II", 0, 0)
+    packed = lzf.compress(bytes(payload), len(payload) + len(payload) // _LZF_LITERAL_RUN + 16)
+    if packed is None or len(packed) >= 1 << 32 or len(payload) >= 1 << 32:
+        raise ValueError(
+            f"cannot write binary_compressed: {len(payload)} bytes of data do not fit the "
+            "format's 32-bit sizes"
+        )
+    return struct.pack("<II", len(packed), len(payload)) + packed
