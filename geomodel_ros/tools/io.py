@@ -31,7 +31,13 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from geomodel_ros.tools.cloud_file import Cloud, CloudFileError, PathLike, read_bytes
+from geomodel_ros.tools.cloud_file import (
+    HEAD_BYTES,
+    Cloud,
+    CloudFileError,
+    PathLike,
+    read_bytes,
+)
 from geomodel_ros.tools.pcd_file import lzf_decompress, read_pcd, write_pcd
 from geomodel_ros.tools.ply_file import read_ply, write_ply
 
@@ -198,7 +204,7 @@ def read_npy(path: PathLike) -> Cloud:
 
 def _npy_header(buf: bytearray, name: str) -> tuple[tuple, bool, np.dtype, int]:
     """Parse the header of an NPY file: shape, Fortran order, dtype and the data offset."""
-    stream = BytesIO(buf)
+    stream = BytesIO(buf[:HEAD_BYTES])  # the header only: BytesIO copies what it is given
     try:
         with warnings.catch_warnings():  # a mangled header can make literal_eval warn
             warnings.simplefilter("ignore")
@@ -239,8 +245,10 @@ def write_npy(path: PathLike, points: ArrayLike) -> None:
             f"points must be a real (N, 3) or (H, W, 3) array, got {array.dtype} "
             f"{array.shape}"
         )
+    with np.errstate(invalid="ignore"):  # signalling-NaN payloads stay NaN, silently
+        array = array.astype(np.float64, copy=False)
     with open(path, "wb") as stream:
-        np.save(stream, array.astype(np.float64, copy=False), allow_pickle=False)
+        np.save(stream, array, allow_pickle=False)
 
 
 # --------------------------------------------------------------------------------------------

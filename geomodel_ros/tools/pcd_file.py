@@ -532,7 +532,8 @@ def _read_pcd_ascii(
         values = records[field_name]
         if field_name in _COLOR_FIELDS and dtype_.kind == "f":
             values = _ascii_color_bits(values, dtype_)
-        columns[field_name] = np.ascontiguousarray(values)
+        # x y z go into the points as they are; other fields get their own memory
+        columns[field_name] = values if field_name in ("x", "y", "z") else np.ascontiguousarray(values)
     return _columns_to_cloud(path, header, columns)
 
 
