@@ -533,7 +533,9 @@ def _read_pcd_ascii(
         if field_name in _COLOR_FIELDS and dtype_.kind == "f":
             values = _ascii_color_bits(values, dtype_)
         # x y z go into the points as they are; other fields get their own memory
-        columns[field_name] = values if field_name in ("x", "y", "z") else np.ascontiguousarray(values)
+        if field_name not in ("x", "y", "z"):
+            values = np.ascontiguousarray(values)
+        columns[field_name] = values
     return _columns_to_cloud(path, header, columns)
 
 
