@@ -31,13 +31,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from geomodel_ros.tools.cloud_file import (
-    HEAD_BYTES,
-    Cloud,
-    CloudFileError,
-    PathLike,
-    read_bytes,
-)
+from geomodel_ros.tools.cloud_file import Cloud, CloudFileError, PathLike, read_bytes
 from geomodel_ros.tools.pcd_file import lzf_decompress, read_pcd, write_pcd
 from geomodel_ros.tools.ply_file import read_ply, write_ply
 
@@ -63,6 +57,9 @@ __all__ = [
 #: File suffixes understood by :func:`read_cloud` and :func:`write_cloud`.
 CLOUD_SUFFIXES = (".npy", ".pcd", ".ply")
 
+#: Bytes of an NPY file that can hold its header: numpy refuses headers over 10 kB (its
+#: ``max_header_size``), so parsing never needs a copy of more than this.
+_NPY_HEAD_BYTES = 1 << 16
 #: Object id :func:`load_osd` gives the table (raw labels 1-9).
 OSD_TABLE_ID = 0
 #: Object id :func:`load_osd` gives invalid points (raw label 0).
@@ -204,7 +201,7 @@ def read_npy(path: PathLike) -> Cloud:
 
 def _npy_header(buf: bytearray, name: str) -> tuple[tuple, bool, np.dtype, int]:
     """Parse the header of an NPY file: shape, Fortran order, dtype and the data offset."""
-    stream = BytesIO(buf[:HEAD_BYTES])  # the header only: BytesIO copies what it is given
+    stream = BytesIO(buf[:_NPY_HEAD_BYTES])  # the header only: BytesIO copies what it gets
     try:
         with warnings.catch_warnings():  # a mangled header can make literal_eval warn
             warnings.simplefilter("ignore")

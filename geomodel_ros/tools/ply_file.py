@@ -145,13 +145,15 @@ def read_ply(path: PathLike) -> Cloud:
     name = os.fspath(path)
     stream, size, head = open_cloud(path)
     with stream:
-        return _read_ply(stream, size, head, name)
+        fmt, elements, start = _parse_ply_header(head, name)
+        del head  # the file's first MiB; not needed any more
+        return _read_ply(stream, size, fmt, elements, start, name)
 
 
-def _read_ply(stream: BinaryIO, size: int, head: bytearray, name: str) -> Cloud:
-    """Read the vertices after the header in ``head`` (see :func:`read_ply`)."""
-    fmt, elements, start = _parse_ply_header(head, name)
-    del head
+def _read_ply(
+    stream: BinaryIO, size: int, fmt: str, elements: list[_PlyElement], start: int, name: str
+) -> Cloud:
+    """Read the vertices of the body starting at byte ``start`` (see :func:`read_ply`)."""
     vertex_index = next((i for i, e in enumerate(elements) if e.name == "vertex"), None)
     if vertex_index is None:
         raise CloudFileError(f"{name}: PLY file has no 'vertex' element")
