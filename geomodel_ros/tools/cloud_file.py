@@ -43,8 +43,8 @@ class Cloud:
     fields : dict[str, ndarray]
         Every other field by name, first axis N: e.g. ``label`` (N,) uint32, ``rgb`` /
         ``rgba`` (N,) uint32 holding the raw packed colour bits (whatever type the file
-        declared), fields with COUNT > 1 as (N, COUNT). Arrays read from binary files may be
-        views into the file's buffer (writable; copy if you keep only a small part).
+        declared), fields with COUNT > 1 as (N, COUNT). Every field read from a file owns
+        its memory (the points of an ``.npy`` file are a writable view of its buffer).
     width : int
         Points per row (N for unorganized clouds). ``0`` together with ``height=0`` (the
         defaults) means unorganized: width N, height 1.

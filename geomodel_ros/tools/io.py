@@ -4,9 +4,9 @@ Everything here is plain numpy (and liblzf for compressed PCD); no ROS, no PCL.
 
 * PCD v0.6 / v0.7 with ``DATA ascii``, ``binary`` and ``binary_compressed`` (LZF), read by
   :func:`read_pcd` (keeps every field, e.g. ``label``) and written by :func:`write_pcd`
-  (``ascii`` or ``binary``): module :mod:`geomodel_ros.tools.pcd_file`.
+  (all three, laid out as PCL writes them): module :mod:`geomodel_ros.tools.pcd_file`.
 * PLY ``ascii`` / ``binary_little_endian`` / ``binary_big_endian`` vertex clouds, read by
-  :func:`read_ply` and written (binary little endian) by :func:`write_ply`: module
+  :func:`read_ply` and written by :func:`write_ply`: module
   :mod:`geomodel_ros.tools.ply_file`.
 * NPY arrays of shape (N, 3) or (H, W, 3), read by :func:`read_npy`, written by
   :func:`write_npy` (here).
@@ -16,6 +16,11 @@ a file being read (missing, unreadable, empty, corrupt, truncated, wrong shape, 
 suffix) raises :class:`CloudFileError`, whose message names the file and says what was wrong
 and what is allowed. Invalid arguments to the writers raise :class:`ValueError`; operating
 system errors while writing propagate as :class:`OSError`.
+
+What a writer stores, its reader gives back bit for bit (x y z widened to float64; ascii
+files store every NaN as ``nan``). Reading holds the result plus at most one copy of the
+file's data (for ``binary_compressed``: the decompressed data), never the whole file on
+top of a copy of it; ``python -m geomodel_ros.tools.bench_io`` measures it.
 
 :func:`load_osd` loads a scene of the Object Segmentation Database (``osd_learn``) with the
 raw per-point labels mapped to object ids.
