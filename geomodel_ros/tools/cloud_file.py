@@ -189,13 +189,14 @@ def open_cloud(path: PathLike) -> tuple[BinaryIO, int, bytearray]:
         raise CloudFileError(f"{name}: cannot read the file: {exc.strerror or exc}") from exc
     try:
         info = os.fstat(stream.fileno())
-        if not stat.S_ISREG(info.st_mode):
+        if not stat.S_ISREG(info.st_mode):  # a pipe can be read once: keep what it gives
+            data = stream.read()
             stream.close()
-            buf = read_bytes(path)
-            stream, size = BytesIO(buf), len(buf)
+            stream, size = BytesIO(data), len(data)
         else:
             size = info.st_size
-        head = bytearray(stream.read(min(size, HEAD_BYTES)))
+        head = bytearray(min(size, HEAD_BYTES))
+        del head[stream.readinto(head) :]
     except OSError as exc:
         stream.close()
         raise CloudFileError(f"{name}: cannot read the file: {exc.strerror or exc}") from exc
