@@ -401,3 +401,24 @@ def test_open3d_reads_our_compressed_pcd(tmp_path: Path) -> None:
               compressed=True)
     theirs = np.asarray(o3d.io.read_point_cloud(str(tmp_path / "c.pcd")).points)
     assert np.array_equal(theirs, points.astype(np.float64))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"encoding": "binary"}, r"encoding 'binary' not allowed; allowed: ascii, binary_l"),
+        ({"fields": {"t": np.zeros(4, np.uint64)}}, r"field 't' has dtype uint64; allowed:"),
+        ({"fields": {"t": np.zeros((4, 2), np.uint8)}}, r"field 't' has shape \(4, 2\)"),
+        ({"fields": {"x": np.zeros(4, np.uint8)}}, r"field name 'x' not allowed"),
+    ],
+)
+def test_ply_writer_refuses_what_ply_cannot_hold(tmp_path: Path, kwargs: dict, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        write_ply(tmp_path / "r.ply", np.zeros((4, 3)), **kwargs)
+    assert not (tmp_path / "r.ply").exists()  # refused before anything is written
+
+
+def test_pcd_writer_refuses_compressed_ascii(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match=r"compressed=True needs binary=True"):
+        write_pcd(tmp_path / "r.pcd", np.zeros((2, 3)), binary=False, compressed=True)
+    assert not (tmp_path / "r.pcd").exists()
