@@ -38,6 +38,7 @@ from .header import StampedFrame, header_of
 from .pointcloud2 import pack_rgb, xyz_to_cloud
 
 __all__ = [
+    "tracked_markers",
     "LABEL_GAP",
     "LABEL_NAMESPACE",
     "PLANE_THICKNESS",
@@ -374,6 +375,76 @@ def primitives_to_markers(
     return out
 
 
+def tracked_markers(
+    primitives: Sequence[Primitive],
+    header: Header,
+    *,
+    deleted_ids: Sequence[int] = (),
+    previous: Mapping[int, str] | None = None,
+    clear: bool = False,
+    text: bool = True,
+    text_size: float = 0.015,
+    up: ArrayLike | None = None,
+) -> tuple[MarkerArray, dict[int, str]]:
+    """RViz markers of tracked objects: per-id ADD and DELETE instead of DELETEALL.
+
+    For objects whose ids stay stable across frames
+    (:class:`geomodel_ros.core.tracking.Tracker`): an ADD with the id of a marker already
+    shown replaces it in RViz, so nothing flickers.
+
+    Parameters
+    ----------
+    primitives : sequence of Primitive
+        The frame's objects with their stable ids (drawn as by :func:`primitives_to_markers`).
+    header : std_msgs.msg.Header
+        Copied into every marker.
+    deleted_ids : sequence of int
+        Ids retired in this frame: their shape (in the namespace it was last drawn in,
+        from ``previous``) and label are deleted.
+    previous : dict id -> namespace, optional
+        The namespace each id's shape was last drawn in (the second return value of the
+        previous call).  A shape that changes namespace (its type changed) gets a DELETE
+        in the old one.
+    clear : bool
+        Start with DELETEALL (first frame, reset).
+    text, text_size, up
+        As for :func:`primitives_to_markers`.
+
+    Returns
+    -------
+    markers : visualization_msgs.msg.MarkerArray
+        ``[DELETEALL]``, then DELETEs (retired ids, changed namespaces), then the ADDs.
+    shown : dict id -> namespace
+        The namespace of every id's shape after this frame (``previous`` minus the deleted
+        ids, updated with the drawn ones); pass it as ``previous`` next time.
+
+    Raises
+    ------
+    ValueError
+        As :func:`primitives_to_markers`.
+    """
+    adds = primitives_to_markers(primitives, header, text=text, text_size=text_size, up=up)
+    shown = {} if clear else dict(previous or {})
+    out = MarkerArray()
+    if clear:
+        out.markers.append(adds.markers[0])
+    for oid in deleted_ids:
+        mid = _marker_id(oid)
+        ns = shown.pop(mid, None)
+        for space in ((ns,) if ns is not None else ()) + ((LABEL_NAMESPACE,) if text else ()):
+            out.markers.append(Marker(header=_header(header), ns=space, id=mid,
+                                      action=Marker.DELETE))
+    drawn = [m for m in adds.markers[1:] if m.ns != LABEL_NAMESPACE]
+    for m in drawn:
+        old = shown.get(m.id)
+        if old is not None and old != m.ns:
+            out.markers.append(Marker(header=_header(header), ns=old, id=m.id,
+                                      action=Marker.DELETE))
+        shown[m.id] = m.ns
+    out.markers.extend(adds.markers[1:])
+    return out, shown
+
+
 # ---------------------------------------------------------------------------------------
 # Labelled clouds
 # ---------------------------------------------------------------------------------------
@@ -557,15 +628,18 @@ def _marker_problem(m: Marker) -> str | None:
 def marker_array_problem(markers: MarkerArray, frame: StampedFrame) -> str | None:
     """Why a frame's MarkerArray is not what :func:`primitives_to_markers` promises, or None.
 
-    Checked: DELETEALL first; every marker carries ``frame`` (the input's ``frame_id`` and
-    stamp [ns]); every other marker has a finite pose, a positive finite scale and finite
-    points.
+    Also accepts the per-id form of :func:`tracked_markers`.  Checked: not empty; a
+    DELETEALL only as the first marker; every marker carries ``frame`` (the input's
+    ``frame_id`` and stamp [ns]); every ADD has a finite pose, a positive finite scale and
+    finite points.
     """
-    if not markers.markers or markers.markers[0].action != Marker.DELETEALL:
-        return "does not start with DELETEALL"
+    if not markers.markers:
+        return "is empty"
+    if any(m.action == Marker.DELETEALL for m in markers.markers[1:]):
+        return "has a DELETEALL after the first marker"
     for m in markers.markers:
         if header_of(m) != frame:
             return f"marker {m.ns}/{m.id} has another header than its input"
-        if m.action != Marker.DELETEALL and (why := _marker_problem(m)) is not None:
+        if m.action == Marker.ADD and (why := _marker_problem(m)) is not None:
             return why
     return None

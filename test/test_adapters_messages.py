@@ -154,7 +154,9 @@ def test_marker_array_problem_accepts_the_adapters_output():
 
 
 @pytest.mark.parametrize("break_it, why", [
-    (lambda a: a.markers.pop(0), "does not start with DELETEALL"),
+    (lambda a: a.markers.append(Marker(header=a.markers[0].header, action=Marker.DELETEALL)),
+     "DELETEALL after the first marker"),
+    (lambda a: a.markers.clear(), "is empty"),
     (lambda a: setattr(a.markers[1].header, "frame_id", "map"), "another header"),
     (lambda a: setattr(a.markers[1].pose.position, "x", math.nan), "non-finite pose"),
     (lambda a: setattr(a.markers[1].scale, "z", 0.0), "non-positive or non-finite scale"),

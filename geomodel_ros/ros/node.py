@@ -10,14 +10,32 @@ Topics (names relative to the node, so ``-r`` and namespaces work):
 * ``points`` (sensor_msgs/PointCloud2, subscribed): the scene in any frame; with
   ``reproject_along_rays`` the frame must be the sensor's (sensor at the origin).
   Sensor-data QoS: best effort (``qos_reliability``), keep last ``qos_depth``.
+* ``~/objects`` (geomodel_msgs/PrimitiveArray): the typed objects (MoveIt's SolidPrimitive
+  conventions, see ``geomodel_msgs/msg/Primitive.msg``), every processed frame.
 * ``~/primitives`` (visualization_msgs/MarkerArray): one marker and one label per object.
+  With ``tracking`` (default) object ids are stable across frames
+  (:class:`geomodel_ros.core.tracking.Tracker`, parameters ``tracking_*``) and the markers
+  are per-id ADD (an object present) and DELETE (an id the tracker retired); DELETEALL
+  only in the first frame after start or after ``tracking`` was switched on.  Without
+  tracking, ids are the frame's segment labels and every frame starts with DELETEALL.
 * ``~/segments`` (sensor_msgs/PointCloud2): the input's points in the input's layout
   (organized clouds stay organized, NaN rows kept) with fields ``object_id`` (-1 = no
   object) and ``rgb`` (``publish_segments``).
 * ``~/reconstruction`` (sensor_msgs/PointCloud2): surface samples of the modeled objects,
   hidden parts included, with ``object_id`` and ``rgb`` (``publish_reconstruction``).
 * ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz, when ``diagnostics`` is true):
-  received, processed, dropped and failed frames, rate and latency.
+  received, processed, dropped, ignored and failed frames, rate, latency and result age.
+  WARN only when the processing rate (continuous mode, over a window of
+  ``2 / expected_rate_min`` s) leaves [``expected_rate_min``, ``expected_rate_max``], when
+  the newest result's stamp is older than ``max_result_age``, or when frames failed.
+  Dropped frames alone are normal (a 30 Hz camera and a slower node) and stay OK.
+
+Service ``~/detect`` (std_srvs/Trigger): processes the next frame that arrives and answers
+with a one-line summary (objects by type, the frame's stamp); ``success`` false when no
+frame was processed within ``detect_timeout``.  With ``continuous`` false the node ignores
+frames (counted as ``ignored``) except those asked for this way.  The service blocks until
+its frame is done, so the node must be spun by a multi-threaded executor (``main`` uses
+one); it runs in its own callback group.
 
 Every output carries the input's header (``frame_id`` and ``stamp``).  Outputs are
 published reliable, keep last ``qos_depth`` (compatible with reliable and best-effort
@@ -47,29 +65,42 @@ from typing import Any
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from std_srvs.srv import Trigger
 
-from geomodel_ros.ros.processing import (FrameResult, ModelingError, PointCloud2Error,
-                                         SceneModeler, process_cloud)
+from geomodel_ros.ros.processing import (FrameResult, ModelingError, ObjectTracking,
+                                         PointCloud2Error, SceneModeler, process_cloud)
 
 from geomodel_ros.core.fastmath import retain_freed_memory
-from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError
+from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError, ParamSpec
+from geomodel_ros.core.tracking import TRACKER_PARAMETERS, TrackerConfig
 from geomodel_ros.core.modeling import model_scene as core_model_scene
 
 from msg_adapters.diagnostics import diagnostics_message
 from msg_adapters.header import header_of, stamp_ns, stamp_text
 from msg_adapters.interfaces import DiagnosticArray, MarkerArray, PointCloud2
+from msg_adapters.objects import PrimitiveArray
 from msg_adapters.parameters import option_descriptor, set_parameters_result, spec_descriptor
 
-__all__ = ["ModelerNode", "NODE_PARAMETERS", "NodeOptions", "FrameStats", "main"]
+__all__ = ["ModelerNode", "NODE_PARAMETERS", "NODE_NUMERIC_PARAMETERS", "TRACKING_PARAMETERS",
+           "NodeOptions", "FrameStats", "main"]
 
 #: Seconds between two warnings of the same kind.
 WARN_THROTTLE_S = 5.0
 #: How long ``destroy_node`` waits for a frame in progress [s].
 WORKER_JOIN_TIMEOUT_S = 5.0
+#: History depth of ``~/objects`` (reliable): a planner that is briefly slow still gets the
+#: last few frames' objects.
+OBJECTS_QOS_DEPTH = 10
+#: Threads of ``main``'s executor: callbacks (default group) + a blocking ``~/detect``.
+EXECUTOR_THREADS = 2
+#: Shortest window of the processing rate in /diagnostics [s] (the report period).
+RATE_WINDOW_MIN_S = 1.0
 _RELIABILITY = {"best_effort": ReliabilityPolicy.BEST_EFFORT,
                 "reliable": ReliabilityPolicy.RELIABLE}
 
@@ -96,7 +127,34 @@ NODE_PARAMETERS: tuple[_NodeParam, ...] = (
     _NodeParam("publish_reconstruction", True,
                "Publish ~/reconstruction (surface samples of the modeled objects)."),
     _NodeParam("diagnostics", True, "Publish /diagnostics (rates, drops, latency) at 1 Hz."),
+    _NodeParam("tracking", True, "Keep object ids stable across frames (tracker, parameters "
+               "tracking_*) and publish per-id marker ADD/DELETE; false: per-frame ids and "
+               "DELETEALL every frame."),
+    _NodeParam("continuous", True, "Model every frame (newest wins); false: only the frames "
+               "asked for with the ~/detect service."),
 )
+
+#: Numeric node parameters (declared with ranges like the modeling parameters).
+NODE_NUMERIC_PARAMETERS: tuple[ParamSpec, ...] = (
+    # A depth camera at 30 Hz and this node at 1-10 Hz: below 0.5 Hz results are too stale
+    # to act on, above 100 Hz something replays faster than any sensor.
+    ParamSpec("expected_rate_min", 0.5, "Hz", 0.0, 1e6,
+              "Processing rate below which /diagnostics warns (continuous mode)."),
+    ParamSpec("expected_rate_max", 100.0, "Hz", 0.0, 1e6,
+              "Processing rate above which /diagnostics warns (continuous mode)."),
+    # A few frames' processing time at the slowest expected rate.
+    ParamSpec("max_result_age", 5.0, "s", 0.0, 1e6,
+              "Largest age of the newest result's stamp before /diagnostics warns "
+              "(continuous mode; 0: not checked)."),
+    # Several frame periods of a slow camera plus one modeling pass.
+    ParamSpec("detect_timeout", 10.0, "s", 0.001, 3600.0,
+              "How long ~/detect waits for its frame to be processed."),
+)
+
+#: The tracker's parameters as node parameters (``tracking_<name>``).
+TRACKING_PARAMETERS: tuple[ParamSpec, ...] = tuple(
+    replace(spec, name=f"tracking_{spec.name}") for spec in TRACKER_PARAMETERS)
+_TRACKING_PREFIX = "tracking_"
 
 
 @dataclass(frozen=True)
@@ -108,6 +166,12 @@ class NodeOptions:
     publish_segments: bool
     publish_reconstruction: bool
     diagnostics: bool
+    tracking: bool
+    continuous: bool
+    expected_rate_min: float
+    expected_rate_max: float
+    max_result_age: float
+    detect_timeout: float
 
 
 @dataclass
@@ -124,18 +188,25 @@ class FrameStats:
         Frames replaced in the mailbox by a newer one before being processed.
     failed : int
         Frames skipped because the message was malformed or the core failed.
+    ignored : int
+        Frames not modeled because ``continuous`` was false and no ``~/detect`` asked.
     last_latency_s : float
         Receive -> outputs published of the last processed frame [s] (NaN before any).
+    last_stamp_ns : int
+        Stamp of the last processed frame [ns] (-1 before any).
     last_timing : dict[str, float]
         Stage times of the last processed frame [s] (``convert_s``, ``model_s``,
-        ``markers_s``, ``segments_s``, ``reconstruction_s``, ``publish_s``, ``total_s``).
+        ``markers_s``, ``objects_s``, ``segments_s``, ``reconstruction_s``, ``publish_s``,
+        ``total_s``).
     """
 
     received: int = 0
     processed: int = 0
     dropped: int = 0
     failed: int = 0
+    ignored: int = 0
     last_latency_s: float = math.nan
+    last_stamp_ns: int = -1
     last_timing: dict[str, float] = field(default_factory=dict)
 
 
@@ -147,10 +218,10 @@ class _Mailbox:
         self._item: Any = None
         self._closed = False
 
-    def put(self, item: Any) -> bool:
-        """Store ``item``; True if it replaced one that was never taken."""
+    def put(self, item: Any) -> Any:
+        """Store ``item``; return the item it replaced (never taken), or None."""
         with self._cond:
-            replaced = self._item is not None
+            replaced = self._item
             self._item = item
             self._cond.notify()
             return replaced
@@ -169,6 +240,30 @@ class _Mailbox:
         with self._cond:
             self._closed = True
             self._cond.notify_all()
+
+
+class _DetectRequest:
+    """One ``~/detect`` call waiting for its frame's outcome."""
+
+    def __init__(self) -> None:
+        self.done = threading.Event()
+        self.success = False
+        self.message = ""
+
+    def finish(self, success: bool, message: str) -> None:
+        self.success, self.message = success, message
+        self.done.set()
+
+
+def _summary(frame: FrameResult, stamp: str) -> str:
+    """One line: number of objects by type and the frame's stamp."""
+    counts: dict[str, int] = {}
+    for p in frame.tracked:
+        counts[str(p.type)] = counts.get(str(p.type), 0) + 1
+    by_type = ", ".join(f"{n} {t}" for t, n in sorted(counts.items()))
+    ids = ", ".join(str(p.id) for p in frame.tracked)
+    return (f"{len(frame.tracked)} objects" + (f" ({by_type}; ids {ids})" if counts else "")
+            + f" at stamp {stamp}")
 
 
 def _option_descriptor(p: _NodeParam):
@@ -208,7 +303,9 @@ class ModelerNode(Node):
         super().__init__(node_name, **kwargs)
         self._model_scene = model_scene
         self._spec_names = frozenset(p.name for p in PARAMETERS)
-        self._option_names = frozenset(p.name for p in NODE_PARAMETERS)
+        self._numeric_specs = {p.name: p for p in NODE_NUMERIC_PARAMETERS}
+        self._tracking_specs = {p.name: p for p in TRACKING_PARAMETERS}
+        self._option_names = frozenset(p.name for p in NODE_PARAMETERS) | set(self._numeric_specs)
         try:
             self._params, self._options = self._initial_parameters()
         except Exception:
@@ -221,6 +318,11 @@ class ModelerNode(Node):
         self._stats = FrameStats()
         self._stats_lock = threading.Lock()
         self._diag_last = (time.monotonic(), 0, 0, 0)
+        self._processed_at: list[float] = []  # monotonic times of processed frames [s]
+        self._started_at = time.monotonic()
+        self._tracking: ObjectTracking | None = None  # the worker's; created on first use
+        self._detect_lock = threading.Lock()
+        self._detect_pending: list[_DetectRequest] = []
         self._mailbox = _Mailbox()
         self._closing = False
         self._worker = threading.Thread(target=self._run, name=f"{node_name}-worker",
@@ -232,17 +334,25 @@ class ModelerNode(Node):
         self._subscription = self.create_subscription(PointCloud2, "points", self._on_cloud,
                                                       qos_in)
         self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+        self._detect_service = self.create_service(
+            Trigger, "~/detect", self._on_detect,
+            callback_group=MutuallyExclusiveCallbackGroup())
         self.get_logger().info(
             f"modeling clouds from '{self._subscription.topic_name}' "
-            f"({self._options.qos_reliability}, depth {self._options.qos_depth}); publishing "
-            f"'{self._pub_markers.topic_name}', '{self._pub_segments.topic_name}', "
-            f"'{self._pub_reconstruction.topic_name}'")
+            f"({self._options.qos_reliability}, depth {self._options.qos_depth}; "
+            f"{'continuous' if self._options.continuous else 'on demand'}); publishing "
+            f"'{self._pub_objects.topic_name}', '{self._pub_markers.topic_name}', "
+            f"'{self._pub_segments.topic_name}', '{self._pub_reconstruction.topic_name}'")
 
     def _create_publishers(self) -> None:
         """Create the output publishers (reliable, keep last ``qos_depth``; /diagnostics)."""
         qos_out = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self._options.qos_depth,
                              reliability=ReliabilityPolicy.RELIABLE)
         self._pub_markers = self.create_publisher(MarkerArray, "~/primitives", qos_out)
+        self._pub_objects = self.create_publisher(
+            PrimitiveArray, "~/objects",
+            QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=OBJECTS_QOS_DEPTH,
+                       reliability=ReliabilityPolicy.RELIABLE))
         self._pub_segments = self.create_publisher(PointCloud2, "~/segments", qos_out)
         self._pub_reconstruction = self.create_publisher(PointCloud2, "~/reconstruction",
                                                          qos_out)
@@ -264,6 +374,11 @@ class ModelerNode(Node):
     def options(self) -> NodeOptions:
         return self._options
 
+    @property
+    def tracker_config(self) -> TrackerConfig:
+        """The tracker parameters the next frame is tracked with."""
+        return self._tracker_config
+
     def stats(self) -> FrameStats:
         """Return a snapshot of the frame counters."""
         with self._stats_lock:
@@ -278,17 +393,31 @@ class ModelerNode(Node):
                                      for p in PARAMETERS])
         self.declare_parameters("", [(p.name, p.default, _option_descriptor(p))
                                      for p in NODE_PARAMETERS])
+        self.declare_parameters("", [(p.name, p.default, spec_descriptor(p))
+                                     for p in NODE_NUMERIC_PARAMETERS + TRACKING_PARAMETERS])
         # Initial values are checked as a whole (the per-parameter callbacks are registered
         # afterwards, so that e.g. min_radius and max_radius can both move in the YAML).
         params = ModelingParams.from_mapping(
             {p.name: self.get_parameter(p.name).value for p in PARAMETERS})
         options = NodeOptions(**{p.name: self.get_parameter(p.name).value
-                                 for p in NODE_PARAMETERS})
+                                 for p in NODE_PARAMETERS},
+                              **{p.name: p.check(self.get_parameter(p.name).value)
+                                 for p in NODE_NUMERIC_PARAMETERS})
         if options.qos_reliability not in _RELIABILITY:
             raise ParameterError(
                 f"parameter 'qos_reliability' = {options.qos_reliability!r} is not "
                 f"allowed; use one of: {', '.join(_RELIABILITY)}")
+        _check_rate_band(options)
+        self._tracker_config = self._tracker_config_with(
+            {p.name: self.get_parameter(p.name).value for p in TRACKING_PARAMETERS},
+            TrackerConfig())
         return params, options
+
+    @staticmethod
+    def _tracker_config_with(changes: dict[str, Any], base: TrackerConfig) -> TrackerConfig:
+        """Return ``base`` with the ``tracking_*`` values of ``changes`` (or ParameterError)."""
+        fields = {k[len(_TRACKING_PREFIX):]: v for k, v in changes.items()}
+        return replace(base, **fields) if fields else base
 
     def _validate_parameters(self, parameters: list[Parameter]):
         """Accept or reject a set of parameters; no side effects."""
@@ -298,7 +427,17 @@ class ModelerNode(Node):
                 ModelingParams.from_mapping(changes, base=self._params)
             except ParameterError as exc:
                 return set_parameters_result(str(exc))
+        try:
+            self._tracker_config_with(self._tracking_changes(parameters), self._tracker_config)
+            numeric = {p.name: self._numeric_specs[p.name].check(p.value) for p in parameters
+                       if p.name in self._numeric_specs}
+            _check_rate_band(replace(self._options, **numeric))
+        except ParameterError as exc:
+            return set_parameters_result(str(exc))
         return set_parameters_result()
+
+    def _tracking_changes(self, parameters: list[Parameter]) -> dict[str, Any]:
+        return {p.name: p.value for p in parameters if p.name in self._tracking_specs}
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
         """Make accepted parameters effective (from the next frame on)."""
@@ -309,6 +448,9 @@ class ModelerNode(Node):
             except ParameterError as exc:  # only if two sets raced; keep the old ones
                 self.get_logger().error(f"parameter update not applied: {exc}")
                 return
+        tracking = self._tracking_changes(parameters)
+        if tracking:
+            self._tracker_config = self._tracker_config_with(tracking, self._tracker_config)
         options = {p.name: p.value for p in parameters if p.name in self._option_names}
         if options:
             self._options = replace(self._options, **options)
@@ -328,14 +470,23 @@ class ModelerNode(Node):
     # ---------------------------------------------------------------------------------
 
     def _on_cloud(self, msg: PointCloud2) -> None:
-        replaced = self._mailbox.put((msg, time.monotonic()))
+        with self._detect_lock:
+            requests, self._detect_pending = self._detect_pending, []
+        if not requests and not self._options.continuous:
+            with self._stats_lock:
+                self._stats.received += 1
+                self._stats.ignored += 1
+            return
+        replaced = self._mailbox.put((msg, time.monotonic(), requests))
+        if replaced is not None:
+            requests.extend(replaced[2])  # the newer frame answers them
         with self._stats_lock:
             self._stats.received += 1
-            if replaced:
+            if replaced is not None:
                 self._stats.dropped += 1
             dropped = self._stats.dropped
             took = self._stats.last_timing.get("total_s", math.nan)
-        if replaced:
+        if replaced is not None:
             took_s = "first frame still in progress" if math.isnan(took) else \
                 f"last frame took {took:.3f} s"
             self.get_logger().warning(
@@ -351,9 +502,10 @@ class ModelerNode(Node):
             item = self._mailbox.take()
             if item is None:
                 return
-            msg, received_at = item
+            msg, received_at, requests = item
+            outcome = (False, f"frame {_stamp(msg)} failed (see the node's log)")
             try:
-                self._process(msg, received_at)
+                outcome = self._process(msg, received_at)
             except Exception as exc:  # noqa: BLE001 - the worker must outlive any frame
                 if self._closing:
                     return
@@ -361,6 +513,9 @@ class ModelerNode(Node):
                 self.get_logger().error(
                     f"frame {_stamp(msg)} modeled but its outputs could not be published: "
                     f"{type(exc).__name__}: {exc}", throttle_duration_sec=WARN_THROTTLE_S)
+            finally:
+                for request in requests:
+                    request.finish(*outcome)
 
     def _count_failure(self) -> None:
         with self._stats_lock:
@@ -372,7 +527,8 @@ class ModelerNode(Node):
         try:
             return process_cloud(msg, self._params, segments=options.publish_segments,
                                  reconstruction=options.publish_reconstruction,
-                                 model_scene=self._model_scene)
+                                 model_scene=self._model_scene,
+                                 tracking=self._current_tracking(options.tracking))
         except PointCloud2Error as exc:
             self._count_failure()
             frame_id, _ = header_of(msg)
@@ -389,11 +545,22 @@ class ModelerNode(Node):
             self.get_logger().debug("".join(traceback.format_exception(exc.__cause__ or exc)))
         return None
 
-    def _process(self, msg: PointCloud2, received_at: float) -> None:
+    def _current_tracking(self, enabled: bool) -> ObjectTracking | None:
+        """Return the worker's tracking state with the current config (None: disabled)."""
+        if not enabled:
+            self._tracking = None
+        elif self._tracking is None:
+            self._tracking = ObjectTracking(self._tracker_config)
+        else:
+            self._tracking.tracker.config = self._tracker_config
+        return self._tracking
+
+    def _process(self, msg: PointCloud2, received_at: float) -> tuple[bool, str]:
+        """Model and publish one frame; return (success, summary) for ``~/detect``."""
         t0 = time.perf_counter()
         frame = self._model(msg)
         if frame is None:
-            return
+            return False, f"frame {_stamp(msg)} was malformed or failed (see the node's log)"
         t5 = time.perf_counter()
         timing = {k: v for k, v in frame.timing.items() if not k.startswith("core_")}
         core_timing = {k: v for k, v in frame.timing.items() if k.startswith("core_")}
@@ -402,6 +569,7 @@ class ModelerNode(Node):
             self._pub_segments.publish(frame.segments)
         if frame.reconstruction is not None:
             self._pub_reconstruction.publish(frame.reconstruction)
+        self._pub_objects.publish(frame.objects)
         self._pub_markers.publish(frame.markers)
         t6 = time.perf_counter()
         timing["publish_s"] = t6 - t5
@@ -411,43 +579,94 @@ class ModelerNode(Node):
             self._stats.processed += 1
             self._stats.last_latency_s = latency
             self._stats.last_timing = timing
+            self._stats.last_stamp_ns = stamp_ns(msg)
+            self._processed_at.append(time.monotonic())
         stages = ", ".join(f"{k[:-2]} {1000 * v:.1f}" for k, v in {**timing, **core_timing}.items())
         self.get_logger().debug(
             f"frame {_stamp(msg)}: {frame.valid_points} points, "
             f"{len(frame.result.objects)} objects, "
             f"latency {1000 * latency:.1f} ms ({stages} ms)")
+        return True, _summary(frame, _stamp(msg))
+
+    # ---------------------------------------------------------------------------------
+    # on-demand detection
+    # ---------------------------------------------------------------------------------
+
+    def _on_detect(self, request: Trigger.Request, response: Trigger.Response
+                   ) -> Trigger.Response:
+        """Wait for the next frame to be processed; answer with its summary."""
+        del request  # Trigger's request is empty
+        pending = _DetectRequest()
+        with self._detect_lock:
+            self._detect_pending.append(pending)
+        timeout = self._options.detect_timeout
+        if pending.done.wait(timeout):
+            response.success, response.message = pending.success, pending.message
+            return response
+        with self._detect_lock:
+            if pending in self._detect_pending:
+                self._detect_pending.remove(pending)
+        response.success = False
+        response.message = f"no frame was processed within detect_timeout = {timeout} s"
+        return response
 
     # ---------------------------------------------------------------------------------
     # diagnostics
     # ---------------------------------------------------------------------------------
+
+    def _rate(self, now: float, window: float) -> float | None:
+        """Frames processed per second over the last ``window`` [s]; None before a window."""
+        with self._stats_lock:
+            self._processed_at = [t for t in self._processed_at if t > now - window]
+            count = len(self._processed_at)
+        if now - self._started_at < window:
+            return None
+        return count / window
+
+    def _diagnostic_level(self, s: FrameStats, failed_prev: int, rate: float | None,
+                          age: float | None) -> tuple[str, str]:
+        """(level, message): WARN for failures, a rate outside the band or stale results."""
+        o = self._options
+        if s.failed > failed_prev:
+            return "warn", "frames failed"
+        if rate is not None and o.continuous and not (
+                o.expected_rate_min <= rate <= o.expected_rate_max):
+            return "warn", (f"processing rate {rate:.2f} Hz outside the expected "
+                            f"[{o.expected_rate_min}, {o.expected_rate_max}] Hz")
+        if age is not None and o.continuous and o.max_result_age > 0 and \
+                age > o.max_result_age:
+            return "warn", f"newest result is {age:.2f} s old (max_result_age {o.max_result_age} s)"
+        return "ok", "ok"
 
     def _publish_diagnostics(self) -> None:
         if not self._options.diagnostics or self._pub_diagnostics is None:
             return
         now = time.monotonic()
         s = self.stats()
-        t_prev, processed_prev, dropped_prev, failed_prev = self._diag_last
+        _, _, _, failed_prev = self._diag_last
         self._diag_last = (now, s.processed, s.dropped, s.failed)
-        rate = (s.processed - processed_prev) / max(now - t_prev, 1e-9)
-        if s.failed > failed_prev:
-            level, message = "warn", "frames failed"
-        elif s.dropped > dropped_prev:
-            level, message = "warn", "frames dropped: input faster than processing"
-        else:
-            level, message = "ok", "ok"
+        window = max(RATE_WINDOW_MIN_S, 2.0 / max(self._options.expected_rate_min, 1e-9))
+        rate = self._rate(now, window)
+        clock_ns = self.get_clock().now().nanoseconds
+        age = (clock_ns - s.last_stamp_ns) / 1e9 if s.last_stamp_ns >= 0 else None
+        level, message = self._diagnostic_level(s, failed_prev, rate, age)
         values = {
-            "rate_hz": f"{rate:.2f}",
+            "rate_hz": "nan" if rate is None else f"{rate:.2f}",
+            "rate_window_s": f"{window:.2f}",
             "frames_received": str(s.received),
             "frames_processed": str(s.processed),
             "frames_dropped": str(s.dropped),
+            "frames_ignored": str(s.ignored),
             "frames_failed": str(s.failed),
             "last_latency_s": f"{s.last_latency_s:.4f}",
             "last_processing_s": f"{s.last_timing.get('total_s', math.nan):.4f}",
+            "result_age_s": "nan" if age is None else f"{age:.4f}",
+            "mode": "continuous" if self._options.continuous else "on demand",
         }
         # stamped with the time of this report
         self._pub_diagnostics.publish(diagnostics_message(
             f"{self.get_name()}: modeling", self.get_fully_qualified_name(), level, message,
-            values, self.get_clock().now().nanoseconds))
+            values, clock_ns))
 
     # ---------------------------------------------------------------------------------
     # shutdown
@@ -462,6 +681,14 @@ class ModelerNode(Node):
         super().destroy_node()
 
 
+def _check_rate_band(options: NodeOptions) -> None:
+    """Raise ParameterError unless ``expected_rate_min <= expected_rate_max``."""
+    if options.expected_rate_min > options.expected_rate_max:
+        raise ParameterError(
+            f"expected_rate_min ({options.expected_rate_min} Hz) must not exceed "
+            f"expected_rate_max ({options.expected_rate_max} Hz)")
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run geomodel_ros modeler``; returns the exit status."""
     retain_freed_memory()
@@ -469,7 +696,8 @@ def main(args: list[str] | None = None) -> int:
     node: ModelerNode | None = None
     try:
         node = ModelerNode()
-        rclpy.spin(node)
+        # Two threads: ~/detect blocks until its frame is done while frames keep arriving.
+        rclpy.spin(node, executor=MultiThreadedExecutor(num_threads=EXECUTOR_THREADS))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ParameterError, ParameterException) as exc:

@@ -1,4 +1,4 @@
-"""One frame through the whole chain: PointCloud2 -> core -> MarkerArray and clouds.
+"""One frame through the whole chain: PointCloud2 -> core -> MarkerArray, objects and clouds.
 
 :func:`process_cloud` is the single definition of what the ``modeler`` node does with a
 frame; the node (:mod:`geomodel_ros.ros.node`) and the offline bag tool
@@ -6,7 +6,10 @@ frame; the node (:mod:`geomodel_ros.ros.node`) and the offline bag tool
 outputs as the node would publish for it.
 
 Messages are read and built only through :mod:`msg_adapters`; nothing here needs
-``rclpy``: no ``rclpy.init``, no node, no executor.  The scene-modeling function is passed
+``rclpy``: no ``rclpy.init``, no node, no executor.  With an :class:`ObjectTracking` (the
+node's default) object ids are stable across frames and the markers are per-id ADD and
+DELETE; without one, ids are the frame's segment labels and the markers start with
+DELETEALL.  The scene-modeling function is passed
 in (:class:`SceneModeler`, default the core's
 :func:`~geomodel_ros.core.modeling.model_scene`), so that tests and benchmarks can give a
 stand-in without patching module globals.
@@ -23,13 +26,18 @@ import numpy as np
 from geomodel_ros.core.modeling import model_scene as core_model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import ModelingResult
+from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.core.reconstruction import reconstruct
+from geomodel_ros.core.tracking import Tracker, TrackerConfig
 
 from msg_adapters.interfaces import MarkerArray, PointCloud2
-from msg_adapters.markers import primitives_to_markers, reconstruction_cloud, segments_cloud
+from msg_adapters.markers import (primitives_to_markers, reconstruction_cloud, segments_cloud,
+                                  tracked_markers)
+from msg_adapters.objects import PrimitiveArray, primitives_to_objects
 from msg_adapters.pointcloud2 import PointCloud2Error, cloud_to_scene
 
-__all__ = ["FrameResult", "ModelingError", "PointCloud2Error", "SceneModeler", "process_cloud"]
+__all__ = ["FrameResult", "ModelingError", "ObjectTracking", "PointCloud2Error", "SceneModeler",
+           "process_cloud"]
 
 
 class SceneModeler(Protocol):
@@ -57,6 +65,38 @@ class ModelingError(RuntimeError):
         self.valid_points = valid_points
 
 
+class ObjectTracking:
+    """State of one stream's tracked outputs: the tracker and the markers shown.
+
+    Parameters
+    ----------
+    config : TrackerConfig, optional
+        The tracker's parameters (defaults when omitted); :attr:`tracker` ``.config`` may be
+        replaced between frames.
+    """
+
+    def __init__(self, config: TrackerConfig | None = None) -> None:
+        self.tracker = Tracker(config)
+        self.shown: dict[int, str] = {}
+        self.clear = True  # the first frame starts with DELETEALL
+
+    def reset(self) -> None:
+        """Retire every track; the next frame's markers start with DELETEALL again."""
+        self.tracker.reset()
+        self.shown = {}
+        self.clear = True
+
+    def step(self, objects: list[Primitive], header) -> tuple[list[Primitive], MarkerArray,
+                                                               tuple[int, ...]]:
+        """Track one frame's objects; return them with stable ids, the markers, retired ids."""
+        tracked = self.tracker.update(objects)
+        markers, self.shown = tracked_markers(tracked.objects, header,
+                                              deleted_ids=tracked.deleted_ids,
+                                              previous=self.shown, clear=self.clear)
+        self.clear = False
+        return tracked.objects, markers, tracked.deleted_ids
+
+
 @dataclass(frozen=True)
 class FrameResult:
     """Outputs of one frame (every message carries the input's ``frame_id`` and ``stamp``).
@@ -64,7 +104,9 @@ class FrameResult:
     Attributes
     ----------
     markers : visualization_msgs.msg.MarkerArray
-        DELETEALL, then a shape and a label per object.
+        Without tracking: DELETEALL, then a shape and a label per object.  With tracking:
+        DELETEALL only in the first frame, DELETE for the retired ids, then per object
+        (stable id) its shape and label.
     segments : sensor_msgs.msg.PointCloud2 or None
         The input's points (organized layout kept) with ``object_id`` and ``rgb``; None when
         not requested.
@@ -77,8 +119,15 @@ class FrameResult:
     valid_points : int
         Number of points with finite x, y, z.
     timing : dict[str, float]
-        Stage times [s]: ``convert_s``, ``model_s``, ``markers_s``, ``segments_s``,
-        ``reconstruction_s``, plus the core's own stages as ``core_<name>``.
+        Stage times [s]: ``convert_s``, ``model_s``, ``markers_s`` (with tracking: tracking
+        and markers), ``objects_s``, ``segments_s``, ``reconstruction_s``, plus the core's
+        own stages as ``core_<name>``.
+    objects : geomodel_msgs.msg.PrimitiveArray or None
+        The typed objects (ids stable with tracking; the segment labels without).
+    tracked : list[Primitive]
+        The objects as published (with tracking: stable ids, smoothed when configured).
+    deleted_ids : tuple[int, ...]
+        Ids the tracker retired in this frame (empty without tracking).
     """
 
     markers: MarkerArray
@@ -88,6 +137,9 @@ class FrameResult:
     labels: np.ndarray
     valid_points: int
     timing: dict[str, float] = field(default_factory=dict)
+    objects: PrimitiveArray | None = None
+    tracked: list[Primitive] = field(default_factory=list)
+    deleted_ids: tuple[int, ...] = ()
 
 
 def _model(points: np.ndarray, organized: tuple[int, int] | None, n_valid: int,
@@ -107,7 +159,8 @@ def _model(points: np.ndarray, organized: tuple[int, int] | None, n_valid: int,
 
 def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = True,
                   reconstruction: bool = True,
-                  model_scene: SceneModeler = core_model_scene) -> FrameResult:
+                  model_scene: SceneModeler = core_model_scene,
+                  tracking: ObjectTracking | None = None) -> FrameResult:
     """Model one point cloud and build the node's output messages.
 
     Parameters
@@ -123,6 +176,8 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
         Build :attr:`FrameResult.segments` / :attr:`FrameResult.reconstruction`.
     model_scene : SceneModeler
         The scene modeling (default: the core's ``model_scene``).
+    tracking : ObjectTracking, optional
+        Give the objects stable ids (updates its state) and build per-id markers.
 
     Returns
     -------
@@ -156,9 +211,16 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     t2 = time.perf_counter()
     timing["model_s"] = t2 - t1
 
-    markers = primitives_to_markers(objects, header)
+    deleted: tuple[int, ...] = ()
+    if tracking is None:
+        shown, markers = objects, primitives_to_markers(objects, header)
+    else:
+        shown, markers, deleted = tracking.step(objects, header)
+    t_markers = time.perf_counter()
+    timing["markers_s"] = t_markers - t2
+    objects_msg = primitives_to_objects(shown, header)
     t3 = time.perf_counter()
-    timing["markers_s"] = t3 - t2
+    timing["objects_s"] = t3 - t_markers
     segments_msg = recon_msg = None
     if segments:
         segments_msg = segments_cloud(points, labels, header, organized_shape=organized)
@@ -170,4 +232,5 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     timing["reconstruction_s"] = time.perf_counter() - t4
     return FrameResult(markers=markers, segments=segments_msg, reconstruction=recon_msg,
                        result=result, labels=labels.astype(np.int64, copy=False),
-                       valid_points=n_valid, timing=timing)
+                       valid_points=n_valid, timing=timing, objects=objects_msg,
+                       tracked=list(shown), deleted_ids=deleted)
