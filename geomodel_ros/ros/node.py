@@ -18,6 +18,7 @@ Topics (names relative to the node, so ``-r`` and namespaces work):
   are per-id ADD (an object present) and DELETE (an id the tracker retired); DELETEALL
   only in the first frame after start or after ``tracking`` was switched on.  Without
   tracking, ids are the frame's segment labels and every frame starts with DELETEALL.
+  A tracked frame that changes no marker publishes no MarkerArray.
 * ``~/segments`` (sensor_msgs/PointCloud2): the input's points in the input's layout
   (organized clouds stay organized, NaN rows kept) with fields ``object_id`` (-1 = no
   object) and ``rgb`` (``publish_segments``).
@@ -570,7 +571,8 @@ class ModelerNode(Node):
         if frame.reconstruction is not None:
             self._pub_reconstruction.publish(frame.reconstruction)
         self._pub_objects.publish(frame.objects)
-        self._pub_markers.publish(frame.markers)
+        if frame.markers.markers:  # tracked and nothing changed: no headerless empty array
+            self._pub_markers.publish(frame.markers)
         t6 = time.perf_counter()
         timing["publish_s"] = t6 - t5
         timing["total_s"] = t6 - t0
