@@ -102,6 +102,8 @@ OBJECTS_QOS_DEPTH = 10
 EXECUTOR_THREADS = 2
 #: Shortest window of the processing rate in /diagnostics [s] (the report period).
 RATE_WINDOW_MIN_S = 1.0
+#: Longest window of the processing rate [s] (``expected_rate_min`` near 0).
+RATE_WINDOW_MAX_S = 60.0
 _RELIABILITY = {"best_effort": ReliabilityPolicy.BEST_EFFORT,
                 "reliable": ReliabilityPolicy.RELIABLE}
 
@@ -647,7 +649,9 @@ class ModelerNode(Node):
         s = self.stats()
         _, _, _, failed_prev = self._diag_last
         self._diag_last = (now, s.processed, s.dropped, s.failed)
-        window = max(RATE_WINDOW_MIN_S, 2.0 / max(self._options.expected_rate_min, 1e-9))
+        # Two periods of the slowest expected rate: a slow node still has frames in it.
+        window = min(RATE_WINDOW_MAX_S,
+                     max(RATE_WINDOW_MIN_S, 2.0 / max(self._options.expected_rate_min, 1e-9)))
         rate = self._rate(now, window)
         clock_ns = self.get_clock().now().nanoseconds
         age = (clock_ns - s.last_stamp_ns) / 1e9 if s.last_stamp_ns >= 0 else None
