@@ -615,3 +615,15 @@ def test_diagnostics_warn_on_stale_results_and_a_low_rate(make_harness):
     _process(h, _now_cloud(h))
     msg = diag.wait(len(diag) + 1)
     assert _status(msg).level == b"\x01" and "rate" in _status(msg).message
+
+
+def test_tracking_switched_off_and_on_never_reuses_an_id(make_harness):
+    h = make_harness()
+    first = _ids_by_type(_process(h, _noisy_cloud("tiny_box", 0, 1)))
+    h.node.set_parameters([Parameter("tracking", value=False)])
+    _process(h, _noisy_cloud("tiny_box", 1, 2))
+    h.node.set_parameters([Parameter("tracking", value=True)])
+    again = _ids_by_type(_process(h, _noisy_cloud("tiny_box", 2, 3)))
+    assert sorted(again.values()) == sorted(first.values())
+    assert min(again) > max(first)  # fresh ids after the restart of tracking
+    assert h.markers.wait(3).markers[0].action == Marker.DELETEALL  # markers restart too

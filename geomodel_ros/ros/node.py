@@ -323,7 +323,10 @@ class ModelerNode(Node):
         self._diag_last = (time.monotonic(), 0, 0, 0)
         self._processed_at: list[float] = []  # monotonic times of processed frames [s]
         self._started_at = time.monotonic()
-        self._tracking: ObjectTracking | None = None  # the worker's; created on first use
+        # The worker's tracking state, created on first use and kept when tracking is
+        # switched off, so that ids are never reused within a run of the node.
+        self._tracking: ObjectTracking | None = None
+        self._tracking_on = False
         self._detect_lock = threading.Lock()
         self._detect_pending: list[_DetectRequest] = []
         self._mailbox = _Mailbox()
@@ -551,11 +554,14 @@ class ModelerNode(Node):
     def _current_tracking(self, enabled: bool) -> ObjectTracking | None:
         """Return the worker's tracking state with the current config (None: disabled)."""
         if not enabled:
-            self._tracking = None
-        elif self._tracking is None:
+            self._tracking_on = False
+            return None
+        if self._tracking is None:
             self._tracking = ObjectTracking(self._tracker_config)
-        else:
-            self._tracking.tracker.config = self._tracker_config
+        elif not self._tracking_on:  # switched on again: old tracks are stale; ids go on
+            self._tracking.reset()
+        self._tracking_on = True
+        self._tracking.tracker.config = self._tracker_config
         return self._tracking
 
     def _process(self, msg: PointCloud2, received_at: float) -> tuple[bool, str]:
