@@ -29,7 +29,9 @@ from geomodel_msgs.msg import Primitive as PrimitiveMsg
 from geomodel_msgs.msg import PrimitiveArray
 
 from geomodel_ros.core.modeling import model_scene
+from geomodel_ros.core.primitives import ModelingResult, Primitive
 from geomodel_ros.ros.node import NODE_PARAMETERS, ModelerNode
+from geomodel_ros.ros.processing import ObjectTracking, process_cloud
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError
 from geomodel_ros.tools.synth import NoiseModel, render_scene
 from msg_adapters.diagnostics import read_status_values
@@ -627,3 +629,27 @@ def test_tracking_switched_off_and_on_never_reuses_an_id(make_harness):
     assert sorted(again.values()) == sorted(first.values())
     assert min(again) > max(first)  # fresh ids after the restart of tracking
     assert h.markers.wait(3).markers[0].action == Marker.DELETEALL  # markers restart too
+
+
+def test_support_planes_are_published_under_the_tracked_ids():
+    """Segment labels 5 (desk) and 6 (box) become track ids 0 and 1; the support follows."""
+    desk = Primitive(5, "plane", np.array([0.0, 0.1, 0.8]), np.diag([1.0, -1.0, -1.0]),
+                     {"length": 0.6, "width": 0.4}, 900, 0.001)
+    box = Primitive(6, "cuboid", np.array([0.0, 0.05, 0.78]), np.eye(3),
+                    {"length": 0.1, "width": 0.1, "height": 0.05}, 300, 0.001)
+    normal = np.array([0.0, -0.6, -0.8])
+
+    def stand_in(points, params, *, organized_shape=None):
+        del params, organized_shape
+        result = ModelingResult([desk, box], {}, supports={5: (normal, 0.7), 9: (normal, 0.1)})
+        return np.full(len(points), 5), result
+
+    tracking = ObjectTracking()
+    for sec in (1, 2):
+        frame = process_cloud(scene_cloud("tiny_box", sec=sec), ModelingParams(),
+                              model_scene=stand_in, tracking=tracking)
+        assert [(p.id, p.type) for p in frame.objects.primitives] == [
+            (0, PrimitiveMsg.PLANE), (1, PrimitiveMsg.CUBOID)]
+        (support,) = frame.objects.support_surfaces  # label 9 is no published object
+        assert support.id == 0
+        assert list(support.plane.coef) == pytest.approx([0.0, -0.6, -0.8, 0.7])

@@ -52,7 +52,8 @@ def on_msg(msg):
             "orientation": [p.pose.orientation.x, p.pose.orientation.y,
                             p.pose.orientation.z, p.pose.orientation.w],
             "dimensions": dict(zip(p.dimension_names, p.dimensions)),
-        } for p in msg.primitives]})
+        } for p in msg.primitives],
+        "supports": [{"id": s.id, "plane": list(s.plane.coef)} for s in msg.support_surfaces]})
 
 node.create_subscription(PrimitiveArray, "/modeler/objects", on_msg,
                          QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
@@ -139,3 +140,13 @@ def test_objects_reach_another_process_with_the_scenes_types_and_sizes(node_and_
         # the full dimensions agree with the shape
         assert {k: 1000.0 * v for k, v in obj["dimensions"].items()} == pytest.approx(
             got_mm, abs=1e-9)
+
+    # the desk is the support surface: a PLANE of the message, its equation facing the sensor
+    (desk,) = [gt for gt in render_scene("scene3").objects if gt.type == "plane"]
+    (support,) = got["supports"]
+    (plane,) = [o for o in got["objects"] if o["id"] == support["id"]]
+    assert plane["type"] == TYPES["plane"]
+    a, b, c, d = support["plane"]
+    assert abs(np.dot([a, b, c], desk.rotation[:, 2])) == pytest.approx(1.0, abs=0.01)
+    assert d > 0  # the sensor (origin) is on the normal's side
+    assert np.dot([a, b, c], desk.center) + d == pytest.approx(0.0, abs=0.005)

@@ -303,4 +303,5 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
                          seg.support_planes, t0)
     result.timing.update(seg.timing)
     result.timing["total_s"] = result.timing["modeling_s"] + seg.timing["segmentation_s"]
+    result.supports = dict(seg.support_planes)
     return seg.labels, result

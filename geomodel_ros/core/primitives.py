@@ -142,10 +142,16 @@ class Primitive:
 
 @dataclass
 class ModelingResult:
-    """All modeled objects of a scene and the time each stage took [s]."""
+    """All modeled objects of a scene, the time each stage took [s] and the support planes.
+
+    ``supports`` maps the id of each support plane the segmentation found (desk, floor,
+    wall) to its plane ``(normal (3,), d [m])``, ``n . x + d = 0`` with the normal towards
+    the sensor; empty when the objects were modeled from given labels.
+    """
 
     objects: list[Primitive]
     timing: dict[str, float]
+    supports: dict[int, tuple[NDArray[np.float64], float]] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {"objects": [o.to_dict() for o in self.objects],

@@ -218,7 +218,11 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
         shown, markers, deleted = tracking.step(objects, header)
     t_markers = time.perf_counter()
     timing["markers_s"] = t_markers - t2
-    objects_msg = primitives_to_objects(shown, header)
+    # The support planes are keyed by segment label: re-key them by the published ids.
+    published_id = {p.id: q.id for p, q in zip(objects, shown)}
+    supports = {published_id[k]: v for k, v in getattr(result, "supports", {}).items()
+                if k in published_id}
+    objects_msg = primitives_to_objects(shown, header, supports=supports)
     t3 = time.perf_counter()
     timing["objects_s"] = t3 - t_markers
     segments_msg = recon_msg = None
