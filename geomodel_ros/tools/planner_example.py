@@ -51,6 +51,7 @@ from geomodel_msgs.msg import PrimitiveArray
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.utilities import remove_ros_args
 
 __all__ = ["PLANE_THICKNESS", "collision_id", "to_collision_objects", "PlannerExample",
            "main"]
@@ -172,9 +173,9 @@ class PlannerExample(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Run the example node on the topic given as the first argument; return the status."""
-    argv = sys.argv[1:] if args is None else args
-    topics = [a for a in argv if not a.startswith("-")]
+    """Run the example node on the topic given after the program name; return the status."""
+    argv = sys.argv if args is None else args
+    topics = remove_ros_args(argv)[1:]
     rclpy.init(args=argv)
     node: PlannerExample | None = None
     try:
