@@ -33,6 +33,7 @@ from typing import Any, Sequence
 
 import numpy as np
 from hypothesis import HealthCheck, given, settings
+from hypothesis import seed as hypothesis_seed
 from hypothesis import strategies as st
 
 __all__ = ["OUTCOMES", "clouds", "fuzz", "run_core_case", "run_cli_case", "main"]
@@ -216,11 +217,10 @@ def fuzz(target: str, cases: int, seed: int, show: int = 3, *,
             outcome = "crash"
             kinds[_crash_kind(exc)] += 1
             if len(examples) < show:
-                examples.append(traceback.format_exc(limit=4))
+                examples.append(traceback.format_exc(limit=-4))  # innermost frames
         counts[outcome] += 1
 
-    np.random.seed(seed)  # hypothesis seeds from the global generator when not derandomized
-    case()
+    hypothesis_seed(seed)(case)()  # reproducible: the same seed draws the same cases
     shutil.rmtree(folder, ignore_errors=True)
     return {"target": target, "cases": sum(counts.values()),
             **{k: counts.get(k, 0) for k in OUTCOMES}, "crash_kinds": dict(kinds),
