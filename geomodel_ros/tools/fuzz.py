@@ -27,6 +27,7 @@ import shutil
 import sys
 import tempfile
 import traceback
+import warnings
 from collections import Counter
 from pathlib import Path
 from typing import Any, Sequence
@@ -196,10 +197,13 @@ def fuzz(target: str, cases: int, seed: int, show: int = 3, *,
     """Run ``cases`` hypothesis-drawn cases through ``target`` (``core`` or ``cli``).
 
     Returns the counts of each outcome (see the module doc), ``crash_kinds`` (exception and
-    innermost function -> count) and up to ``show`` crash tracebacks.
+    innermost function -> count), up to ``show`` crash tracebacks, and the numpy
+    ``RuntimeWarning`` s raised (inf * 0, overflow, ...: by file, line and message, and how
+    many cases raised any; information, not an outcome: the output may still be finite).
     """
     counts: Counter[str] = Counter()
     kinds: Counter[str] = Counter()
+    numeric: Counter[str] = Counter()  # numpy RuntimeWarnings (inf*0, overflow...) by place
     examples: list[str] = []
     folder = Path(tempfile.mkdtemp(prefix="geomodel_fuzz_"))
 
@@ -211,8 +215,14 @@ def fuzz(target: str, cases: int, seed: int, show: int = 3, *,
     def case(cloud: tuple[np.ndarray, tuple[int, int] | None], suffix: str, damage: str) -> None:
         points, organized = cloud
         try:
-            outcome = run_core_case(points, organized) if target == "core" \
-                else run_cli_case(points, suffix, damage, folder)
+            with warnings.catch_warnings(record=True) as seen:
+                warnings.simplefilter("always", RuntimeWarning)
+                outcome = run_core_case(points, organized) if target == "core" \
+                    else run_cli_case(points, suffix, damage, folder)
+            where = {f"{Path(w.filename).stem}:{w.lineno} {w.message}"[:80] for w in seen
+                     if issubclass(w.category, RuntimeWarning)}
+            numeric.update(where)
+            counts["with_numeric_warnings"] += bool(where)
         except Exception as exc:  # noqa: BLE001 -- any other exception is what we count as a crash
             outcome = "crash"
             kinds[_crash_kind(exc)] += 1
@@ -222,8 +232,10 @@ def fuzz(target: str, cases: int, seed: int, show: int = 3, *,
 
     hypothesis_seed(seed)(case)()  # reproducible: the same seed draws the same cases
     shutil.rmtree(folder, ignore_errors=True)
-    return {"target": target, "cases": sum(counts.values()),
+    return {"target": target, "cases": sum(counts[k] for k in OUTCOMES),
             **{k: counts.get(k, 0) for k in OUTCOMES}, "crash_kinds": dict(kinds),
+            "cases_with_numeric_warnings": counts["with_numeric_warnings"],
+            "numeric_warnings": dict(numeric),
             "crash_examples": examples}
 
 
