@@ -25,8 +25,9 @@ from ``/diagnostics`` (``failed`` is the exact number of clear errors: malformed
 and core errors the node rejected with a reason); and its log: warning lines, error lines,
 tracebacks (warnings are throttled to one per kind every 5 s, so they are fewer than the
 failed frames).  ``malformed_messages`` counts the messages whose layout the input adapter
-rejects (checked in this process), so ``failed - malformed_messages`` is a lower bound of the
-frames on which the core itself failed (logged as ``modeling failed``).  Exit status 0
+rejects (checked in this process); ``core_failures`` the well-formed messages the node did
+not answer on which the core fails (replayed here through ``process_cloud``: the node
+skipped them as ``modeling failed``), by exception.  Exit status 0
 when nothing crashed, every probe was answered, every output was finite and well-formed
 and the log holds no traceback.
 """
@@ -65,7 +66,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from geomodel_ros.tools import bench_load  # noqa: E402
 from geomodel_ros.tools.fuzz import clouds  # noqa: E402
 from msg_adapters.diagnostics import read_status_values  # noqa: E402
-from msg_adapters.header import header_of, make_header  # noqa: E402
+from msg_adapters.header import header_of, make_header, stamp_ns  # noqa: E402
 from msg_adapters.interfaces import DiagnosticArray, MarkerArray, PointCloud2  # noqa: E402
 from msg_adapters.malformed import ELEMENT_DTYPES, FieldSpec, pack_points, raw_cloud  # noqa: E402
 from msg_adapters.markers import marker_array_frame, marker_array_problem  # noqa: E402
@@ -76,7 +77,10 @@ __all__ = ["messages", "run", "main"]
 
 FRAME = "camera_optical"
 TOPIC = "/fuzz_node/points"
-_RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+#: Reliable with a deep history on both sides (the node's ``qos_depth``): a KEEP_LAST
+#: history that fills while a busy reader is behind loses samples even when reliable.
+QOS_DEPTH = 1000
+_RELIABLE = QoSProfile(depth=QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
 #: Points per fuzzed message: enough for real geometry, small enough for tens of Hz.
 MAX_POINTS = 400
 #: Longest wait for a probe's answer [s] (the node may first finish a large valid frame).
@@ -254,6 +258,7 @@ class _Run:
     published: int = 0
     mutations: Counter[str] = field(default_factory=Counter)
     rejected_by_adapter: int = 0  # messages the input adapter rejects (checked here)
+    well_formed: dict[int, PointCloud2] = field(default_factory=dict)  # stamp [ns] -> msg
     probes_sent: int = 0
     probes_answered: int = 0
     probe_problems: list[str] = field(default_factory=list)
@@ -308,6 +313,7 @@ def _publish_all(peer: _Peer, proc: Any, cases: int, seed: int, rate: float,
         out.mutations[item.mutation] += 1
         try:
             cloud_to_scene(item.msg)
+            out.well_formed[stamp_ns(item.msg)] = item.msg
         except PointCloud2Error:
             out.rejected_by_adapter += 1
         tick.wait(max(0.0, start + out.published * period - time.monotonic()))
@@ -318,6 +324,29 @@ def _publish_all(peer: _Peer, proc: Any, cases: int, seed: int, rate: float,
     if proc.poll() is not None and out.crashed_after is None:
         out.crashed_after = out.published
     return out
+
+
+def _core_failures(well_formed: dict[int, PointCloud2], answered: set[int]) -> dict:
+    """Replay the well-formed messages the node did not answer; the core's failures by kind.
+
+    The node answers every well-formed frame it models; one it did not answer was dropped
+    (a newer one arrived first) or the core failed on it (logged as ``modeling failed``).
+    Replaying it here through the node's own :func:`process_cloud` (same default
+    parameters, deterministic) tells which.
+    """
+    from geomodel_ros.core.params import ModelingParams
+    from geomodel_ros.ros.processing import ModelingError, process_cloud
+
+    params = ModelingParams()
+    kinds: Counter[str] = Counter()
+    for stamp, msg in well_formed.items():
+        if stamp in answered:
+            continue
+        try:
+            process_cloud(msg, params)
+        except ModelingError as exc:
+            kinds[re.sub(r"-?\d+", "#", str(exc))[:90]] += 1
+    return {"total": sum(kinds.values()), "kinds": dict(kinds)}
 
 
 def _log_counts(log_name: str) -> dict:
@@ -334,7 +363,7 @@ def _log_counts(log_name: str) -> dict:
 def _start_node() -> tuple[subprocess.Popen, list[str], str]:
     """Start the node process on this tool's topic; its handle, command line and log file."""
     cmd = [sys.executable, "-m", "geomodel_ros.ros.node", "--ros-args", "-r", f"points:={TOPIC}",
-           "-p", "qos_reliability:=reliable", "-p", "qos_depth:=10"]
+           "-p", "qos_reliability:=reliable", "-p", f"qos_depth:={QOS_DEPTH}"]
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONPATH=os.pathsep.join(filter(None, [str(REPO),
                                                         os.environ.get("PYTHONPATH")])))
@@ -395,10 +424,8 @@ def run(cases: int, *, seed: int = 0, rate: float = 40.0, probe_every: int = 100
                         for k in ("received", "processed", "dropped", "failed")}
     report["clear_errors"] = report["frames"]["failed"]
     report["malformed_messages"] = out.rejected_by_adapter
-    # failed = malformed frames the node got to + frames the core failed on (both logged
-    # with the reason and skipped); some malformed frames may have been dropped unread.
-    report["core_failures_at_least"] = max(0, report["frames"]["failed"]
-                                           - out.rejected_by_adapter)
+    report["well_formed_messages"] = len(out.well_formed)
+    report["core_failures"] = _core_failures(out.well_formed, peer.answered)
     report["log"] = {"file": log_name, **_log_counts(log_name)}
     report["mutations"] = dict(out.mutations)
     report["duration_s"] = round(time.monotonic() - t0, 1)
