@@ -15,7 +15,7 @@ import pytest  # noqa: E402
 
 @pytest.fixture
 def context():
-    """A private, initialized rclpy Context for one test (shut down afterwards)."""
+    """Give one test a private, initialized rclpy Context (shut down afterwards)."""
     import rclpy
     from rclpy.context import Context
 

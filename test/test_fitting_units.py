@@ -255,3 +255,18 @@ def test_an_axis_prior_rejects_a_cylinder_across_it():
 def test_a_round_unit_on_an_object_without_curved_faces():
     out = fit("cylinder", cloud_of(plane_points()))
     assert out == Rejected(PrimitiveType.CYLINDER, "cylinder: no curved face")
+
+
+def test_a_cylinder_beside_a_larger_flat_part_is_rejected_for_coverage():
+    # The side passes RANSAC on its own curved face, but a rectangle that is no cap of it
+    # holds most of the object's points: the share on the model is the side's share.
+    cyl = cylinder_points()
+    beside = plane_points(n=40000)
+    out = fit("cylinder", cloud_of(np.vstack([cyl, beside])))
+    share = round(100 * len(cyl) / (len(cyl) + len(beside)))
+    assert share < 50
+    assert out == Rejected(PrimitiveType.CYLINDER, f"cylinder rejected: only {share}% of the "
+                           "object's points lie on it")
+    # With a smaller rectangle most points lie on the cylinder again: it is accepted.
+    out = fit("cylinder", cloud_of(np.vstack([cyl, plane_points(n=20000)])))
+    assert isinstance(out, Fitted)

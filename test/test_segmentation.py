@@ -1,6 +1,8 @@
-"""Scene segmentation (``segment_scene``) on synthetic scenes with exact ground truth
-(objects touching, stacked, occluded, apart), end to end on a stacked scene, on real
-Kinect scenes (osd_learn) and on degenerate or malformed input.
+"""Scene segmentation (``segment_scene``) on synthetic and real scenes.
+
+Synthetic scenes with exact ground truth (objects touching, stacked, occluded, apart), end
+to end on a stacked scene, real Kinect scenes (osd_learn), and degenerate or malformed
+input. Parts that must not be joined: test_segmentation_joins.py.
 
 IoUs quoted in comments were measured with the segmentation of commit 4429b4b (union-find
 patch merging); the assertions are the requirements, not the measurements.
@@ -24,10 +26,11 @@ from geomodel_ros.tools.evaluation import dimension_errors, segmentation_scores
 from geomodel_ros.core.params import ModelingParams, load_params_file
 from geomodel_ros.core.modeling import InputError, model_scene
 from geomodel_ros.core.segmentation import segment_scene
-from geomodel_ros.tools.synth import SENSOR_NOISE, Box, Cylinder, Sphere, render_scene, scene_geometry
+from geomodel_ros.tools.synth import (SENSOR_NOISE, Box, Cylinder, Sphere, render_scene,
+                                      scene_geometry)
 from geomodel_ros.tools.synth.scenes import (DESK_CENTER, DESK_NORMAL, SCENE_NAMES,
-                                       SEGMENTATION_CAMERA, SEGMENTATION_SCENE_NAMES,
-                                       _rest_on_desk, _standing)
+                                             SEGMENTATION_CAMERA, SEGMENTATION_SCENE_NAMES,
+                                             _desk, _rest_on_desk, _standing)
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 MM = 1e-3
@@ -68,10 +71,12 @@ def test_segmentation_scenes_are_registered():
 
 
 def _separation(a, b) -> tuple[float, np.ndarray]:
-    """Best lower bound [m] on the distance between convex shapes ``a`` and ``b`` found
-    over candidate directions, from their support functions, and its direction u (from
-    a to b): -b.support(-u) - a.support(u) >= 0 means the plane u . x = a.support(u)
-    separates them (they touch when it is 0)."""
+    """Bound the distance between convex shapes ``a`` and ``b`` from below.
+
+    Returns the best lower bound [m] found over candidate directions, from their support
+    functions, and its direction u (from a to b): -b.support(-u) - a.support(u) >= 0 means
+    the plane u . x = a.support(u) separates them (they touch when it is 0).
+    """
     delta = b.center - a.center
     flat = delta - (delta @ DESK_NORMAL) * DESK_NORMAL
     candidates = [delta, flat, DESK_NORMAL, *a.rotation.T, *b.rotation.T]
@@ -296,9 +301,12 @@ def test_osd_learn_objects_iou(group, k):
 
 
 def _modeled_osd_object(k: int, gt_id: int):
-    """learn<k> segmented and modeled with config/kinect.yaml: the labelled object's own
-    finite points, the primitive of the segment that holds most of them, and the whole
-    result (see data_helpers.require when the data folder is missing)."""
+    """Segment and model learn<k> with config/kinect.yaml.
+
+    Returns the labelled object's own finite points, the primitive of the segment that
+    holds most of them, and the whole result (see data_helpers.require when the data
+    folder is missing).
+    """
     path = require(_osd(k))
     from geomodel_ros.tools.io import load_osd
 
@@ -311,9 +319,25 @@ def _modeled_osd_object(k: int, gt_id: int):
     return points[mask & np.all(np.isfinite(points), axis=1)], obj, result
 
 
-@pytest.mark.parametrize("k, box", [(9, 3), (12, 3), (14, 3), (7, 3), (16, 4), (20, 2), (25, 2),
-                                    (17, 2), (19, 2), (15, 4), (17, 3)])
-def test_osd_learn_boxes_come_out_as_cuboids_of_their_size(k, box):
+#: Margins [mm] of the box sides against the extent of the box's own labelled points along
+#: the cuboid's axes: no side longer than the points reach (min to max) plus LONGER_MM,
+#: none shorter than their 1st-99th percentile extent minus SHORTER_MM. Measured (side
+#: minus extent, worst of the 11 boxes): +2.1 mm over the full extent (learn17 box 3),
+#: -3.9 mm under the percentile extent (learn25 box 2), except learn17 box 2 below.
+LONGER_MM = 3.0
+SHORTER_MM = 5.0
+
+
+@pytest.mark.parametrize("k, box, shorter_mm", [
+    (9, 3, SHORTER_MM), (12, 3, SHORTER_MM), (14, 3, SHORTER_MM), (7, 3, SHORTER_MM),
+    (16, 4, SHORTER_MM), (20, 2, SHORTER_MM), (25, 2, SHORTER_MM),
+    # learn17 box 2: its width comes out 54.1 mm while its points spread 64.9 mm across
+    # it (1st-99th percentile): its faces meet 9-10 degrees off square, so one face's
+    # points lean across the width.
+    (17, 2, 13.0),
+    (19, 2, SHORTER_MM), (15, 4, SHORTER_MM), (17, 3, SHORTER_MM),
+])
+def test_osd_learn_boxes_come_out_as_cuboids_of_their_size(k, box, shorter_mm):
     # Boxes whose sides region growing joined (normals turning gradually across an edge)
     # or that depth noise bent beyond the plane test (learn9, 12, 14), or whose faces
     # hold flying pixels far behind them that tilted a least-squares plane and stretched
@@ -323,12 +347,14 @@ def test_osd_learn_boxes_come_out_as_cuboids_of_their_size(k, box):
     # 5.9 mm about one plane (learn17 box 3); each used to come out `unknown`.
     own, obj, _ = _modeled_osd_object(k, box)
     assert obj.type == "cuboid", obj.reason
-    # Its sides match the extent of the box's own points along its axes (1st-99th
-    # percentile, the hidden back excepted) within 20 % + 1 cm.
+    # Its sides match the extent of the box's own labelled points along its axes.
     local = (own - obj.center) @ obj.rotation
     lo, hi = np.percentile(local, [1.0, 99.0], axis=0)
+    reach = local.max(axis=0) - local.min(axis=0)
     dims = np.array([obj.dimensions[n] for n in ("length", "width", "height")])
-    assert np.all(dims <= 1.2 * (hi - lo) + 0.01), (dims, hi - lo)
+    report = (np.round(dims / MM, 1), np.round((hi - lo) / MM, 1), np.round(reach / MM, 1))
+    assert np.all(dims <= reach + LONGER_MM * MM), report
+    assert np.all(dims >= (hi - lo) - shorter_mm * MM), report
 
 
 @pytest.mark.parametrize("k", [33, 41])
@@ -341,14 +367,18 @@ def test_osd_learn_lidded_containers_come_out_as_upright_cylinders(k):
     table = max((o for o in result.objects if o.type == "plane"), key=lambda o: o.point_count)
     axis = obj.rotation[:, 2]
     assert abs(axis @ table.rotation[:, 2]) >= np.cos(np.radians(8.0))
-    # The container's own points: most of them lie on its side, at about the radius;
-    # its height is about their extent along the axis.
+    # The container's own points: most of them lie on its side, at about the radius
+    # (measured: 1.5 and 3.7 mm off); its height is about their extent along the axis:
+    # no longer than they reach (measured: 28.2 and 6.5 mm shorter), and at most 22 mm
+    # shorter than their 1st-99th percentile extent (measured: learn33 18.9 mm shorter,
+    # learn41 3.8 mm longer).
     own = own - obj.center
     along = own @ axis
     radial = np.linalg.norm(own - np.outer(along, axis), axis=1)
-    assert np.median(radial) == pytest.approx(obj.dimensions["radius"], rel=0.1)
+    assert abs(np.median(radial) - obj.dimensions["radius"]) <= 5 * MM
     lo, hi = np.percentile(along, [1.0, 99.0])
-    assert 0.6 * (hi - lo) <= obj.dimensions["height"] <= 1.2 * (hi - lo) + 0.01
+    height = obj.dimensions["height"]
+    assert (hi - lo) - 22 * MM <= height <= along.max() - along.min() + 3 * MM
 
 
 # ---------------------------------------------------------------------------------------
@@ -360,6 +390,21 @@ def test_all_nan_organized_cloud_gives_no_segments():
     assert seg.labels.shape == (181 * 320,) and seg.labels.dtype == np.int64
     assert np.all(seg.labels == -1)
     assert seg.support_ids == [] and seg.support_planes == {} and len(seg.object_ids) == 0
+
+
+def test_bare_desk_is_one_support_and_no_object():
+    # Every working point in the support, none left for objects (this used to raise
+    # IndexError).
+    organized, gt = SEGMENTATION_CAMERA.render([_desk()], ids=[0])
+    valid = gt.ravel() == 0
+    assert valid.sum() > 20000
+    seg = segment_scene(organized, ModelingParams())
+    assert seg.support_ids == [0]
+    np.testing.assert_array_equal(seg.labels[valid], 0)
+    np.testing.assert_array_equal(seg.labels[~valid], -1)
+    normal, d = seg.support_planes[0]
+    assert normal @ DESK_NORMAL > np.cos(np.radians(0.5))
+    assert abs(d + DESK_NORMAL @ DESK_CENTER) < 0.5 * MM
 
 
 @pytest.mark.parametrize("shape", [(0, 3), (0, 0, 3), (4, 0, 3)])

@@ -19,10 +19,12 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from geomodel_ros.core.errors import InputError
 from geomodel_ros.core.fastmath import centroid, knn, robust_sigma
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, refine
 
-__all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_working_cloud",
+__all__ = ["WorkingCloud", "FaceSet", "voxelize", "count_voxels", "estimate_normals",
+           "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
            "split_faces", "faces_from_labels", "working_voxel_size", "link_graph",
            "split_plane_unions", "face_plane"]
@@ -32,6 +34,10 @@ __all__ = ["WorkingCloud", "FaceSet", "voxelize", "estimate_normals", "build_wor
 #: point, are counted in a dense table (sorting is used for sparser boxes).
 DENSE_CELLS = 1 << 22
 DENSE_CELLS_PER_POINT = 8
+#: Largest number of voxel keys (cells of the occupied box times groups) and largest cell
+#: index [voxels] :func:`voxelize` accepts: keys are int64, and 2**62 leaves room for the
+#: products and sums that build them (larger boxes raise InputError instead of overflowing).
+MAX_GRID_KEYS = float(2 ** 62)
 #: Eigenvectors from cross products of rows of A - lambda I (scaled to entries <= 1) whose
 #: norm is below this are ill-determined (a repeated smallest eigenvalue): those matrices
 #: go to :func:`numpy.linalg.eigh` instead.
@@ -63,6 +69,72 @@ MAX_UNION_PLANES = 3
 _MIN_MEAN_NORMAL = 1e-9
 
 
+def _grid_spans(low: NDArray[np.float64], high: NDArray[np.float64], voxel_size: float,
+                groups: NDArray[np.int64] | None) -> list[int]:
+    """Cells per axis of the voxel box from its lowest and highest cell indices (3,).
+
+    The indices are floats (the floor of coordinate / voxel_size); they are checked in
+    floats, before any integer arithmetic, so that a box whose cell keys (one per cell and
+    group) do not fit in int64 raises :class:`InputError` instead of overflowing.
+    """
+    spans = high - low + 1.0
+    keys = float(np.prod(spans))
+    if groups is not None:
+        keys *= float(groups.max()) - float(groups.min()) + 1.0
+    extreme = float(max(np.max(np.abs(low)), np.max(np.abs(high))))
+    if not (math.isfinite(keys) and keys <= MAX_GRID_KEYS and extreme <= MAX_GRID_KEYS):
+        extent = (high - low) * voxel_size
+        raise InputError(
+            f"points too large for a voxel grid: they span {np.array2string(extent, precision=3)}"
+            f" m (up to {extreme * voxel_size:.3g} m from the origin); at a voxel of "
+            f"{voxel_size:g} m that needs {keys:.3g} cells, at most {MAX_GRID_KEYS:.3g} are "
+            f"allowed: lower max_range or raise voxel_size / seg_voxel_size")
+    return [int(v) for v in spans]
+
+
+def _cell_keys(pt: NDArray[np.float64], voxel_size: float,
+               groups: NDArray[np.int64] | None) -> NDArray[np.int64]:
+    """One int64 key per point of ``pt`` (3, N) [m]: its voxel (and group), from 0.
+
+    Integer cell coordinates shifted to start at 0, flattened row-major over the occupied
+    box (then over the groups); the box is checked in floats first (:func:`_grid_spans`).
+    """
+    scaled = pt * (1.0 / voxel_size)
+    np.floor(scaled, out=scaled)
+    g = None if groups is None else np.asarray(groups, dtype=np.int64)
+    low = scaled.min(axis=1, keepdims=True)
+    span = _grid_spans(low.ravel(), scaled.max(axis=1), voxel_size, g)
+    cols = scaled.astype(np.int64)
+    del scaled
+    cols -= low.astype(np.int64)
+    flat = cols[0] * (span[1] * span[2])
+    flat += cols[1] * span[2]
+    flat += cols[2]
+    del cols
+    if g is not None:
+        g = g - g.min()
+        flat += (span[0] * span[1] * span[2]) * g
+    return flat
+
+
+def count_voxels(points: NDArray[np.float64], voxel_size: float) -> int:
+    """Count the voxels of edge ``voxel_size`` [m] that ``points`` (N, 3) [m] occupy.
+
+    The count of :func:`voxelize` without its centroids and inverse (a plain sort instead
+    of a sort with inverse on sparse boxes: several times faster on millions of points).
+    """
+    if len(points) == 0:
+        return 0
+    flat = _cell_keys(np.ascontiguousarray(points.T), voxel_size, None)
+    cells = int(flat.max()) + 1
+    if cells <= max(DENSE_CELLS, DENSE_CELLS_PER_POINT * len(flat)):
+        occupied = np.zeros(cells, dtype=bool)
+        occupied[flat] = True
+        return int(np.count_nonzero(occupied))
+    flat.sort()
+    return int(np.count_nonzero(flat[1:] != flat[:-1])) + 1
+
+
 def voxelize(points: NDArray[np.float64], voxel_size: float,
              groups: NDArray[np.int64] | None = None
              ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
@@ -85,20 +157,9 @@ def voxelize(points: NDArray[np.float64], voxel_size: float,
     """
     if len(points) == 0:
         return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    # Integer cell coordinates on the transposed (3, N) points (numpy is slow along the
-    # short last axis of (N, 3)), shifted to start at 0, then one flat key per point.
+    # Keys on the transposed (3, N) points: numpy is slow along the short last axis of (N, 3).
     pt = np.ascontiguousarray(points.T)
-    scaled = pt * (1.0 / voxel_size)
-    cols = np.floor(scaled, out=scaled).astype(np.int64)
-    cols -= cols.min(axis=1, keepdims=True)
-    span = [int(v) + 1 for v in cols.max(axis=1)]
-    flat = cols[0] * (span[1] * span[2])
-    flat += cols[1] * span[2]
-    flat += cols[2]
-    if groups is not None:
-        g = np.asarray(groups, dtype=np.int64)
-        g = g - g.min()
-        flat += (span[0] * span[1] * span[2]) * g
+    flat = _cell_keys(pt, voxel_size, groups)
     cells = int(flat.max()) + 1
     if cells <= max(DENSE_CELLS, DENSE_CELLS_PER_POINT * len(flat)):
         # A dense table over the occupied box instead of sorting (same result as

@@ -30,7 +30,7 @@ def centroid(p: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def rows_finite(p: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """True for rows of ``p`` (N, D) whose entries are all finite."""
+    """Mark the rows of ``p`` (N, D) whose entries are all finite: (N,) bool."""
     ok = np.isfinite(p[:, 0])
     for i in range(1, p.shape[1]):
         ok &= np.isfinite(p[:, i])
@@ -38,7 +38,7 @@ def rows_finite(p: NDArray[np.float64]) -> NDArray[np.bool_]:
 
 
 def robust_sigma(d: NDArray[np.float64]) -> float:
-    """Standard deviation estimated from the median absolute deviation (outlier-proof)."""
+    """Estimate a standard deviation from the median absolute deviation (outlier-proof)."""
     return float(1.4826 * np.median(np.abs(d - np.median(d)))) if d.size else 0.0
 
 
@@ -55,9 +55,10 @@ def take_rows(a: NDArray, which: NDArray) -> NDArray:
 
 
 def knn(points: NDArray[np.float64], k: int, return_sqdist: bool = False):
-    """Indices (M, k) of the ``k`` nearest neighbours of every point of ``points`` (M, 3)
-    among themselves, nearest first (the point itself, distance 0, among them); with
-    ``return_sqdist`` also their squared distances (M, k) [m^2].
+    """Find the ``k`` nearest neighbours of every point of ``points`` (M, 3) among themselves.
+
+    Returns their indices (M, k), nearest first (the point itself, distance 0, among them);
+    with ``return_sqdist`` also their squared distances (M, k) [m^2].
 
     open3d's multithreaded nearest-neighbour search (faster than building and querying
     a :class:`scipy.spatial.cKDTree` on working clouds of 10^4-10^5 points).
@@ -86,9 +87,10 @@ _M_MMAP_THRESHOLD = -3
 
 
 def retain_freed_memory(mmap_threshold: int = 32 * 2**20, trim_threshold: int = 2**30) -> bool:
-    """Let this process reuse the memory of freed arrays instead of returning it to the
-    operating system (glibc only; process-wide, so it is called by the ``geomodel`` CLI
-    and the node's ``main``, never on import).
+    """Let this process reuse the memory of freed arrays instead of returning it to the OS.
+
+    glibc only; process-wide, so it is called by the ``geomodel`` CLI and the node's
+    ``main``, never on import.
 
     glibc serves large blocks (numpy's temporaries over a cloud) with fresh pages that
     the kernel must map and zero on first touch, and gives them back when freed; every

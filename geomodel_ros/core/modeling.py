@@ -21,10 +21,11 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from geomodel_ros.core.errors import InputError, as_points
-from geomodel_ros.core.fastmath import centroid, rows_finite, take_rows
+from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane, build_faces
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategies
+from geomodel_ros.core.input import downsample, in_range, working_params
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, ModelingResult, Primitive, PrimitiveType
 
@@ -189,7 +190,8 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
     Parameters
     ----------
     points : (N, 3) float array [m]
-        Scene points; non-finite rows are ignored.
+        Scene points; non-finite rows and rows farther than ``params.max_range`` from the
+        origin are ignored.
     labels : (N,) int array
         Object id per point; negative = no object.
     params : ModelingParams, optional
@@ -207,7 +209,8 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
     Raises
     ------
     InputError
-        For malformed arrays (never for bad geometry).
+        For malformed arrays, or points too large for the voxel grids within
+        ``max_range`` (never for bad geometry).
     """
     t0 = time.perf_counter()
     params = params if params is not None else ModelingParams()
@@ -215,7 +218,17 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
     lab = _check_labels(labels, len(pts), "labels")
     flab = None if face_labels is None else _check_labels(face_labels, len(pts), "face_labels")
     rng = np.random.default_rng(params.seed if rng is None else rng)
-    idx_all = np.flatnonzero(rows_finite(pts) & (lab >= 0))
+    idx_all = np.flatnonzero(in_range(pts, params.max_range) & (lab >= 0))
+    return _model_rows(pts, idx_all, lab, flab, params, rng, supports, t0)
+
+
+def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArray[np.int64],
+                flab: NDArray[np.int64] | None, params: ModelingParams, rng: np.random.Generator,
+                supports: dict[int, Plane] | None, t0: float) -> ModelingResult:
+    """Model the objects of the rows ``idx_all`` (usable, labelled) of ``pts`` (N, 3) [m].
+
+    The body of :func:`model_objects` after its checks; ``t0`` is its start time [s].
+    """
     objects: list[Primitive] = []
     if idx_all.size:
         order, ids, starts, ends = _group_by_label(idx_all, lab[idx_all])
@@ -232,7 +245,12 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
     Parameters
     ----------
     points : (N, 3) float array [m]
-        Scene cloud in the sensor frame (non-finite rows allowed, labelled -1).
+        Scene cloud in the sensor frame (non-finite rows and rows farther than
+        ``params.max_range`` from the origin allowed, labelled -1). With more than
+        ``params.max_points`` of the others, the scene is averaged on a voxel grid first
+        (:func:`geomodel_ros.core.input.downsample`) and segmented at that voxel; every
+        row then gets the label of its voxel, sizes are exact to that voxel, and point
+        counts are voxel counts.
     params : ModelingParams, optional
     organized_shape : (H, W), optional
         Image shape when ``points`` are the rows of an organized cloud (N = H * W).
@@ -243,17 +261,46 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
     labels : (N,) int64
         Object id per input row (-1 = invalid or noise).
     result : ModelingResult
-        Objects by id; timing has ``segmentation_s`` and ``modeling_s``.
-    """
-    from geomodel_ros.core.segmentation import segment_scene
+        Objects by id; timing has ``segmentation_s`` and ``modeling_s`` (and
+        ``downsample_s`` when the scene was downsampled).
 
+    Raises
+    ------
+    InputError
+        For malformed arrays, or points too large for the voxel grids within ``max_range``.
+    """
     params = params if params is not None else ModelingParams()
     pts = as_points(points)
     if organized_shape is not None and organized_shape[0] * organized_shape[1] != len(pts):
         raise InputError(f"organized_shape {organized_shape} does not match {len(pts)} points")
     rng = np.random.default_rng(params.seed if rng is None else rng)
+    if len(pts) <= params.max_points:
+        return _segment_and_model(pts, params, rng)
+    usable = in_range(pts, params.max_range)
+    if np.count_nonzero(usable) <= params.max_points:
+        return _segment_and_model(pts, params, rng)
+    t0 = time.perf_counter()
+    ds = downsample(pts, np.flatnonzero(usable), params)
+    del usable
+    t_down = time.perf_counter() - t0
+    wlabels, result = _segment_and_model(ds.points, working_params(params, ds.voxel_size), rng)
+    labels = np.full(len(pts), -1, dtype=np.int64)
+    labels[ds.rows] = wlabels[ds.inverse]
+    result.timing["downsample_s"] = t_down
+    result.timing["total_s"] += t_down
+    return labels, result
+
+
+def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
+                       rng: np.random.Generator) -> tuple[NDArray[np.int64], ModelingResult]:
+    """Segment ``pts`` (N, 3) [m] and model every segment (the body of :func:`model_scene`)."""
+    from geomodel_ros.core.segmentation import segment_scene
+
     seg = segment_scene(pts, params, rng=rng)
-    result = model_objects(pts, seg.labels, params, rng=rng, supports=seg.support_planes)
+    # The segmentation labels only finite rows within max_range: no further checks.
+    t0 = time.perf_counter()
+    result = _model_rows(pts, np.flatnonzero(seg.labels >= 0), seg.labels, None, params, rng,
+                         seg.support_planes, t0)
     result.timing.update(seg.timing)
     result.timing["total_s"] = result.timing["modeling_s"] + seg.timing["segmentation_s"]
     return seg.labels, result

@@ -89,6 +89,15 @@ class ParamSpec:
 
 
 PARAMETERS: tuple[ParamSpec, ...] = (
+    # --- input ----------------------------------------------------------------------------
+    ParamSpec("max_range", 10.0, "m", 0.1, 1e5,
+              "Points farther than this from the sensor origin (the cloud frame's origin) are "
+              "dropped like invalid points (label -1) before any voxel arithmetic; the default "
+              "suits depth cameras, map-frame or room-scale clouds need a larger value."),
+    ParamSpec("max_points", 1000000, "count", 1000, 100000000,
+              "Scene clouds with more valid points are first averaged on the smallest voxel "
+              "grid (seg_voxel_size grown geometrically) that leaves at most this many; every "
+              "input point gets its voxel's label, and sizes are exact to that voxel."),
     # --- working resolution and faces ---------------------------------------------------
     ParamSpec("voxel_size", 0.003, "m", 0.0002, 0.2,
               "Voxel edge of the working cloud used for normals, faces and curvature."),
@@ -197,6 +206,10 @@ class ModelingParams:
     :data:`PARAMETERS` so that editors and type checkers see them; a test keeps the two
     identical.
     """
+
+    # --- input ----------------------------------------------------------------------------
+    max_range: float = 10.0
+    max_points: int = 1000000
 
     # --- working resolution and faces -----------------------------------------------------
     voxel_size: float = 0.003

@@ -212,6 +212,8 @@ def cmd_play(args: argparse.Namespace, bags) -> int:
 
 
 def cmd_model(args: argparse.Namespace) -> int:
+    from geomodel_ros.core.fastmath import rows_finite
+    from geomodel_ros.core.input import in_range
     from geomodel_ros.core.modeling import model_objects, model_scene
     from geomodel_ros.core.reconstruction import reconstruct
 
@@ -220,6 +222,12 @@ def cmd_model(args: argparse.Namespace) -> int:
     cloud = _load_points(args.input)
     labels = _labels_for(args, cloud)
     t_load = time.perf_counter() - t0
+    far = int(np.count_nonzero(rows_finite(cloud.points) & ~in_range(cloud.points,
+                                                                       params.max_range)))
+    if far:
+        print(f"geomodel: warning: {far} of {len(cloud.points)} points are farther than "
+              f"max_range = {params.max_range:g} m from the origin and were ignored",
+              file=sys.stderr)
     if labels is None:
         labels, result = model_scene(cloud.points, params)
         result.timing["segmentation"] = result.timing["segmentation_s"]

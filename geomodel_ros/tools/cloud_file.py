@@ -8,7 +8,11 @@ handed to the writers. Plain numpy; no ROS.
 from __future__ import annotations
 
 import os
+import stat
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from io import BytesIO
+from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -39,8 +43,8 @@ class Cloud:
     fields : dict[str, ndarray]
         Every other field by name, first axis N: e.g. ``label`` (N,) uint32, ``rgb`` /
         ``rgba`` (N,) uint32 holding the raw packed colour bits (whatever type the file
-        declared), fields with COUNT > 1 as (N, COUNT). Arrays read from binary files may be
-        views into the file's buffer (writable; copy if you keep only a small part).
+        declared), fields with COUNT > 1 as (N, COUNT). Every field read from a file owns
+        its memory (the points of an ``.npy`` file are a writable view of its buffer).
     width : int
         Points per row (N for unorganized clouds). ``0`` together with ``height=0`` (the
         defaults) means unorganized: width N, height 1.
@@ -152,6 +156,158 @@ def read_bytes(path: PathLike) -> bytearray:
     if not buf:
         raise CloudFileError(f"{name}: file is empty")
     return buf
+
+
+#: Bytes read from the start of a file to parse its header: the longest header the readers
+#: accept (1 MiB) plus room for the line that crosses that limit.
+HEAD_BYTES = (1 << 20) + (1 << 16)
+#: Size of the buffer binary records are read through. Small next to the clouds it reads
+#: (1 MiB against tens or hundreds), large enough that the per-chunk overhead is nil.
+CHUNK_BYTES = 1 << 20
+
+
+def open_cloud(path: PathLike) -> tuple[BinaryIO, int, bytearray]:
+    """Open a file for reading; return the stream, the file size and its first bytes.
+
+    The first ``min(size, HEAD_BYTES)`` bytes (the header, and for small files all data)
+    are returned as a writable buffer; the stream is left after them. Pipes and other
+    files without a meaningful size are read whole (stream over the buffered bytes).
+
+    Raises
+    ------
+    CloudFileError
+        If the file is missing, a directory, unreadable or empty.
+    """
+    name = os.fspath(path)
+    try:
+        stream = open(path, "rb")  # noqa: SIM115 - returned to the caller, who closes it
+    except FileNotFoundError:
+        raise CloudFileError(f"{name}: no such file") from None
+    except IsADirectoryError:
+        raise CloudFileError(f"{name}: is a directory, not a point cloud file") from None
+    except OSError as exc:
+        raise CloudFileError(f"{name}: cannot read the file: {exc.strerror or exc}") from exc
+    try:
+        info = os.fstat(stream.fileno())
+        if not stat.S_ISREG(info.st_mode):  # a pipe can be read once: keep what it gives
+            data = stream.read()
+            stream.close()
+            stream, size = BytesIO(data), len(data)
+        else:
+            size = info.st_size
+        head = bytearray(min(size, HEAD_BYTES))
+        del head[stream.readinto(head) :]
+    except OSError as exc:
+        stream.close()
+        raise CloudFileError(f"{name}: cannot read the file: {exc.strerror or exc}") from exc
+    if not head:
+        stream.close()
+        raise CloudFileError(f"{name}: file is empty")
+    return stream, max(size, len(head)), head
+
+
+def read_records(
+    stream: BinaryIO,
+    path: PathLike,
+    offset: int,
+    dtype: np.dtype,
+    count: int,
+    keep: Callable[[str], bool],
+) -> tuple[NDArray[np.float64], dict[str, np.ndarray]]:
+    """Read ``count`` packed records of ``dtype`` from ``offset`` into one array per field.
+
+    Records pass through a buffer of :data:`CHUNK_BYTES`, so reading holds the result plus
+    that buffer, never the file: x, y, z go straight into the (N, 3) float64 points [m],
+    every other field for which ``keep(name)`` is true into its own native-order array
+    ((N,) or (N, COUNT)).
+
+    Raises
+    ------
+    CloudFileError
+        If x, y or z has COUNT > 1, or the file ends early (it changed while being read).
+    """
+    for axis in "xyz":
+        shape = dtype[axis].shape
+        if shape:
+            raise CloudFileError(
+                f"{os.fspath(path)}: field {axis!r} has COUNT {shape[0]}; "
+                "x, y and z must have COUNT 1"
+            )
+    points = np.empty((count, 3), dtype=np.float64)
+    names = [n for n in dtype.names if n not in ("x", "y", "z") and keep(n)]
+    fields = {
+        n: np.empty((count, *dtype[n].shape), dtype=dtype[n].base.newbyteorder("="))
+        for n in names
+    }
+    rows = max(1, CHUNK_BYTES // max(dtype.itemsize, 1))
+    chunk = bytearray(min(rows, count) * dtype.itemsize)
+    stream.seek(offset)
+    done = 0
+    while done < count:
+        k = min(rows, count - done)
+        got = stream.readinto(memoryview(chunk)[: k * dtype.itemsize])
+        if got != k * dtype.itemsize:
+            raise CloudFileError(f"{os.fspath(path)}: file ended early (changed while read?)")
+        records = np.frombuffer(chunk, dtype=dtype, count=k)
+        with np.errstate(invalid="ignore"):  # signalling-NaN payloads stay NaN, silently
+            for axis, axis_name in enumerate("xyz"):
+                points[done : done + k, axis] = records[axis_name]
+        for n in names:
+            fields[n][done : done + k] = records[n]
+        done += k
+    return points, fields
+
+
+def count_lines(stream: BinaryIO, offset: int, size: int) -> int:
+    """Count the text lines from ``offset`` to the end (a last line without newline counts).
+
+    Reads through a :data:`CHUNK_BYTES` buffer, never the whole file.
+    """
+    stream.seek(max(min(offset, size) - 1, 0))
+    last = stream.read(1)  # the last byte of the file when no data follow
+    stream.seek(offset)
+    lines = 0
+    while block := stream.read(CHUNK_BYTES):
+        lines += block.count(b"\n")
+        last = block[-1:]
+    return lines + (0 if last == b"\n" else 1)
+
+
+#: Text format of each value kind in :func:`ascii_text`: the fewest digits that read back
+#: to the same bits. float32 needs 9 significant digits (its 24-bit significand spans
+#: 10^7.2); float64 uses Python's repr, the shortest string that round-trips (at most 17
+#: digits). NaN of any sign or payload is written ``nan``, as PCL does.
+_ASCII_FORMATS = {"f4": "%.9g", "f8": "%r"}
+
+
+def ascii_text(columns: list[np.ndarray]) -> str:
+    """Format one text line per point, values separated by single spaces.
+
+    Parameters
+    ----------
+    columns : list of (N,) or (N, K) arrays
+        Integer, float32 or float64 values; a (N, K) array gives K values per line.
+
+    Returns
+    -------
+    str
+        ``N`` lines, each ending with a newline; empty for N = 0. Integers in full, floats
+        with round-trip precision (see :data:`_ASCII_FORMATS`).
+    """
+    n = columns[0].shape[0] if columns else 0
+    if n == 0:
+        return ""
+    formats: list[str] = []
+    values_by_column: list[list] = []
+    for values in columns:
+        flat = values.reshape(n, -1)  # n > 0 here
+        fmt = _ASCII_FORMATS[f"f{flat.dtype.itemsize}"] if flat.dtype.kind == "f" else "%d"
+        for k in range(flat.shape[1]):  # per value column, not per point
+            formats.append(fmt)
+            values_by_column.append(flat[:, k].tolist())
+    row = " ".join(formats)
+    # map() applies the row format to one tuple per point inside C, without a Python loop.
+    return "\n".join(map(row.__mod__, zip(*values_by_column))) + "\n"
 
 
 def to_xyz(path: PathLike, columns: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:

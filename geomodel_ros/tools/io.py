@@ -4,9 +4,9 @@ Everything here is plain numpy (and liblzf for compressed PCD); no ROS, no PCL.
 
 * PCD v0.6 / v0.7 with ``DATA ascii``, ``binary`` and ``binary_compressed`` (LZF), read by
   :func:`read_pcd` (keeps every field, e.g. ``label``) and written by :func:`write_pcd`
-  (``ascii`` or ``binary``): module :mod:`geomodel_ros.tools.pcd_file`.
+  (all three, laid out as PCL writes them): module :mod:`geomodel_ros.tools.pcd_file`.
 * PLY ``ascii`` / ``binary_little_endian`` / ``binary_big_endian`` vertex clouds, read by
-  :func:`read_ply` and written (binary little endian) by :func:`write_ply`: module
+  :func:`read_ply` and written by :func:`write_ply`: module
   :mod:`geomodel_ros.tools.ply_file`.
 * NPY arrays of shape (N, 3) or (H, W, 3), read by :func:`read_npy`, written by
   :func:`write_npy` (here).
@@ -16,6 +16,11 @@ a file being read (missing, unreadable, empty, corrupt, truncated, wrong shape, 
 suffix) raises :class:`CloudFileError`, whose message names the file and says what was wrong
 and what is allowed. Invalid arguments to the writers raise :class:`ValueError`; operating
 system errors while writing propagate as :class:`OSError`.
+
+What a writer stores, its reader gives back bit for bit (x y z widened to float64; ascii
+files store every NaN as ``nan``). Reading holds the result plus at most one copy of the
+file's data (for ``binary_compressed``: the decompressed data), never the whole file on
+top of a copy of it; ``python -m geomodel_ros.tools.bench_io`` measures it.
 
 :func:`load_osd` loads a scene of the Object Segmentation Database (``osd_learn``) with the
 raw per-point labels mapped to object ids.
@@ -57,6 +62,9 @@ __all__ = [
 #: File suffixes understood by :func:`read_cloud` and :func:`write_cloud`.
 CLOUD_SUFFIXES = (".npy", ".pcd", ".ply")
 
+#: Bytes of an NPY file that can hold its header: numpy refuses headers over 10 kB (its
+#: ``max_header_size``), so parsing never needs a copy of more than this.
+_NPY_HEAD_BYTES = 1 << 16
 #: Object id :func:`load_osd` gives the table (raw labels 1-9).
 OSD_TABLE_ID = 0
 #: Object id :func:`load_osd` gives invalid points (raw label 0).
@@ -198,7 +206,7 @@ def read_npy(path: PathLike) -> Cloud:
 
 def _npy_header(buf: bytearray, name: str) -> tuple[tuple, bool, np.dtype, int]:
     """Parse the header of an NPY file: shape, Fortran order, dtype and the data offset."""
-    stream = BytesIO(buf)
+    stream = BytesIO(buf[:_NPY_HEAD_BYTES])  # the header only: BytesIO copies what it gets
     try:
         with warnings.catch_warnings():  # a mangled header can make literal_eval warn
             warnings.simplefilter("ignore")
@@ -239,8 +247,10 @@ def write_npy(path: PathLike, points: ArrayLike) -> None:
             f"points must be a real (N, 3) or (H, W, 3) array, got {array.dtype} "
             f"{array.shape}"
         )
+    with np.errstate(invalid="ignore"):  # signalling-NaN payloads stay NaN, silently
+        array = array.astype(np.float64, copy=False)
     with open(path, "wb") as stream:
-        np.save(stream, array.astype(np.float64, copy=False), allow_pickle=False)
+        np.save(stream, array, allow_pickle=False)
 
 
 # --------------------------------------------------------------------------------------------

@@ -12,6 +12,6 @@ FASTDDS_LARGE_DATA = CONFIG_DIR / "fastdds_large_data.xml"
 
 
 def data_dir() -> Path:
-    """The shared data folder: $GEOMODEL_DATA or ../shared/data beside the repository."""
+    """Return the shared data folder: $GEOMODEL_DATA or ../shared/data beside the repository."""
     env = os.environ.get("GEOMODEL_DATA")
     return Path(env) if env else REPO.parent / "shared" / "data"

@@ -16,8 +16,8 @@ import struct
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
-from io import StringIO
-from typing import NamedTuple
+from io import TextIOWrapper
+from typing import BinaryIO, NamedTuple
 
 import lzf
 import numpy as np
@@ -27,7 +27,10 @@ from geomodel_ros.tools.cloud_file import (
     Cloud,
     CloudFileError,
     PathLike,
-    read_bytes,
+    ascii_text,
+    count_lines,
+    open_cloud,
+    read_records,
     resolve_shape,
     to_xyz,
 )
@@ -40,6 +43,9 @@ from geomodel_ros.tools.cloud_file import (
 #: back-reference, produces 264 bytes. A size claiming more cannot be right, and refusing it
 #: keeps a corrupt header from making the decoder allocate memory the file cannot fill.
 _LZF_MAX_EXPANSION = 88
+#: Longest literal run of an LZF token: incompressible data grow by one control byte per
+#: this many bytes, which bounds the compressed size the writer allows for.
+_LZF_LITERAL_RUN = 32
 
 
 def lzf_decompress(data: bytes | bytearray | memoryview, expected_size: int) -> bytes:
@@ -385,20 +391,23 @@ def read_pcd(path: PathLike) -> Cloud:
 
     Notes
     -----
-    ``binary``: a single structured dtype view of the file buffer (``np.frombuffer``, no
-    copy). ``binary_compressed``: the LZF stream (``uint32`` compressed and uncompressed
-    sizes, little endian, then the data) decompresses to the fields one after another
-    (structure of arrays; a COUNT K field is N x K values, point after point); the fields
-    other than x y z are copied out of it. Bytes after the data (PCL pads files to a page)
-    are ignored.
+    Memory: the file is never held whole. ``binary`` records are read through a small
+    buffer straight into the output arrays (every field owns its memory); ``ascii`` text
+    is parsed from the file in chunks; ``binary_compressed`` holds the LZF stream
+    (``uint32`` compressed and uncompressed sizes, little endian, then the data), then the
+    decompressed data (the fields one after another, structure of arrays; a COUNT K field
+    is N x K values, point after point) while the fields are copied out of it. Bytes after
+    the data (PCL pads files to a page) are ignored.
     """
-    buf = read_bytes(path)
-    header, start = _parse_pcd_header(buf, path)
-    if header.data == "binary":
-        return _read_pcd_binary(buf, start, header, path)
-    if header.data == "binary_compressed":
-        return _read_pcd_compressed(buf, start, header, path)
-    return _read_pcd_ascii(buf, start, header, path)
+    stream, size, head = open_cloud(path)
+    with stream:
+        header, start = _parse_pcd_header(head, path)
+        del head
+        if header.data == "binary":
+            return _read_pcd_binary(stream, size, start, header, path)
+        if header.data == "binary_compressed":
+            return _read_pcd_compressed(stream, size, start, header, path)
+        return _read_pcd_ascii(stream, size, start, header, path)
 
 
 def _columns_to_cloud(
@@ -406,6 +415,11 @@ def _columns_to_cloud(
 ) -> Cloud:
     """Build the Cloud from one array per (non-padding) field, first axis N."""
     points = to_xyz(path, (columns.pop("x"), columns.pop("y"), columns.pop("z")))
+    return _pcd_cloud(header, points, columns)
+
+
+def _pcd_cloud(header: _PcdHeader, points: np.ndarray, columns: dict[str, np.ndarray]) -> Cloud:
+    """Build the Cloud from the points and the other fields (colours as raw uint32 bits)."""
     for color in _COLOR_FIELDS:
         values = columns.get(color)
         if values is not None and values.dtype.itemsize == 4 and values.dtype != np.uint32:
@@ -413,56 +427,62 @@ def _columns_to_cloud(
     return Cloud(points, columns, header.width, header.height, header.viewpoint)
 
 
-def _read_pcd_binary(buf: bytearray, start: int, header: _PcdHeader, path: PathLike) -> Cloud:
+def _read_pcd_binary(
+    stream: BinaryIO, size: int, start: int, header: _PcdHeader, path: PathLike
+) -> Cloud:
     dtype = header.record_dtype()
     needed = header.points * dtype.itemsize
-    available = len(buf) - start
+    available = size - start
     if available < needed:
         raise CloudFileError(
             f"{os.fspath(path)}: truncated PCD: DATA binary needs {needed} bytes "
             f"({header.points} points of {dtype.itemsize} bytes), the file has {available}"
         )
-    records = np.frombuffer(buf, dtype=dtype, count=header.points, offset=start)
-    columns = {n: records[n] for n in header.names if n != "_"}
-    return _columns_to_cloud(path, header, columns)
+    points, columns = read_records(
+        stream, path, start, dtype, header.points, lambda key: not key.startswith(" ")
+    )
+    return _pcd_cloud(header, points, columns)
 
 
 def _compressed_payload(
-    buf: bytearray, start: int, points: int, point_size: int, name: str
+    stream: BinaryIO, size: int, start: int, points: int, point_size: int, name: str
 ) -> bytes:
     """Check the two sizes before the LZF stream, then decompress it (``points`` records)."""
     expected = points * point_size
-    if len(buf) - start < 8:
+    if size - start < 8:
         if expected == 0:
             return b""
         raise CloudFileError(
-            f"{name}: truncated PCD: DATA binary_compressed has {len(buf) - start} bytes, "
+            f"{name}: truncated PCD: DATA binary_compressed has {size - start} bytes, "
             "needs at least the 8-byte size header"
         )
-    compressed_size, uncompressed_size = struct.unpack_from("<II", buf, start)
+    stream.seek(start)
+    compressed_size, uncompressed_size = struct.unpack("<II", stream.read(8))
     if uncompressed_size != expected:
         raise CloudFileError(
             f"{name}: corrupt PCD: binary_compressed uncompressed size {uncompressed_size} "
             f"!= {expected} ({points} points of {point_size} bytes)"
         )
-    available = len(buf) - start - 8
+    available = size - start - 8
     if compressed_size > available:
         raise CloudFileError(
             f"{name}: truncated PCD: binary_compressed says {compressed_size} compressed "
             f"bytes, the file has {available}"
         )
     try:
-        return lzf_decompress(memoryview(buf)[start + 8 : start + 8 + compressed_size], expected)
+        return lzf_decompress(stream.read(compressed_size), expected)
     except CloudFileError as exc:
         raise CloudFileError(f"{name}: {exc}") from None
 
 
 def _read_pcd_compressed(
-    buf: bytearray, start: int, header: _PcdHeader, path: PathLike
+    stream: BinaryIO, size: int, start: int, header: _PcdHeader, path: PathLike
 ) -> Cloud:
     dtypes = header.dtypes()
     point_size = sum(d.itemsize * c for d, c in zip(dtypes, header.counts, strict=True))
-    payload = _compressed_payload(buf, start, header.points, point_size, os.fspath(path))
+    payload = _compressed_payload(
+        stream, size, start, header.points, point_size, os.fspath(path)
+    )
     columns: dict[str, np.ndarray] = {}
     offset = 0
     for field_name, dtype, count in zip(header.names, dtypes, header.counts, strict=True):
@@ -476,7 +496,9 @@ def _read_pcd_compressed(
     return _columns_to_cloud(path, header, columns)
 
 
-def _read_pcd_ascii(buf: bytearray, start: int, header: _PcdHeader, path: PathLike) -> Cloud:
+def _read_pcd_ascii(
+    stream: BinaryIO, size: int, start: int, header: _PcdHeader, path: PathLike
+) -> Cloud:
     name = os.fspath(path)
     # Parse colour fields declared F as float64: PCL writes them as the packed uint32
     # integer (newer PCL) or as the float value of the bits (older writers).
@@ -489,7 +511,7 @@ def _read_pcd_ascii(buf: bytearray, start: int, header: _PcdHeader, path: PathLi
         key = field_name if field_name != "_" else f" pad {index}"
         parse_types.append((key, dtype, (count,)) if count > 1 else (key, dtype))
     dtype = np.dtype(parse_types)
-    lines = buf.count(b"\n", start) + (0 if buf.endswith(b"\n") else 1)
+    lines = count_lines(stream, start, size)
     if lines < header.points:  # checked first: loadtxt allocates max_rows rows up front
         raise CloudFileError(
             f"{name}: truncated PCD: DATA ascii has {lines} lines, POINTS says {header.points}"
@@ -497,18 +519,7 @@ def _read_pcd_ascii(buf: bytearray, start: int, header: _PcdHeader, path: PathLi
     if header.points == 0:
         records = np.zeros(0, dtype=dtype)
     else:
-        try:
-            text = bytes(buf[start:]).decode("ascii")
-        except UnicodeDecodeError:
-            raise CloudFileError(f"{name}: PCD DATA ascii section is not ASCII text") from None
-        try:
-            with warnings.catch_warnings():  # an empty DATA section is reported below
-                warnings.simplefilter("ignore", UserWarning)
-                records = np.loadtxt(
-                    StringIO(text), dtype=dtype, ndmin=1, max_rows=header.points, comments=None
-                )
-        except ValueError as exc:
-            raise CloudFileError(f"{name}: corrupt PCD DATA ascii: {exc}") from None
+        records = _parse_ascii(stream, start, dtype, header.points, name)
         if records.shape[0] != header.points:
             raise CloudFileError(
                 f"{name}: truncated PCD: DATA ascii has {records.shape[0]} rows, POINTS says "
@@ -521,8 +532,29 @@ def _read_pcd_ascii(buf: bytearray, start: int, header: _PcdHeader, path: PathLi
         values = records[field_name]
         if field_name in _COLOR_FIELDS and dtype_.kind == "f":
             values = _ascii_color_bits(values, dtype_)
-        columns[field_name] = np.ascontiguousarray(values)
+        # x y z go into the points as they are; other fields get their own memory
+        if field_name not in ("x", "y", "z"):
+            values = np.ascontiguousarray(values)
+        columns[field_name] = values
     return _columns_to_cloud(path, header, columns)
+
+
+def _parse_ascii(
+    stream: BinaryIO, start: int, dtype: np.dtype, points: int, name: str
+) -> np.ndarray:
+    """Parse ``points`` text lines from ``start`` into records, reading the file in chunks."""
+    stream.seek(start)
+    text = TextIOWrapper(stream, encoding="ascii", newline="\n")  # type: ignore[arg-type]
+    try:
+        with warnings.catch_warnings():  # an empty DATA section is reported by the caller
+            warnings.simplefilter("ignore", UserWarning)
+            return np.loadtxt(text, dtype=dtype, ndmin=1, max_rows=points, comments=None)
+    except UnicodeDecodeError:
+        raise CloudFileError(f"{name}: PCD DATA ascii section is not ASCII text") from None
+    except ValueError as exc:
+        raise CloudFileError(f"{name}: corrupt PCD DATA ascii: {exc}") from None
+    finally:
+        text.detach()  # leave the file to its owner
 
 
 def _ascii_color_bits(values: np.ndarray, dtype: np.dtype) -> np.ndarray:
@@ -608,7 +640,7 @@ def _field_column(field_name: object, raw: ArrayLike, n: int, width: int, height
 
 
 def _pcd_header(
-    columns: list[_Column], width: int, height: int, viewpoint: np.ndarray, binary: bool
+    columns: list[_Column], width: int, height: int, viewpoint: np.ndarray, data: str
 ) -> bytes:
     """Return the v0.7 header text, ending with the DATA line."""
     lines = [
@@ -622,7 +654,7 @@ def _pcd_header(
         f"HEIGHT {height}",
         "VIEWPOINT " + " ".join(_format_number(v) for v in viewpoint),
         f"POINTS {width * height}",
-        f"DATA {'binary' if binary else 'ascii'}",
+        f"DATA {data}",
         "",
     ]
     return "\n".join(lines).encode("ascii")
@@ -638,8 +670,9 @@ def write_pcd(
     binary: bool = True,
     viewpoint: ArrayLike | None = None,
     xyz_dtype: DTypeLike = np.float32,
+    compressed: bool = False,
 ) -> None:
-    """Write a PCD v0.7 file, ``DATA binary`` (default) or ``ascii``.
+    """Write a PCD v0.7 file, ``DATA binary`` (default), ``binary_compressed`` or ``ascii``.
 
     Parameters
     ----------
@@ -664,11 +697,15 @@ def write_pcd(
         ``tx ty tz qw qx qy qz``; default identity ``0 0 0 1 0 0 0``.
     xyz_dtype : {numpy.float32, numpy.float64}
         Storage type of x, y, z.
+    compressed : bool
+        With ``binary``: ``DATA binary_compressed`` (LZF, fields stored column by column,
+        as PCL writes it).
 
     Raises
     ------
     ValueError
-        If shapes, dtypes or names are not allowed.
+        If shapes, dtypes or names are not allowed, ``compressed`` is asked for with
+        ``binary=False``, or the data exceed the 4 GiB binary_compressed can hold.
     OSError
         If the file cannot be written.
     """
@@ -685,14 +722,20 @@ def write_pcd(
         _Column(axis, xyz[:, k], store, "F", xyz_type.itemsize, 1) for k, axis in enumerate("xyz")
     ]
     columns += [_field_column(k, v, n, width, height) for k, v in (fields or {}).items()]
-    _write_file(path, _pcd_header(columns, width, height, view, binary), columns, binary)
+    if compressed and not binary:
+        raise ValueError("compressed=True needs binary=True (DATA binary_compressed)")
+    data = ("binary_compressed" if compressed else "binary") if binary else "ascii"
+    _write_file(path, _pcd_header(columns, width, height, view, data), columns, data)
 
 
-def _write_file(path: PathLike, header: bytes, columns: list[_Column], binary: bool) -> None:
-    """Write the header, then the points as packed little-endian records or as text."""
+def _write_file(path: PathLike, header: bytes, columns: list[_Column], data: str) -> None:
+    """Write the header, then the points as packed little-endian records, LZF or text."""
     n = columns[0].values.shape[0]
-    if not binary:
-        body = _ascii_body(columns, n).encode("ascii")
+    if data != "binary":
+        if data == "ascii":
+            body = _ascii_body(columns, n).encode("ascii")
+        else:
+            body = _compressed_body(columns, n)
         with open(path, "wb") as stream:
             stream.write(header)
             stream.write(body)
@@ -709,22 +752,35 @@ def _write_file(path: PathLike, header: bytes, columns: list[_Column], binary: b
 
 
 def _ascii_body(columns: list[_Column], n: int) -> str:
-    """Return one text line per point, values separated by single spaces."""
-    if n == 0:
-        return ""
-    formats: list[str] = []
-    values_by_column: list[list] = []
+    """Return one text line per point (``rgb``/``rgba`` as the packed uint32 integer)."""
+    arrays = []
     for column in columns:
-        values = column.values.reshape(n, -1).astype(column.dtype, copy=False)
+        values = column.values.reshape(n, column.count).astype(column.dtype, copy=False)
         if column.name in _COLOR_FIELDS and column.dtype.itemsize == 4:
-            values, fmt = values.view(np.uint32), "%d"
-        elif column.dtype.kind == "f":
-            fmt = "%.9g" if column.dtype.itemsize == 4 else "%.17g"  # round-trip precision
-        else:
-            fmt = "%d"
-        for k in range(values.shape[1]):  # per value column, not per point
-            formats.append(fmt)
-            values_by_column.append(values[:, k].tolist())
-    row = " ".join(formats)
-    # map() applies the row format to one tuple per point inside C, without a Python loop.
-    return "\n".join(map(row.__mod__, zip(*values_by_column))) + "\n"
+            values = values.view(np.uint32)
+        arrays.append(values)
+    return ascii_text(arrays)
+
+
+def _compressed_body(columns: list[_Column], n: int) -> bytes:
+    """Return the ``binary_compressed`` data: two uint32 sizes, then LZF of the columns.
+
+    The columns are stored one after another (structure of arrays; a COUNT K field as
+    N x K values, point after point), little endian, then compressed as one LZF stream;
+    the sizes are the compressed and the uncompressed length, as PCL writes them.
+    """
+    payload = bytearray(n * sum(c.dtype.itemsize * c.count for c in columns))
+    offset = 0
+    for column in columns:
+        block = np.frombuffer(payload, dtype=column.dtype, count=n * column.count, offset=offset)
+        block.reshape(n, column.count)[...] = column.values.reshape(n, column.count)
+        offset += block.nbytes
+    if not payload:
+        return struct.pack("<II", 0, 0)
+    packed = lzf.compress(bytes(payload), len(payload) + len(payload) // _LZF_LITERAL_RUN + 16)
+    if packed is None or len(packed) >= 1 << 32 or len(payload) >= 1 << 32:
+        raise ValueError(
+            f"cannot write binary_compressed: {len(payload)} bytes of data do not fit the "
+            "format's 32-bit sizes"
+        )
+    return struct.pack("<II", len(packed), len(payload)) + packed

@@ -1,16 +1,20 @@
-"""PLY vertex clouds: read (ascii, binary little and big endian) and write.
+"""PLY vertex clouds: read and write (ascii, binary little and big endian).
 
 :func:`read_ply` reads the ``vertex`` element of any PLY file (other elements, e.g. faces,
-are skipped); :func:`write_ply` writes binary little-endian xyz with optional colours.
+are skipped); :func:`write_ply` writes xyz with optional colours and further properties.
 Our own small parser on numpy: every size the header implies is checked against the file
 before data are viewed, and problems raise :class:`CloudFileError` naming what was wrong.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from io import TextIOWrapper
+from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
@@ -19,7 +23,10 @@ from geomodel_ros.tools.cloud_file import (
     Cloud,
     CloudFileError,
     PathLike,
-    read_bytes,
+    ascii_text,
+    count_lines,
+    open_cloud,
+    read_records,
     resolve_shape,
     to_xyz,
 )
@@ -136,8 +143,17 @@ def read_ply(path: PathLike) -> Cloud:
         truncated or corrupt.
     """
     name = os.fspath(path)
-    buf = read_bytes(path)
-    fmt, elements, start = _parse_ply_header(buf, path)
+    stream, size, head = open_cloud(path)
+    with stream:
+        fmt, elements, start = _parse_ply_header(head, name)
+        del head  # the file's first MiB; not needed any more
+        return _read_ply(stream, size, fmt, elements, start, name)
+
+
+def _read_ply(
+    stream: BinaryIO, size: int, fmt: str, elements: list[_PlyElement], start: int, name: str
+) -> Cloud:
+    """Read the vertices of the body starting at byte ``start`` (see :func:`read_ply`)."""
     vertex_index = next((i for i, e in enumerate(elements) if e.name == "vertex"), None)
     if vertex_index is None:
         raise CloudFileError(f"{name}: PLY file has no 'vertex' element")
@@ -155,21 +171,22 @@ def read_ply(path: PathLike) -> Cloud:
         )
     if len(set(props)) != len(props):
         raise CloudFileError(f"{name}: PLY vertex element names a property twice")
-    if fmt == "ascii":
-        records = _ascii_vertices(buf, start, elements, vertex_index, name)
-    else:
-        records = _binary_vertices(buf, start, elements, vertex_index, fmt, name)
-    points = to_xyz(path, (records["x"], records["y"], records["z"]))
-    fields = {
-        p: records[p].astype(records[p].dtype.newbyteorder("="), copy=False)
-        for p in props
-        if p not in ("x", "y", "z")
-    }
+    if fmt != "ascii":
+        points, fields = _binary_vertices(stream, size, start, elements, vertex_index, fmt, name)
+        return Cloud(points, {p: fields[p] for p in props if p not in ("x", "y", "z")})
+    records = _ascii_vertices(stream, size, start, elements, vertex_index, name)
+    points = to_xyz(name, (records["x"], records["y"], records["z"]))
+    fields = {p: np.ascontiguousarray(records[p]) for p in props if p not in ("x", "y", "z")}
     return Cloud(points, fields)
 
 
 def _ascii_vertices(
-    buf: bytearray, start: int, elements: list[_PlyElement], vertex_index: int, name: str
+    stream: BinaryIO,
+    size: int,
+    start: int,
+    elements: list[_PlyElement],
+    vertex_index: int,
+    name: str,
 ) -> np.ndarray:
     """Parse the vertex lines of an ascii body into a structured array (one row a vertex)."""
     vertex = elements[vertex_index]
@@ -178,21 +195,23 @@ def _ascii_vertices(
     skip = sum(e.count for e in elements[:vertex_index])
     if n == 0:
         return np.zeros(0, dtype=dtype)
-    try:
-        lines = bytes(buf[start:]).decode("ascii").splitlines()
-    except UnicodeDecodeError:
-        raise CloudFileError(f"{name}: PLY ascii body is not ASCII text") from None
-    if len(lines) < skip + n:
+    lines = count_lines(stream, start, size)
+    if lines < skip + n:
         raise CloudFileError(
-            f"{name}: truncated PLY: {len(lines)} body lines, the header needs at "
-            f"least {skip + n}"
+            f"{name}: truncated PLY: {lines} body lines, the header needs at least {skip + n}"
         )
+    stream.seek(start)
+    text = TextIOWrapper(stream, encoding="ascii", newline=None)  # type: ignore[arg-type]
     try:
         with warnings.catch_warnings():  # blank lines are reported below
             warnings.simplefilter("ignore", UserWarning)
-            records = np.loadtxt(lines[skip : skip + n], dtype=dtype, ndmin=1)
+            records = np.loadtxt(itertools.islice(text, skip, skip + n), dtype=dtype, ndmin=1)
+    except UnicodeDecodeError:
+        raise CloudFileError(f"{name}: PLY ascii body is not ASCII text") from None
     except ValueError as exc:
         raise CloudFileError(f"{name}: corrupt PLY ascii vertex data: {exc}") from None
+    finally:
+        text.detach()  # leave the file to its owner
     if records.shape[0] != n:
         raise CloudFileError(
             f"{name}: corrupt PLY: {n - records.shape[0]} of the {n} vertex lines are blank"
@@ -201,14 +220,18 @@ def _ascii_vertices(
 
 
 def _binary_vertices(
-    buf: bytearray,
+    stream: BinaryIO,
+    size: int,
     start: int,
     elements: list[_PlyElement],
     vertex_index: int,
     fmt: str,
     name: str,
-) -> np.ndarray:
-    """View the vertex records of a binary body (after checking the file holds them all)."""
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Read the vertex records of a binary body (after checking the file holds them all).
+
+    Returns the (N, 3) float64 points and every other property as its own array.
+    """
     offset = start
     for element in elements[:vertex_index]:
         if element.has_list:
@@ -222,12 +245,17 @@ def _binary_vertices(
     n = vertex.count
     dtype = np.dtype([(p, _PLY_FORMATS[fmt] + code) for p, code in vertex.properties])
     needed = n * dtype.itemsize
-    if len(buf) - offset < needed:
+    if size - offset < needed:
         raise CloudFileError(
             f"{name}: truncated PLY: {n} vertices need {needed} bytes, the file has "
-            f"{max(len(buf) - offset, 0)}"
+            f"{max(size - offset, 0)}"
         )
-    return np.frombuffer(buf, dtype=dtype, count=n, offset=offset)
+    return read_records(stream, name, offset, dtype, n, lambda _: True)
+
+
+#: PLY type name of each dtype a written property may have (PLY has no 64-bit integers).
+_PLY_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int",
+              "u4": "uint", "f4": "float", "f8": "double"}
 
 
 def write_ply(
@@ -236,56 +264,91 @@ def write_ply(
     colors: ArrayLike | None = None,
     *,
     xyz_dtype: DTypeLike = np.float32,
+    fields: Mapping[str, ArrayLike] | None = None,
+    encoding: str = "binary_little_endian",
 ) -> None:
-    """Write points (and optional colours) as a binary little-endian PLY file.
+    """Write points (and optional colours and properties) as a PLY vertex cloud.
 
     Parameters
     ----------
     path : str or os.PathLike
         Output file (overwritten).
     points : (N, 3) or (H, W, 3) array_like [m]
-        Coordinates (organized input is flattened row by row).
+        Coordinates (organized input is flattened row by row; PLY has no organization).
     colors : (N, 3) or (H, W, 3) array_like, optional
         RGB as uint8, or as floats in [0, 1] (scaled by 255 and rounded); written as
         ``uchar red green blue``.
     xyz_dtype : {numpy.float32, numpy.float64}
         Storage type of x, y, z (``float`` or ``double``).
+    fields : mapping of str to (N,) array_like, optional
+        Further vertex properties after x y z (and the colours), in this order; dtypes
+        int8, uint8, int16, uint16, int32, uint32, float32, float64 (what PLY can store).
+    encoding : {"binary_little_endian", "binary_big_endian", "ascii"}
+        The PLY format (ascii floats are written with round-trip precision).
 
     Raises
     ------
     ValueError
-        If shapes or dtypes are not allowed.
+        If shapes, dtypes, names or the encoding are not allowed.
     OSError
         If the file cannot be written.
     """
     xyz_type = np.dtype(xyz_dtype)
     if xyz_type not in (np.dtype(np.float32), np.dtype(np.float64)):
         raise ValueError(f"xyz_dtype must be float32 or float64, got {xyz_type}")
+    if encoding not in _PLY_FORMATS:
+        raise ValueError(f"encoding {encoding!r} not allowed; allowed: {', '.join(_PLY_FORMATS)}")
     xyz, _, _ = resolve_shape(points, None, None)
     n = xyz.shape[0]
-    ply_name = "float" if xyz_type.itemsize == 4 else "double"
-    layout: list[tuple[str, str]] = [(axis, "<" + xyz_type.str[1:]) for axis in "xyz"]
-    rgb = None if colors is None else _ply_colors(colors, n)
-    if rgb is not None:
-        layout += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
-    table = np.empty(n, dtype=np.dtype(layout))
-    table["x"], table["y"], table["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    columns: list[tuple[str, np.ndarray]] = [
+        (axis, xyz[:, k].astype(xyz_type)) for k, axis in enumerate("xyz")
+    ]
+    if colors is not None:
+        rgb = _ply_colors(colors, n)
+        columns += [(c, rgb[:, k]) for k, c in enumerate(("red", "green", "blue"))]
+    columns += [_ply_field(k, v, n, [c for c, _ in columns]) for k, v in (fields or {}).items()]
     lines = [
         "ply",
-        "format binary_little_endian 1.0",
+        f"format {encoding} 1.0",
         "comment written by geomodel_ros",
         f"element vertex {n}",
-        *(f"property {ply_name} {axis}" for axis in "xyz"),
+        *(f"property {_PLY_NAMES[v.dtype.str[1:]]} {c}" for c, v in columns),
+        "end_header",
+        "",
     ]
-    if rgb is not None:
-        table["red"], table["green"], table["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-        lines += ["property uchar red", "property uchar green", "property uchar blue"]
-    lines += ["end_header", ""]
     with open(path, "wb") as stream:
         stream.write("\n".join(lines).encode("ascii"))
+        if encoding == "ascii":
+            stream.write(ascii_text([v for _, v in columns]).encode("ascii"))
+            return
+        order = _PLY_FORMATS[encoding]
+        table = np.empty(n, dtype=[(c, order + v.dtype.str[1:]) for c, v in columns])
+        for c, v in columns:
+            table[c] = v
         table.tofile(stream)
 
 
+def _ply_field(field_name: object, raw: ArrayLike, n: int, taken: list[str]) -> tuple:
+    """Check one extra property of :func:`write_ply`; return (name, (N,) values)."""
+    if (
+        not isinstance(field_name, str)
+        or field_name.split() != [field_name]
+        or not field_name.isascii()
+        or field_name in taken
+    ):
+        raise ValueError(
+            f"field name {field_name!r} not allowed: it must be one ASCII word other than "
+            f"{', '.join(taken)}"
+        )
+    values = np.asarray(raw)
+    if values.shape != (n,):
+        raise ValueError(f"field {field_name!r} has shape {values.shape}; allowed: ({n},)")
+    if values.dtype.str[1:] not in _PLY_NAMES:
+        raise ValueError(
+            f"field {field_name!r} has dtype {values.dtype}; allowed: int8, uint8, int16, "
+            "uint16, int32, uint32, float32, float64"
+        )
+    return field_name, values
 
 
 def _ply_colors(colors: ArrayLike, n: int) -> np.ndarray:

@@ -11,13 +11,13 @@ from geomodel_ros.core import obb
 from geomodel_ros.core.fastmath import take_rows
 from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane
 from geomodel_ros.core.fitting.curved import CurvedFit
-from geomodel_ros.core.fitting.measure import nearest_surface
+from geomodel_ros.core.fitting.measure import arc_span, nearest_surface
 from geomodel_ros.core.fitting.plane import RAY_SHIFT_FACTOR
-from geomodel_ros.core.fitting.result import Rejected
-from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR, check_coverage
+from geomodel_ros.core.fitting.result import FitTask, Rejected
+from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR, check_arc, check_axis, check_coverage
 from geomodel_ros.core.primitives import PrimitiveType
 
-__all__ = ["end_caps", "assign_to_surfaces", "axial_extent"]
+__all__ = ["end_caps", "assign_to_surfaces", "axial_extent", "verified_side"]
 
 
 def end_caps(cloud: ObjectCloud, side: CurvedFit) -> list[Plane]:
@@ -83,3 +83,38 @@ def axial_extent(cloud: ObjectCloud, side_points: NDArray[np.float64], caps: lis
     return obb.interval(t_all, cloud.spacing, min(closed_lo) if closed_lo else s_lo,
                         max(closed_hi) if closed_hi else s_hi,
                         correct=cloud.params.edge_correction)
+
+
+def verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None,
+                  kind: PrimitiveType, origin: NDArray[np.float64]
+                  ) -> tuple[list, NDArray[np.int64], NDArray[np.float64]] | Rejected:
+    """Check a round side's axis, cover its points by side and caps, check its arc.
+
+    Parameters
+    ----------
+    task : FitTask
+    side : CurvedFit
+        The fitted side (cylinder or cone) with an ``axis``.
+    prior : (3,) float64 array or None
+        Axis the side must follow (within ``angle_tolerance``), if any.
+    kind : PrimitiveType
+        ``CYLINDER`` or ``CONE`` (named in the rejection reasons).
+    origin : (3,) float64 array [m]
+        A point on the axis (cylinder point, cone apex) for the arc span.
+
+    Returns
+    -------
+    (caps, nearest, side_points) -- the end caps, each point's surface (0 = side) and the
+    side's points (K, 3) [m] -- or the first rejection.
+    """
+    cloud, model = task.cloud, side.model
+    bad = check_axis(model.axis, prior, cloud.params, kind)
+    if bad:
+        return bad
+    caps = end_caps(cloud, side)
+    nearest = assign_to_surfaces(cloud, side, caps, kind)
+    if isinstance(nearest, Rejected):
+        return nearest
+    side_points = take_rows(cloud.points, nearest == 0)
+    bad = check_arc(arc_span(side_points, origin, model.axis), cloud.params, kind)
+    return bad if bad else (caps, nearest, side_points)

@@ -8,13 +8,12 @@ from functools import partial
 import numpy as np
 from numpy.typing import NDArray
 
-from geomodel_ros.core.fastmath import take_rows
-from geomodel_ros.core.fitting.axial import assign_to_surfaces, axial_extent, end_caps
+from geomodel_ros.core.fitting.axial import axial_extent, verified_side
 from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
-from geomodel_ros.core.fitting.measure import arc_span, bulk_extent, bulk_reach
+from geomodel_ros.core.fitting.measure import bulk_extent, bulk_reach
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
-from geomodel_ros.core.fitting.verify import (axis_within, check_apex, check_arc, check_axis,
-                                              check_bulk_length, check_bulk_reach, check_radius)
+from geomodel_ros.core.fitting.verify import (axis_within, check_apex, check_bulk_length,
+                                              check_bulk_reach, check_radius)
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
@@ -37,22 +36,13 @@ def cone_hypothesis_ok(model: ConeModel, params: ModelingParams,
 def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None
                    ) -> tuple[list, NDArray[np.int64], NDArray[np.float64]] | Rejected:
     """Caps, each point's surface and the side's points, once axis, coverage, arc, angle pass."""
-    cloud, model = task.cloud, side.model
-    bad = check_axis(model.axis, prior, cloud.params, CONE)
-    if bad:
-        return bad
-    caps = end_caps(cloud, side)
-    nearest = assign_to_surfaces(cloud, side, caps, CONE)
-    if isinstance(nearest, Rejected):
-        return nearest
-    side_points = take_rows(cloud.points, nearest == 0)
-    bad = check_arc(arc_span(side_points, model.apex, model.axis), cloud.params, CONE)
-    if bad:
-        return bad
-    if model.half_angle < cloud.params.min_cone_half_angle:
-        return Rejected(CONE, f"cone half-angle {math.degrees(model.half_angle):.1f} deg too "
+    checked = verified_side(task, side, prior, CONE, side.model.apex)
+    if isinstance(checked, Rejected):
+        return checked
+    if side.model.half_angle < task.cloud.params.min_cone_half_angle:
+        return Rejected(CONE, f"cone half-angle {math.degrees(side.model.half_angle):.1f} deg too "
                               "small")
-    return caps, nearest, side_points
+    return checked
 
 
 def _sized(task: FitTask, model: ConeModel, lo: float, hi: float) -> float | Rejected:

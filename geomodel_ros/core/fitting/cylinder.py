@@ -8,14 +8,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core import obb
-from geomodel_ros.core.fastmath import take_rows
-from geomodel_ros.core.fitting.axial import assign_to_surfaces, axial_extent, end_caps
+from geomodel_ros.core.fitting.axial import axial_extent, verified_side
 from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
-from geomodel_ros.core.fitting.measure import arc_span, bulk_extent
+from geomodel_ros.core.fitting.measure import bulk_extent
 from geomodel_ros.core.fitting.orient import axis_toward_sensor
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
-from geomodel_ros.core.fitting.verify import (axis_within, check_arc, check_axis,
-                                              check_bulk_length, check_radius)
+from geomodel_ros.core.fitting.verify import axis_within, check_bulk_length, check_radius
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
@@ -40,18 +38,10 @@ def cylinder_hypothesis_ok(model: CylinderModel, params: ModelingParams,
 def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None
                    ) -> tuple[list, NDArray[np.int64], NDArray[np.float64]] | Rejected:
     """Caps, each point's surface and the side's points, once axis, coverage, arc, radius pass."""
-    cloud, model = task.cloud, side.model
-    bad = check_axis(model.axis, prior, cloud.params, CYLINDER)
-    if bad:
-        return bad
-    caps = end_caps(cloud, side)
-    nearest = assign_to_surfaces(cloud, side, caps, CYLINDER)
-    if isinstance(nearest, Rejected):
-        return nearest
-    side_points = take_rows(cloud.points, nearest == 0)
-    bad = check_arc(arc_span(side_points, model.point, model.axis), cloud.params, CYLINDER) or \
-        check_radius(model.radius, cloud.params, CYLINDER)
-    return bad if bad else (caps, nearest, side_points)
+    checked = verified_side(task, side, prior, CYLINDER, side.model.point)
+    if isinstance(checked, Rejected):
+        return checked
+    return check_radius(side.model.radius, task.cloud.params, CYLINDER) or checked
 
 
 def fit_cylinder(task: FitTask) -> FitOutcome:

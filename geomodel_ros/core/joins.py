@@ -1,0 +1,491 @@
+"""Joining parts into objects: the three join decisions of the scene segmentation.
+
+- :func:`merge_patches`: smooth patches -> objects from the convexity votes along their
+  common borders (local convexity, as in LCCP, Stein et al. 2014).
+- :func:`join_occluded_parts`: two visible parts of one surface cut by a nearer occluder.
+- :func:`join_contained_parts`: the inner wall of an open round container (bowl, cup, pot)
+  and its outer wall, which meet only at the hidden back rim.
+
+Each join loops over pairs of patches or segments (tens to hundreds), never over points.
+All three keep their groups in one :class:`DisjointSets`: the label a group carries is the
+root of its union-find tree, and that root depends on the order of the joins. The label
+values set the order of the objects (ties in size are broken by label, and the modeling
+spawns one random stream per object in label order), so the joins are replayed in their
+fixed order rather than handed to :func:`scipy.sparse.csgraph.connected_components`,
+whose component numbers follow the smallest member instead.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Hashable, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from geomodel_ros.core.fastmath import row_norms
+from geomodel_ros.core.geometry import perpendicular_basis
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.ransac import PlaneModel
+
+__all__ = ["DisjointSets", "merge_patches", "join_occluded_parts", "join_contained_parts"]
+
+#: Guard against division by a zero length.
+_TINY = 1e-12
+
+# --- merge_patches: convexity votes along patch borders -----------------------------------
+#: Two patches are joined when at least this share of the neighbour links across their
+#: border vote flat or convex (a simple majority of the local evidence).
+JOIN_MIN_CONVEX_SHARE = 0.5
+#: A border is a clear concave crease (two objects meeting, or an object on another) when
+#: it holds at least this many votes (links of neighbouring working points, so a border
+#: of a few points at least: fewer are too little evidence to forbid a join) ...
+CREASE_MIN_VOTES = 20
+#: ... and fewer than this share of them are flat or convex (well below the majority
+#: that joins: a crease seen through noise still has a minority of convex votes).
+CREASE_MAX_CONVEX_SHARE = 0.3
+
+# --- join_occluded_parts: one surface seen on both sides of an occluder -------------------
+#: The surface direction at a part's end is the mean normal within this many link lengths
+#: (``seg_max_edge_factor`` voxels) of the end point: the normals of boundary points are
+#: unreliable (their neighbourhoods are one-sided), a ball of three links (30 mm with the
+#: defaults) reaches well inside the part.
+OCCLUSION_NORMAL_RADIUS_LINKS = 3.0
+#: The surface continues across the gap when the mean normals at both ends agree within
+#: this angle [rad] (20 degrees: the two ends of one smooth surface, a few centimetres
+#: apart, are nearly parallel; two objects' faces at random orientations rarely are) ...
+OCCLUSION_MAX_NORMAL_ANGLE = math.radians(20.0)
+#: ... and both lie across the gap direction: the gap direction is within this angle [rad]
+#: of each end's tangent plane (15 degrees: the gap runs along the surface, not off it
+#: towards another surface).
+OCCLUSION_MAX_GAP_TILT = math.radians(15.0)
+#: Positions along the gap (0 = the end on one part, 1 = on the other) where the viewing
+#: ray is checked for an occluder: 8 samples over the inner 70 %, the ends left out
+#: because next to them the rays meet the parts' own boundary points.
+OCCLUSION_GAP_SAMPLES = np.linspace(0.15, 0.85, 8)
+OCCLUSION_GAP_SAMPLES.setflags(write=False)
+#: A measured point lies on a sample's viewing ray when it is within this many voxels of
+#: the ray at the sample's depth (the working cloud holds a point every voxel wherever a
+#: surface was measured, so a measured ray always has one within 1.5 voxels).
+OCCLUSION_RAY_TOLERANCE_VOXELS = 1.5
+#: A point on the ray hides the gap when it is nearer to the sensor than the sample by
+#: more than this many voxels (beyond voxel quantisation and depth noise); a point at or
+#: behind the gap means the gap is seen open.
+OCCLUSION_NEARER_MARGIN_VOXELS = 2.0
+#: At least this share of the samples must meet a measured point (5 of 8): rays into holes
+#: and sensor shadows are no evidence either way, and a gap mostly unmeasured proves
+#: nothing.
+OCCLUSION_MIN_SEEN_SHARE = 0.6
+
+# --- join_contained_parts: the inner and outer walls of an open round container ----------
+#: Segments with fewer working points take no part in the container join (too few to fit
+#: a circle or to place a footprint: 30 voxels are about 5 cm^2 at 4 mm).
+CONTAINED_MIN_POINTS = 30
+#: Round footprint: the median distance of the footprint points from the fitted circle is
+#: below this share of its radius (a wall of revolution seen with depth noise; a flat face
+#: seen as part of a huge circle spreads more) ...
+ROUND_MAX_SPREAD = 0.08
+#: ... the horizontal normals point along the circle's radii: median |cos| between them
+#: above this (within about 32 degrees: normals of a wall of revolution are radial) ...
+ROUND_MIN_RADIAL_ALIGNMENT = 0.85
+#: ... the radius is container-sized [m] (a flat face fits a circle of huge radius;
+#: bowls, cups and pots are at most 50 cm across) ...
+ROUND_MAX_RADIUS = 0.25
+#: ... seen over a real arc [rad] (60 degrees: a short arc fits circles of any radius) ...
+ROUND_MIN_ARC = math.radians(60.0)
+#: ... and the normals turn continuously: their azimuths in bins of this width [deg] ...
+AZIMUTH_BIN_DEG = 10.0
+AZIMUTH_BINS = 36  # 360 degrees / AZIMUTH_BIN_DEG
+#: ... fill at least this many bins (60 degrees of turning; a box's faces give one or two
+#: directions each, so at most a few bins) ...
+ROUND_MIN_TURNING_BINS = 6
+#: ... where a bin counts when it holds at least this share of the normals (a few stray
+#: normals at edges do not make a turning wall).
+AZIMUTH_BIN_MIN_SHARE = 0.02
+#: A segment lies inside a round segment's footprint when at least this share of its
+#: footprint points ...
+CONTAINED_MIN_INSIDE_SHARE = 0.9
+#: ... are within this factor of the circle's radius (5 % for the wall's thickness and
+#: the circle fit's error).
+CONTAINED_RADIUS_MARGIN = 1.05
+
+
+class DisjointSets:
+    """Union-find over ids whose group label is the root chosen by the order of joins.
+
+    ``union(keep, absorb)`` hangs the root of ``absorb``'s group under the root of
+    ``keep``'s group, so the joined group keeps the label of ``keep``'s group.
+
+    Parameters
+    ----------
+    ids : iterable of hashable
+        The elements, each in its own group.
+    """
+
+    def __init__(self, ids: Iterable[Hashable]) -> None:
+        self.parent = {i: i for i in ids}
+
+    def find(self, x: Hashable) -> Hashable:
+        """Return the root (label) of ``x``'s group."""
+        parent = self.parent
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]  # path halving: the roots stay the same
+            x = parent[x]
+        return x
+
+    def union(self, keep: Hashable, absorb: Hashable) -> None:
+        """Join the groups of ``keep`` and ``absorb`` under the root of ``keep``'s group."""
+        self.parent[self.find(absorb)] = self.find(keep)
+
+    def relabel(self, comp: NDArray[np.int64], valid: NDArray[np.bool_]) -> NDArray[np.int64]:
+        """Return a copy of ``comp`` (M,) with every ``valid`` entry replaced by its root.
+
+        The ids are the values of ``comp[valid]``.
+        """
+        lut = np.arange(int(comp.max()) + 1, dtype=comp.dtype)
+        for i in self.parent:
+            lut[i] = self.find(i)
+        out = comp.copy()
+        out[valid] = lut[comp[valid]]
+        return out
+
+
+# ------------------------------------------------------------------------------------------
+# Patches -> objects (local convexity)
+# ------------------------------------------------------------------------------------------
+
+def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDArray,
+                  yes: NDArray) -> NDArray[np.int64]:
+    """Group patches into objects from their border votes.
+
+    Parameters
+    ----------
+    n : int
+        Number of patches (ids 0 .. n-1).
+    a, b : (P,) int64 arrays
+        The two patches of each adjacent pair, ``a < b``.
+    votes, yes : (P,) arrays
+        Neighbour links across each pair's border, and how many of them are flat or convex.
+
+    Returns
+    -------
+    (n,) int64 array
+        Object id of every patch, 0 .. K-1, numbered in the order of the group roots.
+
+    Notes
+    -----
+    Pairs with at least :data:`JOIN_MIN_CONVEX_SHARE` of their votes flat or convex are
+    joined, strongest evidence (most convex votes) first; a join is refused when the two
+    groups already share a clear crease (:data:`CREASE_MIN_VOTES`,
+    :data:`CREASE_MAX_CONVEX_SHARE`), so a weak convex contact cannot glue together two
+    objects that meet at a concave crease elsewhere. That refusal depends on the joins
+    made before it, so the pairs are joined one by one in order of evidence.
+    """
+    share = yes / np.maximum(votes, 1)
+    creases = _crease_partners(a, b, (votes >= CREASE_MIN_VOTES)
+                               & (share < CREASE_MAX_CONVEX_SHARE))
+    sets = DisjointSets(range(n))
+    members: dict[int, set[int]] = {}
+    order = np.argsort(-yes, kind="stable")
+    for e in order[share[order] >= JOIN_MIN_CONVEX_SHARE].tolist():
+        ra, rb = sets.find(int(a[e])), sets.find(int(b[e]))
+        if ra == rb:
+            continue
+        ma, mb = members.get(ra, {ra}), members.get(rb, {rb})
+        if any(creases.get(x, set()) & mb for x in ma):
+            continue
+        sets.union(ra, rb)
+        members[ra] = ma | mb
+        members.pop(rb, None)
+    roots = np.array([sets.find(i) for i in range(n)])
+    return np.unique(roots, return_inverse=True)[1].ravel()
+
+
+def _crease_partners(a: NDArray[np.int64], b: NDArray[np.int64], crease: NDArray[np.bool_]
+                     ) -> dict[int, set[int]]:
+    """Map each patch to the patches it meets at a clear crease (both directions)."""
+    partners: dict[int, set[int]] = {}
+    for x, y in zip(a[crease].tolist(), b[crease].tolist()):
+        partners.setdefault(x, set()).add(y)
+        partners.setdefault(y, set()).add(x)
+    return partners
+
+
+# ------------------------------------------------------------------------------------------
+# Parts of one surface cut by an occluder
+# ------------------------------------------------------------------------------------------
+
+class _Segments:
+    """Working points of the segments to join, with KD-trees built on first use.
+
+    Parameters
+    ----------
+    points : (M, 3) float64 array [m]
+        Working cloud, sensor at the origin.
+    comp : (M,) int64 array
+        Segment id of every working point.
+    valid : (M,) bool array
+        Points of the segments that take part (the others are noise).
+    """
+
+    def __init__(self, points: NDArray[np.float64], comp: NDArray[np.int64],
+                 valid: NDArray[np.bool_]) -> None:
+        self.points = points
+        self.members = {int(i): np.flatnonzero(valid & (comp == i))
+                        for i in np.unique(comp[valid])}
+        self._trees: dict[int, cKDTree] = {}
+        self._ray_tree: cKDTree | None = None  # most scenes never need it
+        self.depth = row_norms(points)
+
+    def tree(self, seg: int) -> cKDTree:
+        """Return the KD-tree of segment ``seg``'s points."""
+        if seg not in self._trees:
+            self._trees[seg] = cKDTree(self.points[self.members[seg]])
+        return self._trees[seg]
+
+    def ray_tree(self) -> cKDTree:
+        """Return the KD-tree of all working points' viewing directions (unit vectors)."""
+        if self._ray_tree is None:
+            self._ray_tree = cKDTree(self.points / np.maximum(self.depth, _TINY)[:, None])
+        return self._ray_tree
+
+
+@dataclass(frozen=True)
+class _Gap:
+    """The gap between two segments.
+
+    Its ends are the closest points ``pa`` (working-point index, on segment ``small``) and
+    ``pb`` (on segment ``big``), ``length`` [m] apart; ``u`` (3,) is the unit direction from
+    pa to pb.
+    """
+
+    small: int
+    big: int
+    pa: int
+    pb: int
+    length: float
+    u: NDArray[np.float64]
+
+
+def join_occluded_parts(points: NDArray[np.float64], normals: NDArray[np.float64],
+                        comp: NDArray[np.int64], valid: NDArray[np.bool_],
+                        params: ModelingParams) -> NDArray[np.int64]:
+    """Join segments that are two visible parts of one surface cut by an occluder.
+
+    Parameters
+    ----------
+    points, normals : (M, 3) float64 arrays
+        Working cloud [m] (sensor at the origin) and its unit normals.
+    comp : (M,) int64 array
+        Segment id of every working point.
+    valid : (M,) bool array
+        Points of the segments that take part (the others keep their ids).
+    params : ModelingParams
+        ``seg_voxel_size``, ``seg_max_edge_factor`` and ``seg_max_occlusion_gap`` are used.
+
+    Returns
+    -------
+    (M,) int64 array
+        ``comp`` with each joined group labelled by its root segment.
+
+    Notes
+    -----
+    Two segments are joined when their closest points are farther apart than a link (they
+    do not touch) but closer than ``seg_max_occlusion_gap`` (:func:`_closest_gap`), the
+    surface continues across the gap (:func:`_surface_continues`), and the gap is hidden
+    behind a nearer object (:func:`_gap_is_hidden`). Pairs are visited in the order of
+    their segment ids; a pair already in one group is not tested again.
+    """
+    segs = _Segments(points, comp, valid)
+    if len(segs.members) < 2:
+        return comp
+    centers = {i: points[m].mean(axis=0) for i, m in segs.members.items()}
+    radius = {i: float(np.linalg.norm(points[m] - centers[i], axis=1).max())
+              for i, m in segs.members.items()}
+    sets = DisjointSets(segs.members)
+    keys = sorted(segs.members)
+    for ai, a in enumerate(keys):
+        for b in keys[ai + 1:]:
+            # Bounding spheres farther apart than the largest gap: no closer points either.
+            reach = float(np.linalg.norm(centers[a] - centers[b])) - radius[a] - radius[b]
+            if reach > params.seg_max_occlusion_gap or sets.find(a) == sets.find(b):
+                continue
+            gap = _closest_gap(segs, a, b, params)
+            if (gap is not None and _surface_continues(segs, normals, gap, params)
+                    and _gap_is_hidden(segs, gap, params.seg_voxel_size)):
+                sets.union(a, b)
+    return sets.relabel(comp, valid)
+
+
+def _closest_gap(segs: _Segments, a: int, b: int, params: ModelingParams) -> _Gap | None:
+    """Find the gap between segments ``a`` and ``b`` (their closest points).
+
+    None unless the closest points are farther apart than a link (else the segments would
+    touch) and at most ``seg_max_occlusion_gap`` apart.
+    """
+    link = params.seg_max_edge_factor * params.seg_voxel_size
+    small, big = (a, b) if len(segs.members[a]) <= len(segs.members[b]) else (b, a)
+    # Only gaps up to seg_max_occlusion_gap matter: farther pairs come back inf.
+    d, j = segs.tree(big).query(segs.points[segs.members[small]], k=1,
+                                distance_upper_bound=params.seg_max_occlusion_gap)
+    k = int(np.argmin(d))
+    length = float(d[k])
+    if length <= link or length > params.seg_max_occlusion_gap:
+        return None
+    pa = int(segs.members[small][k])
+    pb = int(segs.members[big][int(j[k])])
+    return _Gap(small, big, pa, pb, length, (segs.points[pb] - segs.points[pa]) / length)
+
+
+def _surface_continues(segs: _Segments, normals: NDArray[np.float64], gap: _Gap,
+                       params: ModelingParams) -> bool:
+    """Whether the mean normals around both ends of the gap agree and lie across it."""
+    link = params.seg_max_edge_factor * params.seg_voxel_size
+    radius = OCCLUSION_NORMAL_RADIUS_LINKS * link
+    na = _mean_normal(segs, normals, gap.small, gap.pa, radius)
+    nb = _mean_normal(segs, normals, gap.big, gap.pb, radius)
+    max_tilt = math.sin(OCCLUSION_MAX_GAP_TILT)
+    return not (abs(float(na @ nb)) < math.cos(OCCLUSION_MAX_NORMAL_ANGLE)
+                or abs(float(na @ gap.u)) > max_tilt or abs(float(nb @ gap.u)) > max_tilt)
+
+
+def _mean_normal(segs: _Segments, normals: NDArray[np.float64], seg: int, at: int,
+                 radius: float) -> NDArray[np.float64]:
+    """Return the unit mean normal (3,) of segment ``seg`` around its point ``at``.
+
+    The normals within ``radius`` [m] of ``at`` are averaged, each flipped to the side of
+    ``at``'s own normal.
+    """
+    near = segs.members[seg][segs.tree(seg).query_ball_point(segs.points[at], radius)]
+    nrm = normals[near]
+    nrm = nrm * np.sign(nrm @ normals[at])[:, None]
+    mean = nrm.sum(axis=0)
+    return mean / max(float(np.linalg.norm(mean)), _TINY)
+
+
+def _gap_is_hidden(segs: _Segments, gap: _Gap, voxel: float) -> bool:
+    """Whether the gap is hidden behind nearer points and nowhere seen open.
+
+    On the viewing ray (sensor at the origin) of each sample of the gap
+    (:data:`OCCLUSION_GAP_SAMPLES`) the nearest measured direction is looked up. A ray with
+    a measured point is *seen*; it is hidden when that point is nearer than the sample by
+    more than :data:`OCCLUSION_NEARER_MARGIN_VOXELS`, and open otherwise. The gap is hidden
+    when enough samples are seen and none of them is open.
+    """
+    p = segs.points
+    samples = p[gap.pa] + OCCLUSION_GAP_SAMPLES[:, None] * (p[gap.pb] - p[gap.pa])
+    s_depth = np.linalg.norm(samples, axis=1)
+    tol = OCCLUSION_RAY_TOLERANCE_VOXELS * voxel / s_depth
+    dist, hit = segs.ray_tree().query(samples / s_depth[:, None], k=1)
+    hit = np.minimum(hit, len(p) - 1)
+    seen = dist <= tol
+    nearer = segs.depth[hit] < s_depth - OCCLUSION_NEARER_MARGIN_VOXELS * voxel
+    return bool(np.all(nearer[seen])
+                and seen.sum() >= OCCLUSION_MIN_SEEN_SHARE * len(OCCLUSION_GAP_SAMPLES))
+
+
+# ------------------------------------------------------------------------------------------
+# The inner and outer walls of an open round container
+# ------------------------------------------------------------------------------------------
+
+def join_contained_parts(points: NDArray[np.float64], normals: NDArray[np.float64],
+                         comp: NDArray[np.int64], valid: NDArray[np.bool_],
+                         support: PlaneModel) -> NDArray[np.int64]:
+    """Join the inner wall of an open round container (bowl, cup, pot) to its outer wall.
+
+    Parameters
+    ----------
+    points, normals : (M, 3) float64 arrays
+        Working cloud [m] and its unit normals.
+    comp : (M,) int64 array
+        Segment id of every working point.
+    valid : (M,) bool array
+        Points of the segments that take part (the others keep their ids).
+    support : PlaneModel
+        The plane the container stands on.
+
+    Returns
+    -------
+    (M,) int64 array
+        ``comp`` with each joined group labelled by its root segment.
+
+    Notes
+    -----
+    Seen from above an open container shows its outer front wall and, behind the rim, its
+    inner back wall; they meet only at the hidden back rim, so local convexity keeps them
+    apart. A segment is joined to a round segment (:func:`_round_footprint`) when its
+    footprint on the support plane lies inside the round segment's footprint circle and
+    their heights above the support overlap. Round segments are visited largest first.
+    """
+    ids = [int(i) for i in np.unique(comp[valid])]
+    if len(ids) < 2:
+        return comp
+    n = support.normal
+    basis = np.column_stack(perpendicular_basis(n))
+    members = {i: np.flatnonzero(valid & (comp == i)) for i in ids}
+    foot = {i: points[m] @ basis for i, m in members.items()}
+    height = {i: np.abs(points[m] @ n + support.d) for i, m in members.items()}
+    circles = {}
+    for i, xy in foot.items():
+        if len(xy) >= CONTAINED_MIN_POINTS:
+            circle = _round_footprint(xy, normals[members[i]] @ basis)
+            if circle is not None:
+                circles[i] = circle
+    sets = DisjointSets(ids)
+    for a_id, (center, r) in sorted(circles.items(), key=lambda kv: -len(members[kv[0]])):
+        for b_id in ids:
+            if len(members[b_id]) < CONTAINED_MIN_POINTS or sets.find(a_id) == sets.find(b_id):
+                continue
+            inside = np.linalg.norm(foot[b_id] - center, axis=1) <= CONTAINED_RADIUS_MARGIN * r
+            ha, hb = height[a_id], height[b_id]
+            overlap = min(ha.max(), hb.max()) - max(ha.min(), hb.min())
+            if inside.mean() >= CONTAINED_MIN_INSIDE_SHARE and overlap > 0:
+                sets.union(a_id, b_id)
+    return sets.relabel(comp, valid)
+
+
+def _round_footprint(xy: NDArray[np.float64], n_xy: NDArray[np.float64]
+                     ) -> tuple[NDArray[np.float64], float] | None:
+    """Circle (centre (2,), radius [m]) of a wall of revolution's footprint, or None.
+
+    Parameters
+    ----------
+    xy : (P, 2) float64 array [m]
+        The segment's points in the support plane's coordinates.
+    n_xy : (P, 2) float64 array
+        Their normals in the same coordinates (not normalised).
+
+    Notes
+    -----
+    Algebraic circle fit x^2 + y^2 + a x + b y + c = 0, then the tests of a wall of
+    revolution: the points close to the circle, the normals along its radii, a
+    container-sized radius seen over a real arc, and normals that turn continuously.
+    """
+    sol, *_ = np.linalg.lstsq(np.c_[xy, np.ones(len(xy))], -(xy * xy).sum(axis=1), rcond=None)
+    center = -0.5 * sol[:2]
+    r2 = center @ center - sol[2]
+    if r2 <= 0:
+        return None
+    r = float(np.sqrt(r2))
+    offsets = xy - center
+    radial = offsets / np.maximum(np.linalg.norm(offsets, axis=1), _TINY)[:, None]
+    spread = np.median(np.abs(np.linalg.norm(offsets, axis=1) - r))
+    n_xy = n_xy / np.maximum(np.linalg.norm(n_xy, axis=1), _TINY)[:, None]
+    along = np.median(np.abs(np.einsum("ij,ij->i", n_xy, radial)))
+    ang = np.arctan2(radial[:, 1], radial[:, 0])
+    arc = np.ptp(np.unwrap(np.sort(ang))) if len(ang) > 1 else 0.0
+    if spread < ROUND_MAX_SPREAD * r and along > ROUND_MIN_RADIAL_ALIGNMENT \
+            and r < ROUND_MAX_RADIUS and arc > ROUND_MIN_ARC \
+            and _turning_bins(n_xy) >= ROUND_MIN_TURNING_BINS:
+        return center, r
+    return None
+
+
+def _turning_bins(n_xy: NDArray[np.float64]) -> int:
+    """Return the number of azimuth bins holding a fair share of the unit normals (P, 2)."""
+    azimuth = np.degrees(np.arctan2(n_xy[:, 1], n_xy[:, 0]))
+    hist = np.bincount(((azimuth + 180.0) // AZIMUTH_BIN_DEG).astype(int) % AZIMUTH_BINS,
+                       minlength=AZIMUTH_BINS)
+    return int(np.sum(hist >= AZIMUTH_BIN_MIN_SHARE * len(azimuth)))

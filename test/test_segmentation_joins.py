@@ -1,0 +1,324 @@
+"""Segmentation joins: parts of different objects must NOT be joined.
+
+The joins that put parts of one object together need their evidence.
+
+Scenes are rendered with the synthetic camera of the segmentation tests on the tilted
+desk; the expected labels are the renderer's ground truth. Each scene also checks the
+geometric fact it was built for (a gap of bare desk, a contact, a hidden middle), from
+the shapes' analytic support functions and the ground-truth image, so that a test cannot
+pass on a scene that is not what its name says. The join helpers
+(:mod:`geomodel_ros.core.joins`) are tested directly on hand-made inputs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from geomodel_ros.core.joins import DisjointSets, _round_footprint, merge_patches
+from geomodel_ros.core.params import ModelingParams, load_params_file
+from geomodel_ros.core.segmentation import segment_scene
+from geomodel_ros.tools.synth import SENSOR_NOISE, Box, Cylinder, Sphere, apply_noise
+from geomodel_ros.tools.synth.scenes import (DESK_NORMAL, SEGMENTATION_CAMERA, _desk, _lying,
+                                             _next_to, _rest_on, _rest_on_desk, _standing,
+                                             desk_frame)
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"
+MM = 1e-3
+#: Desk x axis (the ``u`` of ``_standing``), along which the objects are lined up.
+DESK_U = desk_frame()[:, 0]
+
+
+def _mm(*values: float) -> list[float]:
+    return [v * MM for v in values]
+
+
+def _render(shapes: list) -> tuple[np.ndarray, np.ndarray]:
+    """Render the desk (id 0) and ``shapes`` (ids 1, 2, ...).
+
+    Returns the organized cloud (H, W, 3) [m] and the ground-truth image (H, W).
+    """
+    return SEGMENTATION_CAMERA.render([_desk(), *shapes], ids=list(range(len(shapes) + 1)))
+
+
+def _segment(shapes: list, noisy: bool = False,
+             params: ModelingParams | None = None) -> tuple[np.ndarray, np.ndarray]:
+    organized, gt = _render(shapes)
+    if noisy:
+        organized, gt = apply_noise(organized, gt, SENSOR_NOISE, rng=0)
+        params = params or load_params_file(CONFIG / "sensor_noise.yaml")
+    seg = segment_scene(organized, params or ModelingParams())
+    return seg.labels, gt.ravel()
+
+
+def _iou(labels: np.ndarray, gt: np.ndarray, g: int) -> float:
+    """IoU of object ``g`` with the segment that holds most of its points."""
+    mine = gt == g
+    held = labels[mine & (labels >= 0)]
+    if not len(held):
+        return 0.0
+    best = labels == np.bincount(held).argmax()
+    return float((mine & best).sum() / (mine | best).sum())
+
+
+def _assert_one_segment_per_object(labels: np.ndarray, gt: np.ndarray, n_objects: int):
+    ids = range(n_objects + 1)  # the desk and the objects
+    segments = np.unique(labels[labels >= 0])
+    report = {g: round(_iou(labels, gt, g), 3) for g in ids}
+    # No segment covers two objects: none holds more than a fifth of two objects' points.
+    for s in segments:
+        covered = [g for g in ids if ((labels == s) & (gt == g)).sum() > 0.2 * (gt == g).sum()]
+        assert len(covered) <= 1, f"segment {s} covers objects {covered}; IoU {report}"
+    assert all(iou >= 0.8 for iou in report.values()), report
+    assert len(segments) == n_objects + 1, f"{len(segments)} segments; IoU {report}"
+
+
+def _gap_along_u(left, right) -> float:
+    """Distance [m] between two shapes along the desk's u axis (left one at smaller u)."""
+    return -right.support(-DESK_U) - left.support(DESK_U)
+
+
+def _height(shape) -> float:
+    """Height [m] of a shape's top above the desk plane it stands on."""
+    return shape.support(DESK_NORMAL) + shape.support(-DESK_NORMAL)
+
+
+def _on_desk(*shapes) -> list:
+    return [_rest_on_desk(s) for s in shapes]
+
+
+# ---------------------------------------------------------------------------------------
+# Parts that must not be joined
+# ---------------------------------------------------------------------------------------
+
+def _boxes_apart(gap_mm: float) -> list:
+    half = 35.0 + gap_mm / 2.0
+    return _on_desk(Box(*_mm(70, 60, 50), **_standing(-half, 0, 0)),
+                    Box(*_mm(70, 60, 50), **_standing(half, 0, 0)))
+
+
+@pytest.mark.parametrize("noisy", [False, True], ids=["clean", "noisy"])
+@pytest.mark.parametrize("gap_mm", [50.0, 70.0, 100.0])
+def test_two_boxes_apart_with_bare_desk_between_stay_two(gap_mm, noisy):
+    shapes = _boxes_apart(gap_mm)
+    assert _gap_along_u(*shapes) == pytest.approx(gap_mm * MM, abs=1e-9)
+    # Bare desk is seen between them: desk pixels whose points lie in the gap, alongside
+    # the boxes (desk v within their 60 mm depth).
+    organized, gt = _render(shapes)
+    desk = organized[gt == 0]
+    u = (desk - _desk().center) @ DESK_U
+    v = (desk - _desk().center) @ desk_frame()[:, 1]
+    assert np.sum((np.abs(u) < gap_mm * MM / 2 - 5 * MM) & (np.abs(v) < 30 * MM)) > 50
+    _assert_one_segment_per_object(*_segment(shapes, noisy), 2)
+
+
+def _flat_boxes(gap_mm: float) -> list:
+    half = 45.0 + gap_mm / 2.0
+    return _on_desk(Box(*_mm(90, 70, 12), **_standing(-half, 0, 0)),
+                    Box(*_mm(90, 70, 12), **_standing(half, 0, 0)))
+
+
+# Without the occlusion join's evidence (the gap hidden behind nearer points) each of
+# these pairs is joined into one segment (measured: IoU 0.48 for both boxes, under):
+# their closest points are farther apart than a link and closer than
+# seg_max_occlusion_gap, and the surfaces at both ends are parallel and run across the
+# gap, just as the two visible parts of one occluded surface would.
+@pytest.mark.parametrize("shapes", [
+    pytest.param(_flat_boxes(40.0), id="flat-boxes-40mm"),
+    pytest.param(_flat_boxes(60.0), id="flat-boxes-60mm"),
+    pytest.param(_flat_boxes(80.0), id="flat-boxes-80mm"),
+    pytest.param(_boxes_apart(70.0), id="boxes-70mm"),
+])
+def test_occlusion_join_needs_the_gap_hidden(shapes):
+    params = ModelingParams()
+    link = params.seg_max_edge_factor * params.seg_voxel_size
+    gap = _gap_along_u(*shapes)
+    assert link < gap < params.seg_max_occlusion_gap
+    # the same shape and orientation, at the same height on the desk: parallel faces at
+    # nearly the same depth
+    assert _height(shapes[0]) == pytest.approx(_height(shapes[1]), abs=1e-9)
+    np.testing.assert_allclose(shapes[0].rotation, shapes[1].rotation, atol=1e-12)
+    _assert_one_segment_per_object(*_segment(shapes, params=params), 2)
+
+
+def _behind_pole(back) -> list:
+    # A thin pole in front (desk v = -80 mm, nearer to the sensor) hides the middle of a
+    # long low object behind it.
+    return _on_desk(Box(*_mm(22, 22, 125), **_standing(0, -80, 0)), back)
+
+
+OCCLUDED = {
+    "box-behind-pole": _behind_pole(Box(*_mm(200, 40, 40), **_standing(0, 40, 0))),
+    "lying-can-behind-pole": _behind_pole(Cylinder(*_mm(20, 200), **_lying(0, 40, 0))),
+}
+
+
+@pytest.mark.parametrize("name", list(OCCLUDED))
+def test_object_split_by_an_occluder_is_joined(name):
+    shapes = OCCLUDED[name]
+    organized, gt = _render(shapes)
+    # The object behind is seen as two separate image regions, left and right of the pole,
+    # which is nearer to the sensor.
+    _, parts = ndimage.label(gt == 2, structure=np.ones((3, 3)))
+    assert parts == 2
+    depth = np.linalg.norm(organized, axis=2)
+    assert depth[gt == 1].mean() < depth[gt == 2].mean()
+    labels, gt = _segment(shapes)
+    _assert_one_segment_per_object(labels, gt, 2)
+    # ... and without the occlusion join it stays two segments: the join made it one.
+    apart, _ = _segment(shapes, params=ModelingParams(seg_max_occlusion_gap=0.0))
+    held = np.bincount(apart[(gt == 2) & (apart >= 0)])
+    assert np.sum(held > 0.2 * (gt == 2).sum()) == 2, held
+
+
+def _crease(slide_mm: float) -> list:
+    # A tall box and a lower one face to face (the lower one's -u face on the tall one's
+    # +u face), the lower one slid back by ``slide_mm`` along that face.
+    return _on_desk(Box(*_mm(70, 60, 90), **_standing(-35, 0, 0)),
+                    Box(*_mm(70, 60, 50), **_standing(35, slide_mm, 0)))
+
+
+def _crease_turned() -> list:
+    u, v = _next_to(-30, 0, 30, 35 + 35, 15)
+    return _on_desk(Box(*_mm(70, 60, 90), **_standing(-30, 0, 30)),
+                    Box(*_mm(70, 60, 50), **_standing(u, v, 30)))
+
+
+@pytest.mark.parametrize("noisy", [False, True], ids=["clean", "noisy"])
+@pytest.mark.parametrize("shapes", [
+    pytest.param(_crease(10.0), id="slid-10mm"),
+    pytest.param(_crease(20.0), id="slid-20mm"),
+    pytest.param(_crease_turned(), id="turned-30deg"),
+    pytest.param(_crease(0.0), id="fronts-flush", marks=pytest.mark.xfail(strict=True, reason=(
+        "front faces flush: the two fronts are one plane, grown into one smooth patch "
+        "across the contact, so local convexity sees no crease there; measured IoU 0.612 "
+        "(tall box) and 0.379 (low box), both under-segmented"))),
+])
+def test_touching_boxes_of_different_heights_stay_two(shapes, noisy):
+    low, tall = sorted(shapes, key=_height)
+    assert _height(tall) - _height(low) == pytest.approx(40 * MM, abs=1e-9)
+    # face to face: the gap along the tall box's x axis is zero
+    x = tall.rotation[:, 0]
+    assert -low.support(-x) - tall.support(x) == pytest.approx(0.0, abs=1e-9)
+    _assert_one_segment_per_object(*_segment(shapes, noisy), 2)
+
+
+@pytest.mark.parametrize("noisy", [False, True], ids=["clean", "noisy"])
+@pytest.mark.parametrize("gap_mm, yaw, v_mm", [(0.0, 0.0, 0.0), (5.0, 0.0, 0.0),
+                                               (0.0, 20.0, -20.0)])
+def test_can_standing_next_to_a_box_stays_separate(gap_mm, yaw, v_mm, noisy):
+    box = Box(*_mm(70, 60, 60), **_standing(-35, 0, yaw))
+    # the can's side at u = gap along the box's x axis, shifted v_mm along its face
+    u, v = _next_to(-35, 0, yaw, 35 + gap_mm + 30, v_mm)
+    can = Cylinder(*_mm(30, 80), **_standing(u, v, 0))
+    shapes = _on_desk(box, can)
+    x = shapes[0].rotation[:, 0]
+    assert -shapes[1].support(-x) - shapes[0].support(x) == pytest.approx(gap_mm * MM, abs=1e-9)
+    _assert_one_segment_per_object(*_segment(shapes, noisy), 2)
+
+
+def _stack(base_mm: tuple, yaw: float, top_shape, offset_mm: tuple, top_yaw: float) -> list:
+    """Stack ``top_shape(**pose)`` on a box of sides ``base_mm``.
+
+    The box stands on the desk at (0, 0) turned by ``yaw`` [deg]; the top shape rests on
+    its top at ``offset_mm`` (desk u, v), turned by ``top_yaw``.
+    """
+    base = _rest_on_desk(Box(*_mm(*base_mm), **_standing(0, 0, yaw)))
+    return [base, _rest_on(top_shape(**_standing(*offset_mm, top_yaw)), base)]
+
+
+STACKS = {
+    "box-on-box-off-centre": _stack((120, 100, 50), 10,
+                                    lambda **k: Box(*_mm(50, 40, 40), **k), (20, 10), 40),
+    "can-on-box": _stack((120, 100, 40), -10,
+                         lambda **k: Cylinder(*_mm(25, 60), **k), (-20, 0), 0),
+    "ball-on-box": _stack((100, 100, 40), 15, lambda **k: Sphere(*_mm(30), **k), (0, 0), 0),
+}
+
+
+@pytest.mark.parametrize("noisy", [False, True], ids=["clean", "noisy"])
+@pytest.mark.parametrize("name", list(STACKS))
+def test_small_object_on_a_large_one_stays_separate(name, noisy):
+    base, top = STACKS[name]
+    # it rests on the base's top face, which shows around it
+    assert -top.support(-DESK_NORMAL) == pytest.approx(base.support(DESK_NORMAL), abs=1e-9)
+    organized, gt = _render([base, top])
+    base_pts = organized[gt == 1]
+    assert np.sum(np.abs(base_pts @ DESK_NORMAL - base.support(DESK_NORMAL)) < 1e-6) > 200
+    _assert_one_segment_per_object(*_segment([base, top], noisy), 2)
+
+
+# ---------------------------------------------------------------------------------------
+# The join helpers on hand-made input
+# ---------------------------------------------------------------------------------------
+
+def test_disjoint_sets_keep_the_label_of_the_first_group():
+    sets = DisjointSets([3, 5, 8, 9])
+    sets.union(8, 9)
+    sets.union(5, 9)  # 9's group (root 8) goes under 5
+    assert [sets.find(i) for i in (3, 5, 8, 9)] == [3, 5, 5, 5]
+    comp = np.array([-1, 3, 5, 8, 9, 9, 2])
+    valid = np.array([False, True, True, True, True, True, False])
+    # valid entries get their group's label, the others keep theirs
+    np.testing.assert_array_equal(sets.relabel(comp, valid), [-1, 3, 5, 5, 5, 5, 2])
+
+
+def test_merge_patches_refuses_a_join_across_a_crease():
+    # Patches 0-1 share a convex border (40 of 40 votes), 1-2 a weaker convex one (25 of
+    # 30), 0-2 a clear crease (2 of 30 votes convex). Strongest first: 0+1, then 1-2
+    # would put 2 in a group with 0, which meets 2 at the crease: refused.
+    a, b = np.array([0, 0, 1]), np.array([1, 2, 2])
+    votes, yes = np.array([40, 30, 30]), np.array([40.0, 2.0, 25.0])
+    np.testing.assert_array_equal(merge_patches(3, a, b, votes, yes), [0, 0, 1])
+    # Without the crease (the 0-2 border convex too) all three are one object.
+    np.testing.assert_array_equal(merge_patches(3, a, b, votes, np.array([40.0, 28.0, 25.0])),
+                                  [0, 0, 0])
+    # A concave border of too few votes (10) is no crease: nothing is refused.
+    np.testing.assert_array_equal(
+        merge_patches(3, a, b, np.array([40, 10, 30]), np.array([40.0, 1.0, 25.0])), [0, 0, 0])
+
+
+def test_merge_patches_needs_half_the_votes_convex():
+    a, b = np.array([0, 1]), np.array([1, 2])
+    # 0-1: exactly half convex (joined); 1-2: just under half (not joined, not a crease)
+    np.testing.assert_array_equal(
+        merge_patches(3, a, b, np.array([10, 10]), np.array([5.0, 4.0])), [0, 0, 1])
+
+
+def _arc(center, r, degrees, n=200):
+    ang = np.radians(np.linspace(0.0, degrees, n))
+    radial = np.column_stack([np.cos(ang), np.sin(ang)])
+    return np.asarray(center) + r * radial, radial
+
+
+def test_round_footprint_finds_a_container_wall():
+    xy, radial = _arc([0.3, -0.1], 0.05, 180.0)
+    circle = _round_footprint(xy, radial)
+    assert circle is not None
+    np.testing.assert_allclose(circle[0], [0.3, -0.1], atol=1e-9)
+    assert circle[1] == pytest.approx(0.05, abs=1e-9)
+
+
+@pytest.mark.parametrize("case", ["short-arc", "too-large", "normals-not-radial", "scattered",
+                                  "box"])
+def test_round_footprint_rejects_what_is_no_container_wall(case):
+    # Each case but the box breaks one of the tests of a wall of revolution only.
+    if case == "short-arc":  # 55 degrees of arc fit circles of any radius
+        xy, n_xy = _arc([0.0, 0.0], 0.05, 55.0)
+    elif case == "too-large":  # a 30 cm radius is no cup, bowl or pot
+        xy, n_xy = _arc([0.0, 0.0], 0.30, 180.0)
+    elif case == "normals-not-radial":  # tangent normals: not a wall of revolution
+        xy, radial = _arc([0.0, 0.0], 0.05, 180.0)
+        n_xy = radial[:, ::-1] * [1.0, -1.0]
+    elif case == "scattered":  # points alternately 20 % inside and outside the circle
+        xy, n_xy = _arc([0.0, 0.0], 0.05, 180.0)
+        xy = xy * np.where(np.arange(len(xy)) % 2 == 0, 0.8, 1.2)[:, None]
+    else:  # two faces of a box meeting at a corner: two normal directions only
+        t = np.linspace(0.0, 0.06, 100)
+        xy = np.vstack([np.column_stack([t, np.zeros_like(t)]),
+                        np.column_stack([np.zeros_like(t), t])])
+        n_xy = np.vstack([np.tile([0.0, -1.0], (100, 1)), np.tile([-1.0, 0.0], (100, 1))])
+    assert _round_footprint(xy, n_xy) is None
