@@ -2,11 +2,10 @@
 
 The 10,000-case runs are benchmark commands (``python -m geomodel_ros.tools.fuzz core|cli
 --cases 10000``, ``python -m geomodel_ros.tools.fuzz_node --cases 10000``; figures in
-BENCHMARKS.md).  Here the same harnesses run with a fixed seed and a small budget, and must
-see no crash and no non-finite output.  The core and CLI cases draw magnitudes up to 1e6 m:
-clouds spread over ~1e7 m and more still overflow the core's voxel arithmetic, a known
-defect pinned by the strict ``xfail`` tests at the end (they pass once it is fixed, and
-then fail as XPASS until the marker is removed).
+BENCHMARKS.md).  Here the same harnesses run with a fixed seed and a small budget over the
+whole range of magnitudes (1e-6 .. 1e9 m), and must see no crash and no non-finite output.
+The last tests pin two crashes the fuzzers found (a garbage return at 1e9 m overflowed
+the voxel arithmetic; a 1.5 mm object 10 m away had a face with no second direction).
 """
 
 from __future__ import annotations
@@ -25,15 +24,8 @@ from geomodel_ros.tools import fuzz
 from msg_adapters.malformed import FieldSpec, pack_points, raw_cloud
 from msg_adapters.pointcloud2 import PointCloud2Error, cloud_to_xyz
 
-#: In-suite budget: magnitudes that the core handles today [m].
-SUITE_MAGNITUDE = 1e6
-#: Crashes the fuzzers find today, by kind (exception in the innermost function); each is
-#: pinned by a strict xfail test below.  The in-suite fuzz runs fail on any other kind.
-TINY_FAR_OBJECT = ("IndexError in surface_type.face_feature: a ~1.5 mm object 10 m away "
-                   "(its face's points span fewer than two directions; vt[1] does not exist)")
-KNOWN_CRASHES = {"IndexError in surface_type.face_feature": TINY_FAR_OBJECT}
-HUGE_COORDINATES = ("OverflowError in segmentation.voxelize for a cloud spread over ~1e9 m "
-                    "(one garbage return at 1e9 m is enough); fix pending")
+#: In-suite magnitudes: the whole drawn range [m].
+SUITE_MAGNITUDE = 1e9
 
 
 # ------------------------------------------------------------------ the fuzz harness itself
@@ -115,17 +107,10 @@ def test_raw_cloud_keeps_every_lie_and_the_adapter_rejects_it():
 
 
 # ------------------------------------------------------------------ a few hundred cases each
-def _unknown_crashes(report: dict) -> int:
-    """Crashes other than the known defects (those are pinned by strict xfails below)."""
-    known = sum(n for kind, n in report["crash_kinds"].items() if kind in KNOWN_CRASHES)
-    assert sum(report["crash_kinds"].values()) == report["crash"]
-    return report["crash"] - known
-
-
 def test_core_fuzz_no_crash_no_non_finite():
     report = fuzz.fuzz("core", 300, seed=0, max_magnitude=SUITE_MAGNITUDE)
     assert report["cases"] == 300
-    assert _unknown_crashes(report) == 0, report["crash_examples"]
+    assert report["crash"] == 0, report["crash_examples"]
     assert report["non_finite"] == 0
     assert report["ok"] > 0
 
@@ -133,7 +118,7 @@ def test_core_fuzz_no_crash_no_non_finite():
 def test_cli_fuzz_no_crash_no_non_finite():
     report = fuzz.fuzz("cli", 200, seed=0, max_magnitude=SUITE_MAGNITUDE)
     assert report["cases"] == 200
-    assert _unknown_crashes(report) == 0, report["crash_examples"]
+    assert report["crash"] == 0, report["crash_examples"]
     assert report["non_finite"] == 0
     assert report["ok"] > 0 and report["clear_error"] > 0  # damaged files are refused
 
@@ -158,8 +143,7 @@ def test_node_fuzz_survives_malformed_messages_and_keeps_answering():
     assert set(r["mutations"]) == set(fuzz_node.MUTATIONS)
 
 
-# ------------------------------------------------------------------ known defects
-@pytest.mark.xfail(strict=True, raises=IndexError, reason=TINY_FAR_OBJECT)
+# ------------------------------------------------------------------ crashes the fuzzers found
 def test_core_on_a_tiny_object_far_away_does_not_crash():
     rng = np.random.default_rng(0)
     direction = np.array([0.72, 0.16, 0.5]) / np.linalg.norm([0.72, 0.16, 0.5])
@@ -176,7 +160,6 @@ def _tabletop_with_a_garbage_return() -> np.ndarray:
     return np.r_[table, [[1e9, 1e9, 1e9]]]
 
 
-@pytest.mark.xfail(strict=True, raises=OverflowError, reason=HUGE_COORDINATES)
 def test_core_on_coordinates_near_1e9_gives_finite_output_or_a_clear_error():
     points = _tabletop_with_a_garbage_return()
     try:
@@ -190,7 +173,6 @@ def test_core_on_coordinates_near_1e9_gives_finite_output_or_a_clear_error():
         assert all(math.isfinite(v) for v in [*o.center, *o.dimensions.values()])
 
 
-@pytest.mark.xfail(strict=True, raises=OverflowError, reason=HUGE_COORDINATES)
 def test_cli_on_coordinates_near_1e9_succeeds_or_prints_one_error_line(tmp_path):
     assert fuzz.run_cli_case(_tabletop_with_a_garbage_return(), ".npy", "none",
                              tmp_path) in ("ok", "clear_error")

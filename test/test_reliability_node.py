@@ -370,12 +370,6 @@ def test_frames_arriving_during_modeling_are_dropped_not_queued(harness):
 #: The consistency rules, stated independently (as in test_reliability): smaller < larger.
 CONSISTENCY_RULES = (("min_radius", "max_radius"),
                      ("developable_curvature_ratio", "sphere_curvature_ratio"))
-#: The core raises IndexError in segment_scene when no point is left to cluster (a coarse
-#: seg_voxel_size on a small scene, or support planes that took every point); the node
-#: skips such a frame with a warning.  Strict xfail at seg_voxel_size's high end; tolerated
-#: (and only that, checked by running the core on the same frame) in random combinations.
-SEG_EMPTY_DEFECT = ("the core fails (IndexError in segment_scene) when no point is left to "
-                    "cluster; the node skips the frame with a warning")
 _SPECS = {q.name: q for q in PARAMETERS}
 
 
@@ -392,10 +386,7 @@ def _range_end_sets():
             for a, b in _violated({**defaults, **values}):
                 partner = b if spec.name == a else a
                 values[partner] = _SPECS[partner].high if partner == b else _SPECS[partner].low
-            marks = [pytest.mark.xfail(strict=True, raises=AssertionError,
-                                       reason=SEG_EMPTY_DEFECT)
-                     ] if (spec.name, end) == ("seg_voxel_size", spec.high) else []
-            yield pytest.param(values, marks=marks, id=f"{spec.name}={end}")
+            yield pytest.param(values, id=f"{spec.name}={end}")
 
 
 @pytest.fixture(scope="module")
@@ -416,19 +407,7 @@ def param_node():
     rclpy.try_shutdown(context=ctx)
 
 
-def _core_has_seg_empty_defect(params) -> bool:
-    """Whether the core itself fails on tiny_box with SEG_EMPTY_DEFECT under ``params``."""
-    import traceback
-
-    organized = render_scene("tiny_box").organized
-    try:
-        model_scene(organized.reshape(-1, 3), params, organized_shape=organized.shape[:2])
-    except IndexError as exc:
-        return traceback.extract_tb(exc.__traceback__)[-1].name == "segment_scene"
-    return False
-
-
-def _set_and_model(h: Harness, values: dict, *, tolerate_known_defect: bool = False) -> None:
+def _set_and_model(h: Harness, values: dict) -> None:
     """Set ``values`` through the parameter interface; check the verdict and the next frame."""
     before_params = h.node.modeling_params
     result = h.node.set_parameters_atomically(
@@ -449,9 +428,6 @@ def _set_and_model(h: Harness, values: dict, *, tolerate_known_defect: bool = Fa
         wait_until(lambda: h.settled() and h.node.stats().received > before.received,
                    "the frame to be accounted for")
         after = h.node.stats()
-        if after.failed > before.failed and tolerate_known_defect \
-                and _core_has_seg_empty_defect(h.node.modeling_params):
-            return  # SEG_EMPTY_DEFECT
         assert after.failed == before.failed, "the node could not model the frame"
         assert_markers_sane(h.markers.wait_for_stamp(h.next_sec))
     finally:
@@ -477,4 +453,4 @@ def _in_range(spec):
           suppress_health_check=list(HealthCheck))
 @given(values=st.fixed_dictionaries({q.name: _in_range(q) for q in PARAMETERS}))
 def test_random_parameter_combinations_through_the_node(param_node, values):
-    _set_and_model(param_node, values, tolerate_known_defect=True)
+    _set_and_model(param_node, values)
