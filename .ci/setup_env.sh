@@ -39,3 +39,7 @@ fi
 
 # The interface package geomodel_msgs (messages of the node), built into the venv.
 bash .ci/build_msgs.sh
+
+# `geomodel` on PATH of the venv (the console script itself is in lib/geomodel_ros/ for
+# `ros2 run`).
+bash .ci/install_geomodel_command.sh "$VENV/bin" "$VENV/bin/python"

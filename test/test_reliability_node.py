@@ -21,6 +21,8 @@ import threading
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from builtin_interfaces.msg import Time
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
@@ -31,6 +33,7 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from geomodel_ros.core.modeling import model_scene
+from geomodel_ros.core.params import PARAMETERS
 from geomodel_ros.ros.node import ModelerNode
 from geomodel_ros.tools.synth import render_scene
 from msg_adapters.pointcloud2 import xyz_to_cloud
@@ -93,14 +96,15 @@ class GatedCore:
 
 
 class Harness:
-    def __init__(self, context: Context, core=model_scene, **overrides) -> None:
+    def __init__(self, context: Context, core=model_scene, topic: str = "/rel/points",
+                 **overrides) -> None:
         values = {"qos_reliability": "reliable", "qos_depth": 5, **overrides}
         self.node = ModelerNode(
             context=context, model_scene=core,
-            cli_args=["--ros-args", "-r", "points:=/rel/points"],
+            cli_args=["--ros-args", "-r", f"points:={topic}"],
             parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
         self.peer = Node("rel_peer", context=context)
-        self.pub = self.peer.create_publisher(PointCloud2, "/rel/points", RELIABLE)
+        self.pub = self.peer.create_publisher(PointCloud2, topic, RELIABLE)
         self.markers = MarkerLog(self.peer, "/modeler/primitives")
         # subscribed like RViz, so that the node really serializes and sends them
         self.peer.create_subscription(PointCloud2, "/modeler/segments", lambda _: None,
@@ -364,3 +368,95 @@ def test_frames_arriving_during_modeling_are_dropped_not_queued(harness):
     for markers in items:
         assert_markers_sane(markers)
         assert shape_namespaces(markers) == {"plane", "cuboid", "cylinder", "sphere"}
+
+
+# --------------------------------------------------------------------------- parameters
+# (every parameter at its range ends and random combinations; keep these last: see
+# param_node)
+#: The consistency rules, stated independently (as in test_reliability): smaller < larger.
+CONSISTENCY_RULES = (("min_radius", "max_radius"),
+                     ("developable_curvature_ratio", "sphere_curvature_ratio"))
+_SPECS = {q.name: q for q in PARAMETERS}
+
+
+def _violated(values: dict) -> list[tuple[str, str]]:
+    return [(a, b) for a, b in CONSISTENCY_RULES if not values[a] < values[b]]
+
+
+def _range_end_sets():
+    """Both ends of every parameter; a partner a rule needs goes to its own far end."""
+    defaults = {q.name: q.default for q in PARAMETERS}
+    for spec in PARAMETERS:
+        for end in (False, True) if spec.type is bool else (spec.low, spec.high):
+            values = {spec.name: end}
+            for a, b in _violated({**defaults, **values}):
+                partner = b if spec.name == a else a
+                values[partner] = _SPECS[partner].high if partner == b else _SPECS[partner].low
+            yield pytest.param(values, id=f"{spec.name}={end}")
+
+
+@pytest.fixture(scope="module")
+def param_node():
+    """One node for all parameter cases (each case restores the defaults it changed).
+
+    It lives until the end of this module, so it has its own input topic (it never models
+    the other tests' frames) and these tests come last.
+    """
+    import rclpy
+
+    ctx = Context()
+    rclpy.init(args=[], context=ctx)
+    h = Harness(ctx, topic="/rel_params/points")
+    h.next_sec = 5000
+    yield h
+    h.close()
+    rclpy.try_shutdown(context=ctx)
+
+
+def _set_and_model(h: Harness, values: dict) -> None:
+    """Set ``values`` through the parameter interface; check the verdict and the next frame."""
+    before_params = h.node.modeling_params
+    result = h.node.set_parameters_atomically(
+        [Parameter(k, value=v) for k, v in values.items()])
+    broken = _violated({**before_params.to_dict(), **values})
+    if broken:
+        a, b = broken[0]
+        assert not result.successful
+        assert a in result.reason and b in result.reason, result.reason
+        assert h.node.modeling_params == before_params
+        return
+    assert result.successful, result.reason
+    try:
+        assert {k: getattr(h.node.modeling_params, k) for k in values} == values
+        h.next_sec += 1
+        before = h.node.stats()
+        h.pub.publish(scene_cloud("tiny_box", h.next_sec))
+        wait_until(lambda: h.settled() and h.node.stats().received > before.received,
+                   "the frame to be accounted for")
+        after = h.node.stats()
+        assert after.failed == before.failed, "the node could not model the frame"
+        assert_markers_sane(h.markers.wait_for_stamp(h.next_sec))
+    finally:
+        restored = h.node.set_parameters_atomically(
+            [Parameter(k, value=getattr(before_params, k)) for k in values])
+        assert restored.successful and h.node.modeling_params == before_params
+
+
+@pytest.mark.parametrize("values", _range_end_sets())
+def test_every_parameter_at_its_range_ends_through_the_node(param_node, values):
+    _set_and_model(param_node, values)
+
+
+def _in_range(spec):
+    if spec.type is bool:
+        return st.booleans()
+    if spec.type is int:
+        return st.integers(int(spec.low), int(spec.high))
+    return st.floats(spec.low, spec.high, allow_nan=False)
+
+
+@settings(max_examples=8, deadline=None, derandomize=True, database=None,
+          suppress_health_check=list(HealthCheck))
+@given(values=st.fixed_dictionaries({q.name: _in_range(q) for q in PARAMETERS}))
+def test_random_parameter_combinations_through_the_node(param_node, values):
+    _set_and_model(param_node, values)

@@ -206,6 +206,14 @@ def test_face_feature_too_few_points_per_radius_gives_zero():
     assert feat.planar is False
 
 
+
+def test_face_feature_of_a_single_point_has_no_width():
+    """One point (a millimetre object far away can leave one per face): width 0, curved."""
+    feat = face_feature(OFFSET + np.zeros((1, 3)), (1.0, 0.0, 0.0), 0.82, 0.5)
+    assert feat.min_width == 0.0 and np.all(feat.radii == 0.0)
+    assert np.all(np.isnan(feat.cf)) and feat.cf_total == 0.0 and feat.planar is False
+    assert np.array_equal(feat.center, OFFSET + np.zeros(3))
+
 # ---------------------------------------------------------------------------------------
 # Principal curvatures
 # ---------------------------------------------------------------------------------------

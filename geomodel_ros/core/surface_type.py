@@ -124,10 +124,13 @@ def face_feature(points: NDArray[np.float64], weights: tuple[float, float, float
     centered = points - centroid
     d2c = np.einsum("ij,ij->i", centered, centered)
     center = points[int(np.argmin(d2c))]
-    _, _, vt = np.linalg.svd(centered[:: max(1, len(points) // _WIDTH_SAMPLE_POINTS)],
-                             full_matrices=False)
-    proj = centered @ vt[1]
-    min_width = float(proj.max() - proj.min()) if len(points) else 0.0
+    sample = centered[:: max(1, len(points) // _WIDTH_SAMPLE_POINTS)]
+    if len(sample) < 2:  # a single point has no second direction: no width
+        min_width = 0.0
+    else:
+        _, _, vt = np.linalg.svd(sample, full_matrices=False)
+        proj = centered @ vt[1]
+        min_width = float(proj.max() - proj.min())
     radii = min_width * radius_fraction * _RADIUS_STEPS / len(_RADIUS_STEPS)
     dist2 = np.einsum("ij,ij->i", points - center, points - center)
     cf = np.full(3, np.nan)

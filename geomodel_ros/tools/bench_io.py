@@ -7,6 +7,9 @@ size, the size of the result (points and fields), the peak of traced allocations
 reading (``tracemalloc``; numpy's arrays are traced) and the growth of the peak resident
 set size (``VmHWM``) over the resident size before reading, each also as a multiple of the
 file size.
+
+``python -m geomodel_ros.tools.bench_io --load-time FILE [FILE ...]`` instead prints the
+median wall time of ``--repeat`` (20) ``read_cloud`` calls per file [ms].
 """
 
 from __future__ import annotations
@@ -99,12 +102,30 @@ def measure(path: Path) -> dict[str, int]:
     return out
 
 
+def load_time_ms(path: Path, repeat: int) -> float:
+    """Return the median wall time [ms] of ``repeat`` reads of ``path``."""
+    import statistics
+    import timeit
+
+    from geomodel_ros.tools.io import read_cloud
+
+    times = timeit.repeat(lambda: read_cloud(path), number=1, repeat=repeat)
+    return statistics.median(times) * 1000.0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Write the files, measure each reader and print a Markdown table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=3_000_000, help="points per cloud")
     parser.add_argument("--dir", type=Path, default=None, help="where to write (default: temp)")
+    parser.add_argument("--load-time", type=Path, nargs="+", metavar="FILE",
+                        help="only time reading these files")
+    parser.add_argument("--repeat", type=int, default=20, help="reads per file (--load-time)")
     args = parser.parse_args(argv)
+    if args.load_time:
+        for path in args.load_time:
+            print(f"{path}: {load_time_ms(path, args.repeat):.1f} ms (median of {args.repeat})")
+        return 0
     with tempfile.TemporaryDirectory(dir=args.dir) as folder:
         paths = write_all(Path(folder), args.points)
         mb = 1e6

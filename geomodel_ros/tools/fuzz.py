@@ -23,24 +23,37 @@ import contextlib
 import io as _io
 import json
 import math
+import shutil
 import sys
 import tempfile
 import traceback
+import warnings
 from collections import Counter
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 from hypothesis import HealthCheck, given, settings
+from hypothesis import seed as hypothesis_seed
 from hypothesis import strategies as st
 
-__all__ = ["clouds", "run_core_case", "run_cli_case", "main"]
+__all__ = ["OUTCOMES", "clouds", "fuzz", "run_core_case", "run_cli_case", "main"]
+
+#: Every outcome of a case, in report order (see the module doc).
+OUTCOMES = ("ok", "clear_error", "non_finite", "crash")
 
 #: Largest cloud drawn [points]: big enough for real objects, small enough for 10,000 cases.
 MAX_POINTS = 3000
 #: Coordinate magnitudes drawn [m]: from sub-micrometre to garbage driver values.
 MAGNITUDES = (1e-6, 1e-3, 0.01, 0.1, 1.0, 10.0, 1e3, 1e6, 1e9)
+#: Offsets of the whole cloud from the sensor [m] (times a random unit-scale direction).
+OFFSETS = (0.0, 0.5, 1.0, 1e3, 1e6, 1e9)
+#: Lattice spacings as a fraction of the object scale (0: none).
+SPACINGS = (0.0, 0.0, 1e-4, 1e-2, 0.1)
 KINDS = ("uniform", "plane", "line", "point", "sphere", "box", "duplicates", "grid")
+#: NaN/inf patterns: none, whole rows, single coordinates, a contiguous block, everything.
+BAD_VALUES = ("none", "nan_rows", "inf_rows", "nan_cells", "nan_block", "mixed", "all_nan",
+              "all_inf")
 
 
 def _shape_points(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -70,31 +83,51 @@ def _shape_points(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 @st.composite
-def clouds(draw: Any) -> tuple[np.ndarray, tuple[int, int] | None]:
-    """Draw a fuzzed cloud: ``(points (N, 3) or (H, W, 3), organized shape or None)``."""
+def clouds(draw: Any, max_points: int = MAX_POINTS, max_magnitude: float = MAGNITUDES[-1]
+           ) -> tuple[np.ndarray, tuple[int, int] | None]:
+    """Draw a fuzzed cloud: ``(points (N, 3), organized (H, W) with H * W = N, or None)``.
+
+    ``max_magnitude`` [m] caps the drawn object scales and offsets (coordinates reach a few
+    times it); ``max_points`` caps N.
+    """
     seed = draw(st.integers(0, 2**32 - 1))
     rng = np.random.default_rng(seed)
-    n = draw(st.integers(0, MAX_POINTS))
+    n = draw(st.integers(0, max_points))
     parts = draw(st.lists(st.sampled_from(KINDS), min_size=1, max_size=3))
-    scale = draw(st.sampled_from(MAGNITUDES))
-    offset = draw(st.sampled_from((0.0, 0.5, 1.0, 1e3, 1e9))) * rng.normal(size=3)
+    scale = draw(st.sampled_from([m for m in MAGNITUDES if m <= max_magnitude]))
+    offset = draw(st.sampled_from([o for o in OFFSETS if o <= max_magnitude])) \
+        * rng.normal(size=3)
     chunks = [_shape_points(k, max(1, n // len(parts)), rng) * scale * rng.uniform(0.1, 1)
               + rng.normal(size=3) * scale for k in parts]
     pts = (np.concatenate(chunks) + offset)[:n] if n else np.zeros((0, 3))
     noise = draw(st.sampled_from((0.0, 1e-4, 1e-2)))
     pts = pts + rng.normal(size=pts.shape) * noise * scale
-    bad = draw(st.sampled_from(("none", "nan_rows", "inf_rows", "nan_cells", "all_nan")))
-    if len(pts) and bad != "none":
-        mask = rng.random(len(pts)) < (1.0 if bad == "all_nan" else 0.2)
-        if bad == "nan_cells":
-            pts[mask, rng.integers(0, 3)] = np.nan
-        else:
-            pts[mask] = np.inf if bad == "inf_rows" else np.nan
+    spacing = draw(st.sampled_from(SPACINGS)) * scale
+    if spacing > 0:  # a sensor's quantisation: a lattice, many exact duplicates
+        pts = np.round(pts / spacing) * spacing
+    pts = _spoil(pts, draw(st.sampled_from(BAD_VALUES)), rng)
     organized = None
     if len(pts) >= 4 and draw(st.booleans()):
         w = draw(st.sampled_from([d for d in (2, 4, 8, 16) if len(pts) % d == 0] or [1]))
         organized = (len(pts) // w, w)
     return pts, organized
+
+
+def _spoil(pts: np.ndarray, bad: str, rng: np.random.Generator) -> np.ndarray:
+    """Put NaN/inf into ``pts`` (N, 3) following the pattern ``bad`` (see BAD_VALUES)."""
+    if not len(pts) or bad == "none":
+        return pts
+    mask = rng.random(len(pts)) < (1.0 if bad in ("all_nan", "all_inf") else 0.2)
+    if bad == "nan_cells":
+        pts[mask, rng.integers(0, 3)] = np.nan
+    elif bad == "nan_block":  # an organized sensor's invalid patch: a run of rows
+        start = int(rng.integers(0, len(pts)))
+        pts[start:start + max(1, len(pts) // 4)] = np.nan
+    elif bad == "mixed":
+        pts[mask] = rng.choice([np.nan, np.inf, -np.inf], size=(int(mask.sum()), 3))
+    else:
+        pts[mask] = np.inf if bad in ("inf_rows", "all_inf") else np.nan
+    return pts
 
 
 def _finite_result(result: Any) -> bool:
@@ -152,30 +185,57 @@ def run_cli_case(points: np.ndarray, suffix: str, damage: str, folder: Path) -> 
     return "ok" if all(math.isfinite(v) for v in nums) else "non_finite"
 
 
-def fuzz(target: str, cases: int, seed: int, show: int = 3) -> dict:
-    """Run ``cases`` hypothesis-drawn cases through ``target`` (``core`` or ``cli``)."""
+def _crash_kind(exc: BaseException) -> str:
+    """``'<Exception> in <function>'`` of the innermost frame: groups crashes by defect."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    where = f" in {Path(frames[-1].filename).stem}.{frames[-1].name}" if frames else ""
+    return f"{type(exc).__name__}{where}"
+
+
+def fuzz(target: str, cases: int, seed: int, show: int = 3, *,
+         max_magnitude: float = MAGNITUDES[-1], max_points: int = MAX_POINTS) -> dict:
+    """Run ``cases`` hypothesis-drawn cases through ``target`` (``core`` or ``cli``).
+
+    Returns the counts of each outcome (see the module doc), ``crash_kinds`` (exception and
+    innermost function -> count), up to ``show`` crash tracebacks, and the numpy
+    ``RuntimeWarning`` s raised (inf * 0, overflow, ...: by file, line and message, and how
+    many cases raised any; information, not an outcome: the output may still be finite).
+    """
     counts: Counter[str] = Counter()
+    kinds: Counter[str] = Counter()
+    numeric: Counter[str] = Counter()  # numpy RuntimeWarnings (inf*0, overflow...) by place
     examples: list[str] = []
     folder = Path(tempfile.mkdtemp(prefix="geomodel_fuzz_"))
 
     @settings(max_examples=cases, deadline=None, database=None, derandomize=False,
               suppress_health_check=list(HealthCheck))
-    @given(cloud=clouds(), suffix=st.sampled_from((".npy", ".pcd", ".ply")),
+    @given(cloud=clouds(max_points=max_points, max_magnitude=max_magnitude),
+           suffix=st.sampled_from((".npy", ".pcd", ".ply")),
            damage=st.sampled_from(("none", "none", "truncate", "corrupt")))
     def case(cloud: tuple[np.ndarray, tuple[int, int] | None], suffix: str, damage: str) -> None:
         points, organized = cloud
         try:
-            outcome = run_core_case(points, organized) if target == "core" \
-                else run_cli_case(points, suffix, damage, folder)
-        except Exception:  # noqa: BLE001 -- any other exception is what we count as a crash
+            with warnings.catch_warnings(record=True) as seen:
+                warnings.simplefilter("always", RuntimeWarning)
+                outcome = run_core_case(points, organized) if target == "core" \
+                    else run_cli_case(points, suffix, damage, folder)
+            where = {f"{Path(w.filename).stem}:{w.lineno} {w.message}"[:80] for w in seen
+                     if issubclass(w.category, RuntimeWarning)}
+            numeric.update(where)
+            counts["with_numeric_warnings"] += bool(where)
+        except Exception as exc:  # noqa: BLE001 -- any other exception is what we count as a crash
             outcome = "crash"
+            kinds[_crash_kind(exc)] += 1
             if len(examples) < show:
-                examples.append(traceback.format_exc(limit=4))
+                examples.append(traceback.format_exc(limit=-4))  # innermost frames
         counts[outcome] += 1
 
-    np.random.seed(seed)  # hypothesis seeds from the global generator when not derandomized
-    case()
-    return {"target": target, "cases": sum(counts.values()), **dict(counts),
+    hypothesis_seed(seed)(case)()  # reproducible: the same seed draws the same cases
+    shutil.rmtree(folder, ignore_errors=True)
+    return {"target": target, "cases": sum(counts[k] for k in OUTCOMES),
+            **{k: counts.get(k, 0) for k in OUTCOMES}, "crash_kinds": dict(kinds),
+            "cases_with_numeric_warnings": counts["with_numeric_warnings"],
+            "numeric_warnings": dict(numeric),
             "crash_examples": examples}
 
 
@@ -185,8 +245,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("target", choices=("core", "cli"))
     ap.add_argument("--cases", type=int, default=10_000)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--max-magnitude", type=float, default=MAGNITUDES[-1],
+                    help="largest object scale and offset drawn [m] (default 1e9)")
     args = ap.parse_args(argv)
-    report = fuzz(args.target, args.cases, args.seed)
+    report = fuzz(args.target, args.cases, args.seed, max_magnitude=args.max_magnitude)
     print(json.dumps(report, indent=1))
     return 1 if report.get("crash", 0) or report.get("non_finite", 0) else 0
 

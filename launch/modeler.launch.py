@@ -1,0 +1,86 @@
+"""Launch the ``modeler`` node with its parameters file, topic remaps and optionally RViz.
+
+Usage::
+
+    ros2 launch geomodel_ros modeler.launch.py points_topic:=/camera/depth/points rviz:=true
+    ros2 launch geomodel_ros modeler.launch.py namespace:=cam2 \
+        points_topic:=/cam2/depth/points params_file:=/path/to/kinect.yaml
+
+The launch arguments:
+
+* ``params_file``: the node's parameters (default: the installed ``config/modeler.yaml``;
+  ``config/kinect.yaml`` and ``config/sensor_noise.yaml`` are installed beside it).
+* ``namespace``: namespace of the node, for a second camera (outputs then live under
+  ``/<namespace>/modeler/...``; the RViz config shows the un-namespaced ``/modeler/...``).
+* ``points_topic``: the PointCloud2 to model (remap of the node's ``points`` input).
+* ``qos_reliability``: ``best_effort`` (live sensors) or ``reliable`` (bag replay).
+* ``use_large_data_profile``: ``true`` sets ``FASTRTPS_DEFAULT_PROFILES_FILE`` to the
+  installed ``config/fastdds_large_data.xml`` (shared memory only) for the processes this
+  file starts; needed for clouds of several MB.  The camera driver needs the same profile.
+* ``rviz``: ``true`` also starts ``rviz2`` with the installed ``config/modeler.rviz``.
+"""
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+PACKAGE = "geomodel_ros"
+
+
+def generate_launch_description():
+    """Return the launch description of the modeler (and optionally RViz)."""
+    share = get_package_share_directory(PACKAGE)
+    config = os.path.join(share, "config")
+    params_file = LaunchConfiguration("params_file")
+    namespace = LaunchConfiguration("namespace")
+    points_topic = LaunchConfiguration("points_topic")
+    qos_reliability = LaunchConfiguration("qos_reliability")
+    use_large_data_profile = LaunchConfiguration("use_large_data_profile")
+    rviz = LaunchConfiguration("rviz")
+
+    return LaunchDescription([
+        DeclareLaunchArgument(
+            "params_file", default_value=os.path.join(config, "modeler.yaml"),
+            description="YAML file with the node's parameters (key: modeler)."),
+        DeclareLaunchArgument(
+            "namespace", default_value="",
+            description="Namespace of the node (e.g. one per camera)."),
+        DeclareLaunchArgument(
+            "points_topic", default_value="/camera/depth/points",
+            description="sensor_msgs/PointCloud2 input, remapped onto the node's 'points'."),
+        DeclareLaunchArgument(
+            "qos_reliability", default_value="best_effort",
+            description="Reliability of the input subscription: best_effort or reliable."),
+        DeclareLaunchArgument(
+            "use_large_data_profile", default_value="false",
+            description="Use config/fastdds_large_data.xml (shared memory, large clouds)."),
+        DeclareLaunchArgument(
+            "rviz", default_value="false",
+            description="Also start rviz2 with config/modeler.rviz."),
+        SetEnvironmentVariable(
+            "FASTRTPS_DEFAULT_PROFILES_FILE",
+            os.path.join(config, "fastdds_large_data.xml"),
+            condition=IfCondition(use_large_data_profile)),
+        Node(
+            package=PACKAGE,
+            executable="modeler",
+            name="modeler",
+            namespace=namespace,
+            parameters=[params_file, {"qos_reliability": qos_reliability}],
+            remappings=[("points", points_topic)],
+            output="screen",
+        ),
+        Node(
+            package="rviz2",
+            executable="rviz2",
+            name="rviz2",
+            arguments=["-d", os.path.join(config, "modeler.rviz")],
+            condition=IfCondition(rviz),
+            output="screen",
+        ),
+    ])
