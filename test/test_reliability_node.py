@@ -406,7 +406,9 @@ def param_node():
 
     ctx = Context()
     rclpy.init(args=[], context=ctx)
-    h = Harness(ctx, topic="/rel_params/points")
+    # Per-frame markers (no tracking): every processed frame, even one without objects,
+    # has a stamped MarkerArray (DELETEALL) to check.
+    h = Harness(ctx, topic="/rel_params/points", tracking=False)
     h.next_sec = 5000
     yield h
     h.close()
