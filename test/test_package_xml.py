@@ -45,7 +45,7 @@ NO_ROSDEP_KEY = {
 }
 #: Development tools (not used by the node, the CLI or the launch file): their imports may be
 #: test dependencies.
-DEVELOPMENT_TOOLS = {Path("geomodel_ros/tools/fuzz.py")}
+DEVELOPMENT_TOOLS = {Path("geomodel_ros/tools/fuzz.py"), Path("geomodel_ros/tools/fuzz_node.py")}
 RUNTIME_TAGS = ("exec_depend", "depend")
 TEST_TAGS = RUNTIME_TAGS + ("test_depend",)
 #: A plausible e-mail address (local@domain.tld).
