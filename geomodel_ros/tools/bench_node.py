@@ -49,10 +49,11 @@ from geomodel_ros.tools.synth import SCENE_NAMES, render_scene  # noqa: E402
 _QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 _STAGES = (("convert_s", "convert in (PointCloud2 -> numpy)"),
            ("model_s", "core (model_scene)"),
-           ("markers_s", "markers out"),
+           ("markers_s", "tracking + markers out"),
+           ("objects_s", "typed objects out (~/objects)"),
            ("segments_s", "segments cloud out"),
            ("reconstruction_s", "reconstruction + cloud out"),
-           ("publish_s", "publish (3 topics)"),
+           ("publish_s", "publish"),
            ("total_s", "node total"))
 
 
@@ -95,7 +96,7 @@ def _wait(predicate, what: str, timeout: float = 30.0) -> None:
         time.sleep(0.002)
 
 
-def _run(cloud: PointCloud2, frames: int, core: SceneModeler
+def _run(cloud: PointCloud2, frames: int, core: SceneModeler, tracking: bool = True
          ) -> tuple[list[float], list[dict[str, float]]]:
     """Latencies [s] and node stage timings of ``frames`` frames through a fresh node."""
     domain = int(os.environ.get("ROS_DOMAIN_ID", 1 + os.getpid() % 100))
@@ -104,7 +105,8 @@ def _run(cloud: PointCloud2, frames: int, core: SceneModeler
     node = ModelerNode(context=context, model_scene=core,
                        cli_args=["--ros-args", "-r", "points:=/bench/points"],
                        parameter_overrides=[Parameter("qos_reliability", value="reliable"),
-                                            Parameter("diagnostics", value=False)])
+                                            Parameter("diagnostics", value=False),
+                                            Parameter("tracking", value=tracking)])
     peer = _Peer(context)
     executors, threads = [], []
     for n in (node, peer.node):
@@ -144,6 +146,8 @@ def main(argv: list[str] | None = None) -> int:
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", default="scene3", choices=SCENE_NAMES)
     parser.add_argument("--frames", type=int, default=20)
+    parser.add_argument("--tracking", choices=("on", "off"), default="on",
+                        help="the node's tracking parameter (stable ids, per-id markers)")
     args = parser.parse_args(argv)
     if args.frames < 1:
         parser.error("--frames must be >= 1")
@@ -161,8 +165,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"scene {args.scene}: {h} x {w} organized cloud, {len(scene.points)} valid points, "
           f"{len(result.objects)} objects; {args.frames} frames; "
           f"{cloud_size(cloud).nbytes / 1e6:.1f} MB per input message")
-    lat_null, tim_null = _run(cloud, args.frames, precomputed)
-    lat_real, tim_real = _run(cloud, args.frames, model_scene)
+    tracking = args.tracking == "on"
+    lat_null, tim_null = _run(cloud, args.frames, precomputed, tracking)
+    lat_real, tim_real = _run(cloud, args.frames, model_scene, tracking)
 
     print(f"\n  {'node overhead (core = precomputed result)':<44s} {'median ms':>9s} "
           f"{'p95 ms':>9s}")
