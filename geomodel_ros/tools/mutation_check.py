@@ -105,7 +105,8 @@ MUTANTS: tuple[Mutant, ...] = (
 FIRST = ("test_reconstruction.py", "test_fitting_units.py", "test_strategies.py",
          "test_fitters.py", "test_surface_type.py", "test_model_graph.py", "test_faces.py",
          "test_obb.py", "test_ray_to_cylinder.py", "test_params.py", "test_tracking.py",
-         "test_segmentation_joins.py", "test_pipeline.py", "test_segmentation.py")
+         "test_support.py", "test_segmentation_joins.py", "test_pipeline.py",
+         "test_segmentation.py")
 
 
 def test_files(repo: Path) -> list[str]:
