@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
+from numpy.typing import NDArray
 
 from geomodel_ros.core.modeling import model_scene as core_model_scene
 from geomodel_ros.core.params import ModelingParams
@@ -193,48 +194,61 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
         If the core fails on the frame.
     """
     timing: dict[str, float] = {}
-    t0 = time.perf_counter()
+    lap = _Laps(timing)
     # Every row, NaNs included: labels stay aligned with the input's points (and pixels,
     # for an organized cloud).
     points, organized, header = cloud_to_scene(msg)
     n_valid = int(np.count_nonzero(np.isfinite(points).all(axis=1)))
-    t1 = time.perf_counter()
-    timing["convert_s"] = t1 - t0
-
-    if n_valid:
-        labels, result = _model(points, organized, n_valid, params, model_scene)
-        timing.update({f"core_{k}": float(v) for k, v in result.timing.items()})
-    else:
-        labels = np.full(len(points), -1, dtype=np.int64)
-        result = ModelingResult(objects=[], timing={})
+    lap("convert_s")
+    labels, result = _model_or_nothing(points, organized, n_valid, params, model_scene)
+    timing.update({f"core_{k}": float(v) for k, v in result.timing.items()})
     objects = list(result.objects)
-    t2 = time.perf_counter()
-    timing["model_s"] = t2 - t1
-
+    lap("model_s")
     deleted: tuple[int, ...] = ()
     if tracking is None:
         shown, markers = objects, primitives_to_markers(objects, header)
     else:
         shown, markers, deleted = tracking.step(objects, header)
-    t_markers = time.perf_counter()
-    timing["markers_s"] = t_markers - t2
-    # The support planes are keyed by segment label: re-key them by the published ids.
-    published_id = {p.id: q.id for p, q in zip(objects, shown)}
-    supports = {published_id[k]: v for k, v in getattr(result, "supports", {}).items()
-                if k in published_id}
-    objects_msg = primitives_to_objects(shown, header, supports=supports)
-    t3 = time.perf_counter()
-    timing["objects_s"] = t3 - t_markers
-    segments_msg = recon_msg = None
-    if segments:
-        segments_msg = segments_cloud(points, labels, header, organized_shape=organized)
-    t4 = time.perf_counter()
-    timing["segments_s"] = t4 - t3
-    if reconstruction:
-        rpts, rids = reconstruct(objects, params.reconstruction_spacing)
-        recon_msg = reconstruction_cloud(rpts, rids, header)
-    timing["reconstruction_s"] = time.perf_counter() - t4
+    lap("markers_s")
+    objects_msg = primitives_to_objects(shown, header,
+                                        supports=_supports_by_id(result, objects, shown))
+    lap("objects_s")
+    segments_msg = segments_cloud(points, labels, header, organized_shape=organized) \
+        if segments else None
+    lap("segments_s")
+    recon_msg = reconstruction_cloud(*reconstruct(objects, params.reconstruction_spacing),
+                                     header) if reconstruction else None
+    lap("reconstruction_s")
     return FrameResult(markers=markers, segments=segments_msg, reconstruction=recon_msg,
                        result=result, labels=labels.astype(np.int64, copy=False),
                        valid_points=n_valid, timing=timing, objects=objects_msg,
                        tracked=list(shown), deleted_ids=deleted)
+
+
+class _Laps:
+    """Record the time since the previous lap under a stage name [s]."""
+
+    def __init__(self, timing: dict[str, float]) -> None:
+        self._timing, self._last = timing, time.perf_counter()
+
+    def __call__(self, stage: str) -> None:
+        now = time.perf_counter()
+        self._timing[stage] = now - self._last
+        self._last = now
+
+
+def _model_or_nothing(points: NDArray[np.float64], organized: tuple[int, int] | None,
+                      n_valid: int, params: ModelingParams, model_scene: SceneModeler
+                      ) -> tuple[NDArray[np.int64], ModelingResult]:
+    """Run the core, or give no objects (every label -1) when no point is finite."""
+    if n_valid:
+        return _model(points, organized, n_valid, params, model_scene)
+    return np.full(len(points), -1, dtype=np.int64), ModelingResult(objects=[], timing={})
+
+
+def _supports_by_id(result: ModelingResult, objects: list, shown: list
+                    ) -> dict[int, tuple[NDArray[np.float64], float]]:
+    """Support planes re-keyed from segment labels to the published (tracked) ids."""
+    published_id = {p.id: q.id for p, q in zip(objects, shown)}
+    return {published_id[k]: v for k, v in getattr(result, "supports", {}).items()
+            if k in published_id}
