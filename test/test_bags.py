@@ -9,6 +9,7 @@ truth of the synthetic scenes.
 from __future__ import annotations
 
 import json
+import math
 import re
 import shutil
 import struct
@@ -21,22 +22,41 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
+from geomodel_msgs.msg import Primitive, PrimitiveArray
+from geomodel_ros.core.primitives import Primitive as CorePrimitive
 from geomodel_ros.ros import bags
 from geomodel_ros.tools.cli import main
 from geomodel_ros.ros.node import ModelerNode
 from geomodel_ros.tools.synth import render_scene
+from msg_adapters.header import make_header
 from msg_adapters.markers import LABEL_NAMESPACE, PLANE_THICKNESS
+from msg_adapters.objects import primitives_to_objects
+from msg_adapters.serialization import serialize_objects
 from msg_adapters.pointcloud2 import xyz_to_cloud
 from ros_helpers import wait_until
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+OBJECTS = "geomodel_msgs/msg/PrimitiveArray"
+#: Jazzy's types plus geomodel_msgs, registered here from the .msg sources.
+OBJECTS_STORE = get_typestore(Stores.ROS2_JAZZY)
+OBJECTS_STORE.register({k: v for name in ("SupportSurface", "Primitive", "PrimitiveArray")
+                        for k, v in get_types_from_msg(
+                            (Path(__file__).resolve().parent.parent / "geomodel_msgs" / "msg"
+                             / f"{name}.msg").read_text(), f"geomodel_msgs/msg/{name}").items()})
+#: Primitive.msg type code per ground-truth type name (the published contract).
+TYPE_CODES = {"plane": 0, "cuboid": 1, "cylinder": 2, "cone": 3, "sphere": 4, "unknown": 255}
+#: MoveIt SolidPrimitive (type, dimensions) per ground-truth type: BOX=1 [x, y, z],
+#: SPHERE=2 [r], CYLINDER=3 [h, r].
+SOLID = {"cuboid": lambda d: (1, sorted([d["length"], d["width"], d["height"]])),
+         "cylinder": lambda d: (3, [d["height"], d["radius"]]),
+         "sphere": lambda d: (2, [d["radius"]])}
 TOPIC = bags.DEFAULT_TOPIC
 TIMEOUT = 30.0
 #: Size tolerance of the markers against the ground truth (clean renders) [m]: what the
@@ -109,6 +129,57 @@ def check_markers_against_truth(markers, truth_objects: list[dict]) -> None:
                           "sphere": Marker.SPHERE}[obj["type"]]
         scale = sorted([m.scale.x, m.scale.y, m.scale.z])
         np.testing.assert_allclose(scale, expected_scale(obj), atol=SIZE_TOL, err_msg=str(obj))
+
+
+def fields(value):
+    """Nested plain form of an rclpy or rosbags message; NaN as the string 'nan'."""
+    if hasattr(value, "get_fields_and_field_types"):  # rclpy
+        return {k: fields(getattr(value, k)) for k in value.get_fields_and_field_types()}
+    if hasattr(value, "__msgtype__"):  # rosbags
+        return {k: fields(getattr(value, k)) for k in value.__dataclass_fields__
+                if not k.isupper() and k != "__msgtype__"}
+    if isinstance(value, (list, tuple, np.ndarray)) or type(value).__name__ == "array":
+        return [fields(v) for v in value]
+    value = value.item() if isinstance(value, np.generic) else value
+    return "nan" if isinstance(value, float) and math.isnan(value) else value
+
+
+def check_objects(raw: bytes, markers, t_ns: int, frame_id: str, truth_objects: list[dict]):
+    """Check one recorded PrimitiveArray against its frame's markers and the ground truth."""
+    msg = OBJECTS_STORE.deserialize_cdr(raw, OBJECTS)
+    assert fields(deserialize_message(raw, PrimitiveArray)) == fields(msg)  # rclpy reads it too
+    assert stamp_ns(msg) == t_ns and msg.header.frame_id == frame_id
+    # one object per ground-truth object, of its type
+    assert sorted(p.type for p in msg.primitives) == sorted(
+        TYPE_CODES[o["type"]] for o in truth_objects)
+    shapes = {(m.ns, m.id): m for m in shape_markers(markers)}
+    assert len(shapes) == len(msg.primitives)
+    for p in msg.primitives:
+        (name,) = [k for k, v in TYPE_CODES.items() if v == p.type]
+        m = shapes[(name, p.id)]  # the same object as its marker: type, id, place
+        np.testing.assert_allclose([p.pose.position.x, p.pose.position.y, p.pose.position.z],
+                                   [m.pose.position.x, m.pose.position.y, m.pose.position.z],
+                                   atol=1e-9)
+        if name == "plane":
+            assert p.shape.type == 1 and p.shape.dimensions[2] == 0.0
+            assert abs(np.linalg.norm(p.plane.coef[:3]) - 1.0) < 1e-9
+            continue
+        (obj,) = [o for o in truth_objects if o["type"] == name]
+        assert np.linalg.norm(np.array([p.pose.position.x, p.pose.position.y,
+                                        p.pose.position.z]) - obj["center"]) < CENTER_TOL
+        kind, dims = SOLID[name](obj["dimensions"])
+        got = sorted(p.shape.dimensions) if name == "cuboid" else list(p.shape.dimensions)
+        assert p.shape.type == kind
+        np.testing.assert_allclose(got, dims, atol=SIZE_TOL, err_msg=str(obj))
+        named = dict(zip(p.dimension_names, p.dimensions))
+        assert set(named) == set(obj["dimensions"])
+        # a box's edges are named by the fitted axes (not the scene's): compare them sorted
+        keys = sorted(named)
+        want = [obj["dimensions"][k] for k in keys]
+        have = [named[k] for k in keys]
+        if name == "cuboid":
+            want, have = sorted(want), sorted(have)
+        np.testing.assert_allclose(have, want, atol=SIZE_TOL)
 
 
 def one_error_line(err: str) -> str:
@@ -189,11 +260,15 @@ def test_bag_round_trip_models_every_frame(storage, clean_bag, processed, tmp_pa
         assert (out / "processed.mcap").is_file()
     truth = json.loads(bags.ground_truth_path(src).read_text())
     inp, res = read_bag(src), read_bag(out)
-    assert set(res) == {TOPIC, "/modeler/primitives", "/modeler/segments",
+    assert set(res) == {TOPIC, "/modeler/primitives", "/modeler/objects", "/modeler/segments",
                         "/modeler/reconstruction"}
+    with Reader(out) as reader:
+        (conn,) = [c for c in reader.connections if c.topic == "/modeler/objects"]
+        assert conn.msgtype == OBJECTS and "MSG: geomodel_msgs/Primitive" in conn.msgdef.data
     assert res[TOPIC] == inp[TOPIC]  # input copied as is, bag times included
     stamps = [t for t, _ in inp[TOPIC]]
-    for topic in ("/modeler/primitives", "/modeler/segments", "/modeler/reconstruction"):
+    for topic in ("/modeler/primitives", "/modeler/objects", "/modeler/segments",
+                  "/modeler/reconstruction"):
         assert [t for t, _ in res[topic]] == stamps
     for scene in truth["scenes"]:
         for k in scene["frames"]:
@@ -203,6 +278,8 @@ def test_bag_round_trip_models_every_frame(storage, clean_bag, processed, tmp_pa
             assert {stamp_ns(m) for m in markers} == {t_ns}
             assert {m.header.frame_id for m in markers} == {truth["frame_id"]}
             check_markers_against_truth(markers, scene["objects"])
+            check_objects(res["/modeler/objects"][k][1], markers, t_ns, truth["frame_id"],
+                          scene["objects"])
             seg = TYPESTORE.deserialize_cdr(res["/modeler/segments"][k][1], bags.POINTCLOUD2)
             assert stamp_ns(seg) == t_ns
             assert (seg.height, seg.width) == (scene["intrinsics"]["height"],
@@ -230,12 +307,51 @@ def test_bag_parameters_and_storage_options(clean_bag, tmp_path, capsys):
     assert code == 0 and "4/4 clouds" in stdout
     res = read_bag(out)
     assert (out / "custom.db3").is_file()
-    assert set(res) == {TOPIC, "/geo/primitives", "/geo/segments"}
+    assert set(res) == {TOPIC, "/geo/primitives", "/geo/objects", "/geo/segments"}
     # the parameter reached the core: no object has enough points to be modeled
     for _, raw in res["/geo/primitives"]:
         kinds = {m.ns for m in shape_markers(
             TYPESTORE.deserialize_cdr(raw, bags.MARKER_ARRAY).markers)}
         assert kinds == {"unknown"}
+    # the typed objects are UNKNOWN, without shape or dimensions, and readable by rosbags
+    # and rclpy alike (rclpy's serialize_message pads such messages: not used for them)
+    assert [t for t, _ in res["/geo/objects"]] == [t for t, _ in res[TOPIC]]
+    for _, raw in res["/geo/objects"]:
+        msg = OBJECTS_STORE.deserialize_cdr(raw, OBJECTS)
+        assert msg.primitives and {p.type for p in msg.primitives} == {Primitive.UNKNOWN}
+        assert all(len(p.dimensions) == 0 and p.shape.type == 0 for p in msg.primitives)
+        assert fields(deserialize_message(raw, PrimitiveArray)) == fields(msg)
+
+
+def test_objects_with_an_unknown_object_read_back_with_rosbags_and_rclpy(tmp_path):
+    header = make_header("camera_optical", 1_700_000_123_456_000_000)
+    box = CorePrimitive(4, "cuboid", np.array([0.1, -0.2, 0.9]), np.eye(3),
+                        {"length": 0.08, "width": 0.06, "height": 0.05}, 500,
+                        0.0009765625)  # rmse exact in float32 (compared with ==)
+    blob = CorePrimitive(5, "unknown", np.array([0.0, 0.1, 1.2]), np.eye(3), {}, 37, 0.0,
+                         reason="too few points")
+    msg = primitives_to_objects([box, blob], header)
+    assert len(msg.primitives[1].dimensions) == 0
+    path = tmp_path / "objects"
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection("/modeler/objects", OBJECTS, typestore=OBJECTS_STORE)
+        writer.write(conn, 1, serialize_objects(msg))
+    [(_, raw)] = read_bag(path)["/modeler/objects"]
+    back = OBJECTS_STORE.deserialize_cdr(raw, OBJECTS)
+    expected = {"header": {"stamp": {"sec": 1_700_000_123, "nanosec": 456_000_000},
+                           "frame_id": "camera_optical"}, "support_surfaces": []}
+    got = fields(back)
+    assert {k: got[k] for k in expected} == expected
+    assert fields(deserialize_message(raw, PrimitiveArray)) == got == fields(msg)
+    b, u = back.primitives
+    assert (b.id, b.type, b.shape.type, list(b.shape.dimensions)) == (4, 1, 1, [0.08, 0.06, 0.05])
+    assert list(b.dimensions) == [0.08, 0.06, 0.05] and b.point_count == 500
+    assert (u.id, u.type, u.shape.type, len(u.dimensions), u.point_count, u.reason) == (
+        5, 255, 0, 0, 37, "too few points")
+    # negative: a changed object reads back changed
+    msg.primitives[0].dimensions[2] = 0.051
+    changed = OBJECTS_STORE.deserialize_cdr(serialize_objects(msg), OBJECTS)
+    assert fields(changed) != got and changed.primitives[0].dimensions[2] == 0.051
 
 
 # ---------------------------------------------------------------------------------------

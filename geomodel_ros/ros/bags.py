@@ -40,7 +40,8 @@ from geomodel_ros.core.modeling import model_scene as core_model_scene
 from msg_adapters.header import make_header
 from msg_adapters.interfaces import PointCloud2
 from msg_adapters.pointcloud2 import PointCloud2Error, xyz_to_cloud
-from msg_adapters.serialization import DeserializationError, deserialize_cloud, serialize
+from msg_adapters.serialization import (OBJECTS_TYPE, DeserializationError, deserialize_cloud,
+                                        geomodel_typestore, serialize, serialize_objects)
 
 __all__ = [
     "BagError",
@@ -51,6 +52,7 @@ __all__ = [
     "OUTPUT_NAMESPACE",
     "PLAY_QOS_DEPTH",
     "POINTCLOUD2",
+    "PRIMITIVE_ARRAY",
     "STORAGES",
     "SYNTH_START_NS",
     "ground_truth_path",
@@ -62,6 +64,8 @@ __all__ = [
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+#: The typed objects (``~/objects``), a type of this repository's ``geomodel_msgs``.
+PRIMITIVE_ARRAY = OBJECTS_TYPE
 #: Topic and frame of the synthetic bags (a typical RGB-D driver's names).
 DEFAULT_TOPIC = "/camera/depth/points"
 DEFAULT_FRAME_ID = "camera_depth_optical_frame"
@@ -78,6 +82,8 @@ STORAGES: Mapping[str, StoragePlugin] = {"mcap": StoragePlugin.MCAP,
 PLAY_QOS_DEPTH = 10
 
 _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+#: Jazzy's types plus geomodel_msgs (registered from the .msg definitions), for the objects.
+_OBJECTS_TYPESTORE = geomodel_typestore()
 _ZERO = QosTime(0, 0)  # "default" duration
 
 
@@ -331,6 +337,7 @@ class _Outputs:
 
     cloud: Connection
     markers: Connection
+    objects: Connection
     segments: Connection | None
     reconstruction: Connection | None
 
@@ -342,13 +349,15 @@ def _add_outputs(writer: Writer, name: str, conns: Sequence[Connection], ns: str
                                                       "offered_qos_profiles") else []
 
     def add(topic: str, msgtype: str) -> Connection:
-        return writer.add_connection(topic, msgtype, typestore=_TYPESTORE,
+        store = _OBJECTS_TYPESTORE if msgtype == PRIMITIVE_ARRAY else _TYPESTORE
+        return writer.add_connection(topic, msgtype, typestore=store,
                                      offered_qos_profiles=[_NODE_OUTPUT_QOS])
 
     return _Outputs(
         cloud=writer.add_connection(name, POINTCLOUD2, typestore=_TYPESTORE,
                                     offered_qos_profiles=qos),
         markers=add(f"{ns}/primitives", MARKER_ARRAY),
+        objects=add(f"{ns}/objects", PRIMITIVE_ARRAY),
         segments=add(f"{ns}/segments", POINTCLOUD2) if segments else None,
         reconstruction=add(f"{ns}/reconstruction", POINTCLOUD2) if reconstruction else None)
 
@@ -370,6 +379,9 @@ def _model_record(raw: bytes, params: ModelingParams, segments: bool, reconstruc
 
 def _write_outputs(writer: Writer, outs: _Outputs, t_ns: int, frame: FrameResult) -> None:
     writer.write(outs.markers, t_ns, serialize(frame.markers))
+    if frame.objects is not None:
+        # rosbags' serializer: rclpy's pads empty float64 sequences (see serialize_objects)
+        writer.write(outs.objects, t_ns, serialize_objects(frame.objects))
     if outs.segments is not None and frame.segments is not None:
         writer.write(outs.segments, t_ns, serialize(frame.segments))
     if outs.reconstruction is not None and frame.reconstruction is not None:
@@ -400,6 +412,7 @@ def process_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
         Storage of the output; default: the input's.
     namespace : str
         Output topics are ``<namespace>/primitives`` (MarkerArray),
+        ``<namespace>/objects`` (``geomodel_msgs/msg/PrimitiveArray``, the typed objects),
         ``<namespace>/segments`` and ``<namespace>/reconstruction`` (PointCloud2).
     segments, reconstruction : bool
         Write those two topics.
@@ -425,7 +438,9 @@ def process_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
     -----
     The output holds the input topic (raw records copied) and, per processed cloud, the
     node's outputs with the input's header (``frame_id``, ``stamp``) and the input
-    record's bag time.  A malformed cloud is skipped (reported through ``warn``).
+    record's bag time.  A malformed cloud is skipped (reported through ``warn``).  The
+    objects' connection carries the ``geomodel_msgs`` definitions, so any rosbag2 reader
+    can decode it.
     """
     params = params if params is not None else ModelingParams()
     src_path, dst_path = Path(src), Path(dst)

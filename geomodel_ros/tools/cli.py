@@ -369,7 +369,7 @@ def _add_bag(sub) -> None:
                    help="storage of the output (default: the input's)")
     p.add_argument("--namespace", default="/modeler",
                    help="namespace of the output topics (default /modeler: /modeler/primitives, "
-                   "/modeler/segments, /modeler/reconstruction)")
+                   "/modeler/objects, /modeler/segments, /modeler/reconstruction)")
     p.add_argument("--no-segments", action="store_true", help="do not write <namespace>/segments")
     p.add_argument("--no-reconstruction", action="store_true",
                    help="do not write <namespace>/reconstruction")

@@ -5,11 +5,13 @@
    ``--params-file config/modeler.yaml``).
 3. Replay the bag into it over DDS (``geomodel play``, loopback only) and record what the
    node publishes.
-4. Print, per scene, the detected objects next to the ground truth (Figure 9 style) and
-   the per-frame latency; write pictures (segments, reconstruction, overlay) to
+4. Print, per scene, the detected objects next to the ground truth (Figure 9 style), the
+   per-frame latency and the typed objects of ``/modeler/objects`` (id, type, MoveIt shape
+   and dimensions in mm, position); write pictures (segments, reconstruction, overlay) to
    ``demo_out/<scene>/``.
 
-Exits non-zero when the node produced nothing.
+Exits non-zero when the node produced nothing (markers or typed objects missing for a
+frame).
 """
 
 from __future__ import annotations
@@ -41,6 +43,10 @@ __all__ = ["run_demo", "main"]
 
 ROOT = REPO
 TOPIC = "/camera/depth/points"
+OBJECTS_TOPIC = "/modeler/objects"
+#: Names of geomodel_msgs/Primitive's ``type`` and shape_msgs/SolidPrimitive's ``type``.
+OBJECT_TYPES = ("PLANE", "CUBOID", "CYLINDER", "CONE", "SPHERE", "FRUSTUM", "UNKNOWN")
+SHAPE_TYPES = ("BOX", "SPHERE", "CYLINDER", "CONE")
 
 
 def _node_command(params_file: Path) -> list[str]:
@@ -59,6 +65,7 @@ class _Recorder:
         from rclpy.qos import QoSProfile, ReliabilityPolicy
 
         from msg_adapters.interfaces import MarkerArray, PointCloud2
+        from msg_adapters.objects import PrimitiveArray
 
         self.node = Node("geomodel_demo_recorder", context=context)
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -66,9 +73,11 @@ class _Recorder:
         self.inputs: dict[int, float] = {}
         self.markers: dict[int, tuple[float, object]] = {}
         self.segments: dict[int, object] = {}
+        self.objects: dict[int, object] = {}
         self.node.create_subscription(PointCloud2, TOPIC, self._on_input, qos)
         self.node.create_subscription(MarkerArray, "/modeler/primitives", self._on_markers, qos)
         self.node.create_subscription(PointCloud2, "/modeler/segments", self._on_segments, qos)
+        self.node.create_subscription(PrimitiveArray, OBJECTS_TOPIC, self._on_objects, qos)
 
     def _on_input(self, msg) -> None:
         with self.lock:
@@ -83,6 +92,14 @@ class _Recorder:
     def _on_segments(self, msg) -> None:
         with self.lock:
             self.segments[stamp_ns(msg)] = msg
+
+    def _on_objects(self, msg) -> None:
+        with self.lock:
+            self.objects[stamp_ns(msg)] = msg
+
+    def complete(self, frames: int) -> bool:
+        """Whether markers and typed objects arrived for ``frames`` frames (hold the lock)."""
+        return len(self.markers) >= frames and len(self.objects) >= frames
 
 
 def _match(truth: list[dict], detected) -> list[tuple[dict, object]]:
@@ -123,6 +140,25 @@ def _table(truth: list[dict], detected) -> tuple[str, int]:
     return "\n".join(lines), found
 
 
+def _objects_table(msg) -> str:
+    """One row per typed object: id, type, MoveIt shape with dimensions [mm], position [m]."""
+    from shape_msgs.msg import SolidPrimitive
+
+    from msg_adapters.objects import PrimitiveMsg
+
+    types = {getattr(PrimitiveMsg, n): n.lower() for n in OBJECT_TYPES}
+    shapes = {getattr(SolidPrimitive, n): n for n in SHAPE_TYPES}
+    lines = [f"  {'id':>4}  {'type':<9} {'MoveIt shape':<12} {'dimensions (mm)':<24} "
+             f"{'position (m)':<26}"]
+    for p in sorted(msg.primitives, key=lambda q: q.id):
+        dims = " x ".join(f"{d * 1000:.1f}" for d in p.shape.dimensions) or "-"
+        pos = p.pose.position
+        lines.append(f"  {p.id:>4}  {types.get(p.type, str(p.type)):<9} "
+                     f"{shapes.get(p.shape.type, '-'):<12} {dims:<24} "
+                     f"({pos.x:+.3f}, {pos.y:+.3f}, {pos.z:+.3f})")
+    return "\n".join(lines)
+
+
 def _wait_until_ready(recorder: _Recorder, node_proc: subprocess.Popen,
                       timeout_s: float = 60.0) -> bool:
     """Wait until the node is up; False if it is not after ``timeout_s`` or has exited.
@@ -153,11 +189,11 @@ def _replay(bag: Path, truth: dict, rate: float, context, recorder: _Recorder,
         deadline = time.monotonic() + min(timeout_s, 15.0 + 3.0 * truth["frames"])
         while time.monotonic() < deadline and node_proc.poll() is None:
             with recorder.lock:
-                if len(recorder.markers) >= truth["frames"]:
+                if recorder.complete(truth["frames"]):
                     break
             time.sleep(0.05)
         with recorder.lock:
-            if len(recorder.markers) >= truth["frames"] or node_proc.poll() is not None:
+            if recorder.complete(truth["frames"]) or node_proc.poll() is not None:
                 return
 
 
@@ -173,12 +209,12 @@ def _pictures(segments_msg, detected, scene: dict, out: Path) -> None:
     print(f"  pictures: {', '.join(str(f) for f in files)}\n", flush=True)
 
 
-def _report_scene(scene: dict, recorded: tuple[dict, dict, dict], out: Path,
+def _report_scene(scene: dict, recorded: tuple[dict, dict, dict, dict], out: Path,
                   pictures: bool) -> int:
-    """Print one scene's table (and write its pictures); objects found."""
+    """Print one scene's tables (and write its pictures); objects found."""
     from msg_adapters.markers import markers_to_primitives
 
-    markers, inputs, segments = recorded
+    markers, inputs, segments, objects = recorded
     stamps = [s for s in scene["stamps_ns"] if s in markers]
     lat = [1000.0 * (markers[s][0] - inputs[s]) for s in stamps if s in inputs]
     print(f"== {scene['name']}: {len(stamps)}/{len(scene['stamps_ns'])} frames modeled"
@@ -192,6 +228,12 @@ def _report_scene(scene: dict, recorded: tuple[dict, dict, dict], out: Path,
     print(table)
     print(f"  {found}/{len(scene['objects'])} objects found with the right type; "
           f"{len(detected)} primitives published\n")
+    typed = [s for s in scene["stamps_ns"] if s in objects]
+    print(f"  typed objects on {OBJECTS_TOPIC}: {len(typed)}/{len(scene['stamps_ns'])} "
+          "frames" + (f", last frame {len(objects[typed[-1]].primitives)} objects" if typed
+                      else ""))
+    if typed:
+        print(_objects_table(objects[typed[-1]]) + "\n")
     if pictures and last in segments:
         _pictures(segments[last], detected, scene, out)
     return found
@@ -262,16 +304,18 @@ def run_demo(out_dir: str | Path = "demo_out", scenes: Sequence[str] = ("scene1"
             return 1
         _replay(bag, truth, rate, context, recorder, node_proc, timeout_s)
         with recorder.lock:
-            recorded = (dict(recorder.markers), dict(recorder.inputs), dict(recorder.segments))
+            recorded = (dict(recorder.markers), dict(recorder.inputs), dict(recorder.segments),
+                        dict(recorder.objects))
         print(f"[demo] the node published results for {len(recorded[0])} of {truth['frames']} "
-              f"frames\n", flush=True)
+              f"frames, typed objects for {len(recorded[3])}\n", flush=True)
         all_found = sum(_report_scene(scene, recorded, out, pictures)
                         for scene in truth["scenes"])
         all_total = sum(len(scene["objects"]) for scene in truth["scenes"]
                         if any(s in recorded[0] for s in scene["stamps_ns"]))
         print(f"[demo] {all_found}/{all_total} ground-truth objects found; "
               f"done in {time.monotonic() - t0:.0f} s", flush=True)
-        return 0 if recorded[0] and len(recorded[0]) == truth["frames"] else 1
+        complete = all(len(r) == truth["frames"] for r in (recorded[0], recorded[3]))
+        return 0 if truth["frames"] and complete else 1
     finally:
         executor.shutdown(timeout_sec=5.0)
         spinner.join(timeout=5.0)
