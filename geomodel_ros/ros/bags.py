@@ -80,6 +80,10 @@ STORAGES: Mapping[str, StoragePlugin] = {"mcap": StoragePlugin.MCAP,
 #: rmw_qos_profile_default's depth (keep last 10), reliable, volatile -- or the recorded
 #: reliability/durability when every recorded publisher offered the same.
 PLAY_QOS_DEPTH = 10
+#: After the last record, how long [s] replay waits for reliable readers to acknowledge
+#: everything before the publishers go (a multi-MB cloud takes well under a second on
+#: loopback; readers that never answer must not hold the tool).
+ACK_TIMEOUT_S = 5.0
 
 _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 #: Jazzy's types plus geomodel_msgs (registered from the .msg definitions), for the objects.
@@ -625,6 +629,7 @@ def play(path: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False,
 
     import rclpy
     from rclpy.context import Context
+    from rclpy.duration import Duration
     from rclpy.node import Node
 
     own_context = context is None
@@ -647,6 +652,10 @@ def play(path: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False,
             published += _publish_once(reader, bag, all_conns, pubs, rate, stop)
             if not loop:
                 break
+        # A reliable writer destroyed right after its last write can take that message
+        # with it (a multi-MB cloud is still in fragments): wait for the readers' acks.
+        for pub in pubs.values():
+            pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
     except KeyboardInterrupt:
         stop.set()
     finally:
