@@ -37,7 +37,7 @@ from msg_adapters.pointcloud2 import cloud_to_fields, cloud_to_xyz_and_mask, xyz
 
 REPO = Path(__file__).resolve().parent.parent
 #: What a source checkout of the package consists of (build products are left out).
-PACKAGE_CONTENT = ("package.xml", "setup.py", "setup.cfg", "resource", "config",
+PACKAGE_CONTENT = ("package.xml", "setup.py", "setup.cfg", "resource", "config", "launch",
                    "geomodel_ros", "msg_adapters")
 RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
 STAMP = (1_700_000_123, 456_000_000)
@@ -226,3 +226,15 @@ def test_ros2_run_rejects_invalid_parameters(installed, override, message):
     assert done.returncode == 2, text
     assert "invalid parameters" in text and message in text, text
     assert "Traceback" not in text, text
+
+
+def test_colcon_installs_what_the_launch_file_uses(installed):
+    from test_launch_file import LAUNCH, RVIZ, config_files_named_by_the_launch_file
+
+    share = installed[1].parent.parent  # .../share/geomodel_ros/config/modeler.yaml
+    assert (share / "launch" / "modeler.launch.py").read_text() == LAUNCH.read_text()
+    assert (share / "config" / "modeler.rviz").read_text() == RVIZ.read_text()
+    named = config_files_named_by_the_launch_file()
+    assert {"modeler.yaml", "fastdds_large_data.xml", "modeler.rviz"} <= named
+    for name in named:
+        assert (share / "config" / name).is_file(), f"{name} is not installed"
