@@ -7,7 +7,7 @@ and reading their fields is left to the other adapter modules.
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticArray
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from visualization_msgs.msg import MarkerArray
 
-__all__ = ["DiagnosticArray", "MarkerArray", "PointCloud2"]
+__all__ = ["CameraInfo", "DiagnosticArray", "Image", "MarkerArray", "PointCloud2"]

@@ -42,7 +42,8 @@ def _node_topics() -> set[str]:
     names = set()
     for node in ast.walk(ast.parse(NODE.read_text())):
         if isinstance(node, ast.Call) and _call_name(node) in (
-                "create_publisher", "create_subscription", "create_service"):
+                "create_publisher", "create_subscription", "create_service",
+                "create_input_subscription"):
             topic = node.args[1]
             assert isinstance(topic, ast.Constant), ast.dump(topic)
             names.add(topic.value)

@@ -344,6 +344,7 @@ def test_every_parameter_is_declared_with_descriptor(make_harness):
         assert node.has_parameter(p.name)
     assert node.describe_parameter("qos_depth").read_only
     assert "best_effort" in node.describe_parameter("qos_reliability").additional_constraints
+    assert node.describe_parameter("input").read_only
     assert node.modeling_params == ModelingParams()
 
 
@@ -399,6 +400,8 @@ def test_output_switches_take_effect(make_harness):
 @pytest.mark.parametrize("overrides, error, match", [
     ({"min_radius": 3.0}, ParameterError, "min_radius"),
     ({"qos_reliability": "sometimes"}, ParameterError, "qos_reliability"),
+    ({"input": "rgb"}, ParameterError, r"'input' = 'rgb' is not allowed; use one of: "
+                                       r"points, depth"),
     ({"voxel_size": 5.0}, ParameterException, "out of range"),
     ({"normal_neighbors": 1.5}, ParameterException, "normal_neighbors"),
 ])
@@ -420,12 +423,15 @@ def test_initial_parameters_may_move_both_radii(context):
 def test_topics_qos_and_namespace(context):
     node = ModelerNode(context=context, namespace="/robot")
     try:
-        assert node._subscription.topic_name == "/robot/points"
+        (subscription,) = node._inputs
+        assert subscription.subscription.topic_name == "/robot/points"
         assert node._pub_markers.topic_name == "/robot/modeler/primitives"
         assert node._pub_segments.topic_name == "/robot/modeler/segments"
         assert node._pub_reconstruction.topic_name == "/robot/modeler/reconstruction"
-        qos = node._subscription.qos_profile
+        # qos_reliability auto without any publisher yet: best effort (matches any)
+        qos = subscription.subscription.qos_profile
         assert qos.reliability == ReliabilityPolicy.BEST_EFFORT and qos.depth == 1
+        assert node.input_reliability == {"/robot/points": "best_effort"}
     finally:
         node.destroy_node()
 

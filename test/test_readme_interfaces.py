@@ -35,7 +35,7 @@ def _node_interfaces() -> set[str]:
     for node in ast.walk(tree):
         if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
                 and node.func.attr in ("create_publisher", "create_subscription",
-                                       "create_service")):
+                                       "create_service", "create_input_subscription")):
             names.add(ast.literal_eval(node.args[1]))
     return names
 

@@ -1,15 +1,32 @@
-r"""ROS 2 node ``modeler``: PointCloud2 in, modeled primitives out.
+r"""ROS 2 node ``modeler``: PointCloud2 or depth image in, modeled primitives out.
 
 Run it as::
 
     ros2 run geomodel_ros modeler --ros-args --params-file config/modeler.yaml \
         -r points:=/camera/depth/points
+    ros2 run geomodel_ros modeler --ros-args -p input:=depth \
+        -r depth/image_raw:=/camera/depth/image_rect_raw \
+        -r depth/camera_info:=/camera/depth/camera_info
 
 Topics (names relative to the node, so ``-r`` and namespaces work):
 
-* ``points`` (sensor_msgs/PointCloud2, subscribed): the scene in any frame; with
-  ``reproject_along_rays`` the frame must be the sensor's (sensor at the origin).
-  Sensor-data QoS: best effort (``qos_reliability``), keep last ``qos_depth``.
+* ``points`` (sensor_msgs/PointCloud2, subscribed with ``input: points``, the default):
+  the scene in any frame; with ``reproject_along_rays`` the frame must be the sensor's
+  (sensor at the origin).
+* ``depth/image_raw`` (sensor_msgs/Image, subscribed with ``input: depth``): a depth image,
+  ``16UC1`` millimetres (0 = no return) or ``32FC1`` metres (NaN, inf, 0 = no return),
+  rectified/registered (lens distortion is not applied); the node back-projects it into
+  the organized cloud of the image's optical frame (:mod:`msg_adapters.depth_image`) and
+  models that as it models ``points``.  An image is 4-8x smaller than its PointCloud2.
+* ``depth/camera_info`` (sensor_msgs/CameraInfo, subscribed with ``input: depth``): the
+  camera's intrinsics (``P``, else ``K``); the latest one is kept and used for every
+  image.  An image before any CameraInfo, of another size than the CameraInfo, or with an
+  unknown encoding is dropped with a throttled warning (counted as failed).
+* Input QoS: keep last ``qos_depth``; reliability ``qos_reliability``: ``auto`` (default)
+  subscribes reliable when every publisher of the topic is reliable and best effort
+  otherwise, re-checked every ``INPUT_QOS_POLL_S`` s (a driver started after the node is
+  picked up; :mod:`geomodel_ros.ros.input_qos`).  A reliable publisher's multi-MB clouds
+  do not survive a best-effort subscription under the middleware's defaults.
 * ``~/objects`` (geomodel_msgs/PrimitiveArray): the typed objects (MoveIt's SolidPrimitive
   conventions, see ``geomodel_msgs/msg/Primitive.msg``), every processed frame.
 * ``~/primitives`` (visualization_msgs/MarkerArray): one marker and one label per object.
@@ -71,9 +88,10 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 
+from geomodel_ros.ros.input_qos import RELIABILITY_MODES, AdaptiveSubscription
 from geomodel_ros.ros.processing import (FrameResult, ModelingError, ObjectTracking,
                                          PointCloud2Error, SceneModeler, process_cloud)
 
@@ -82,10 +100,12 @@ from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError,
 from geomodel_ros.core.tracking import TRACKER_PARAMETERS, TrackerConfig
 from geomodel_ros.core.modeling import model_scene as core_model_scene
 
+from msg_adapters.depth_image import DepthImageError, depth_to_scene
 from msg_adapters.diagnostics import diagnostics_message
 from msg_adapters.header import header_of, stamp_ns, stamp_text
-from msg_adapters.interfaces import DiagnosticArray, MarkerArray, PointCloud2
+from msg_adapters.interfaces import CameraInfo, DiagnosticArray, Image, MarkerArray, PointCloud2
 from msg_adapters.objects import PrimitiveArray
+from msg_adapters.pointcloud2 import cloud_to_scene
 from msg_adapters.parameters import option_descriptor, set_parameters_result, spec_descriptor
 
 __all__ = ["ModelerNode", "NODE_PARAMETERS", "NODE_NUMERIC_PARAMETERS", "TRACKING_PARAMETERS",
@@ -104,8 +124,12 @@ EXECUTOR_THREADS = 2
 RATE_WINDOW_MIN_S = 1.0
 #: Longest window of the processing rate [s] (``expected_rate_min`` near 0).
 RATE_WINDOW_MAX_S = 60.0
-_RELIABILITY = {"best_effort": ReliabilityPolicy.BEST_EFFORT,
-                "reliable": ReliabilityPolicy.RELIABLE}
+#: Period of the publishers' QoS check of ``qos_reliability: auto`` [s]: a driver started
+#: after the node is subscribed to within this time (rosbag2 polls every 0.1 s; the check
+#: is a graph query, cheap, but there is no need to spend it more often).
+INPUT_QOS_POLL_S = 0.5
+#: Allowed values of ``input``.
+INPUTS = ("points", "depth")
 
 
 @dataclass(frozen=True)
@@ -123,9 +147,14 @@ class _NodeParam:
 NODE_PARAMETERS: tuple[_NodeParam, ...] = (
     _NodeParam("qos_depth", 1, "History depth of the input subscription and the output "
                "publishers; read at start.", read_only=True, low=1, high=1000),
-    _NodeParam("qos_reliability", "best_effort", "Reliability of the input subscription "
-               "(best_effort for live sensors, reliable e.g. for bag replay); read at start.",
-               read_only=True, constraints="one of: best_effort, reliable"),
+    _NodeParam("qos_reliability", "auto", "Reliability of the input subscriptions: auto "
+               "(reliable when every publisher is reliable, else best effort; re-checked "
+               "when publishers come and go), best_effort or reliable; read at start.",
+               read_only=True, constraints="one of: " + ", ".join(RELIABILITY_MODES)),
+    _NodeParam("input", "points", "What to model: points (sensor_msgs/PointCloud2 on "
+               "'points') or depth (sensor_msgs/Image on 'depth/image_raw' with "
+               "sensor_msgs/CameraInfo on 'depth/camera_info'); read at start.",
+               read_only=True, constraints="one of: " + ", ".join(INPUTS)),
     _NodeParam("publish_segments", True, "Publish ~/segments (input points labelled by object)."),
     _NodeParam("publish_reconstruction", True,
                "Publish ~/reconstruction (surface samples of the modeled objects)."),
@@ -166,6 +195,7 @@ class NodeOptions:
 
     qos_depth: int
     qos_reliability: str
+    input: str
     publish_segments: bool
     publish_reconstruction: bool
     diagnostics: bool
@@ -274,7 +304,7 @@ def _option_descriptor(p: _NodeParam):
                              constraints=p.constraints, low=p.low, high=p.high)
 
 
-def _stamp(msg: PointCloud2) -> str:
+def _stamp(msg: PointCloud2 | Image) -> str:
     return stamp_text(stamp_ns(msg))
 
 
@@ -334,21 +364,48 @@ class ModelerNode(Node):
         self._worker = threading.Thread(target=self._run, name=f"{node_name}-worker",
                                         daemon=True)
         self._worker.start()
-        qos_in = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self._options.qos_depth,
-                            reliability=_RELIABILITY[self._options.qos_reliability],
-                            durability=qos_profile_sensor_data.durability)
-        self._subscription = self.create_subscription(PointCloud2, "points", self._on_cloud,
-                                                      qos_in)
+        self._camera_info: CameraInfo | None = None
+        self._create_inputs()
         self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
         self._detect_service = self.create_service(
             Trigger, "~/detect", self._on_detect,
             callback_group=MutuallyExclusiveCallbackGroup())
         self.get_logger().info(
-            f"modeling clouds from '{self._subscription.topic_name}' "
+            f"modeling {self._options.input} from "
+            f"{', '.join(repr(s.topic_name) for s in self._inputs)} "
             f"({self._options.qos_reliability}, depth {self._options.qos_depth}; "
             f"{'continuous' if self._options.continuous else 'on demand'}); publishing "
             f"'{self._pub_objects.topic_name}', '{self._pub_markers.topic_name}', "
             f"'{self._pub_segments.topic_name}', '{self._pub_reconstruction.topic_name}'")
+
+    def create_input_subscription(self, msg_type: type, topic: str, callback
+                                  ) -> AdaptiveSubscription:
+        """Subscribe ``topic`` with the input QoS (``qos_depth``, ``qos_reliability``)."""
+        return AdaptiveSubscription(self, msg_type, topic, callback, self._options.qos_depth,
+                                    self._options.qos_reliability)
+
+    def _create_inputs(self) -> None:
+        """Subscribe the inputs of ``input``; poll the publishers' QoS in ``auto`` mode."""
+        if self._options.input == "depth":
+            self._inputs = (self.create_input_subscription(Image, "depth/image_raw",
+                                                           self._on_image),
+                            self.create_input_subscription(CameraInfo, "depth/camera_info",
+                                                           self._on_camera_info))
+        else:
+            self._inputs = (self.create_input_subscription(PointCloud2, "points",
+                                                           self._on_cloud),)
+        self._input_qos_timer = None
+        if self._options.qos_reliability == "auto":
+            self._input_qos_timer = self.create_timer(INPUT_QOS_POLL_S, self._update_inputs)
+
+    def _update_inputs(self) -> None:
+        for subscription in self._inputs:
+            subscription.update()
+
+    @property
+    def input_reliability(self) -> dict[str, str | None]:
+        """Reliability each input topic is subscribed with (resolved name -> policy)."""
+        return {s.topic_name: s.reliability for s in self._inputs}
 
     def _create_publishers(self) -> None:
         """Create the output publishers (reliable, keep last ``qos_depth``; /diagnostics)."""
@@ -409,10 +466,11 @@ class ModelerNode(Node):
                                  for p in NODE_PARAMETERS},
                               **{p.name: p.check(self.get_parameter(p.name).value)
                                  for p in NODE_NUMERIC_PARAMETERS})
-        if options.qos_reliability not in _RELIABILITY:
-            raise ParameterError(
-                f"parameter 'qos_reliability' = {options.qos_reliability!r} is not "
-                f"allowed; use one of: {', '.join(_RELIABILITY)}")
+        for name, allowed in (("qos_reliability", RELIABILITY_MODES), ("input", INPUTS)):
+            if getattr(options, name) not in allowed:
+                raise ParameterError(
+                    f"parameter '{name}' = {getattr(options, name)!r} is not allowed; use "
+                    f"one of: {', '.join(allowed)}")
         _check_rate_band(options)
         self._tracker_config = self._tracker_config_with(
             {p.name: self.get_parameter(p.name).value for p in TRACKING_PARAMETERS},
@@ -475,7 +533,23 @@ class ModelerNode(Node):
     # input
     # ---------------------------------------------------------------------------------
 
-    def _on_cloud(self, msg: PointCloud2) -> None:
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        self._camera_info = msg  # the latest one; read by the next image
+
+    def _on_image(self, msg: Image) -> None:
+        info = self._camera_info
+        if info is None:
+            with self._stats_lock:
+                self._stats.received += 1
+                self._stats.failed += 1
+            self.get_logger().warning(
+                f"depth image {_stamp(msg)} dropped: no CameraInfo received yet on "
+                f"'{self._inputs[1].topic_name}' (is it remapped next to the image?)",
+                throttle_duration_sec=WARN_THROTTLE_S)
+            return
+        self._on_cloud(msg, lambda image: depth_to_scene(image, info))
+
+    def _on_cloud(self, msg: PointCloud2 | Image, to_scene=cloud_to_scene) -> None:
         with self._detect_lock:
             requests, self._detect_pending = self._detect_pending, []
         if not requests and not self._options.continuous:
@@ -483,9 +557,9 @@ class ModelerNode(Node):
                 self._stats.received += 1
                 self._stats.ignored += 1
             return
-        replaced = self._mailbox.put((msg, time.monotonic(), requests))
+        replaced = self._mailbox.put((msg, to_scene, time.monotonic(), requests))
         if replaced is not None:
-            requests.extend(replaced[2])  # the newer frame answers them
+            requests.extend(replaced[3])  # the newer frame answers them
         with self._stats_lock:
             self._stats.received += 1
             if replaced is not None:
@@ -508,10 +582,10 @@ class ModelerNode(Node):
             item = self._mailbox.take()
             if item is None:
                 return
-            msg, received_at, requests = item
+            msg, to_scene, received_at, requests = item
             outcome = (False, f"frame {_stamp(msg)} failed (see the node's log)")
             try:
-                outcome = self._process(msg, received_at)
+                outcome = self._process(msg, to_scene, received_at)
             except Exception as exc:  # noqa: BLE001 - the worker must outlive any frame
                 if self._closing:
                     return
@@ -527,19 +601,21 @@ class ModelerNode(Node):
         with self._stats_lock:
             self._stats.failed += 1
 
-    def _model(self, msg: PointCloud2) -> FrameResult | None:
+    def _model(self, msg: PointCloud2 | Image, to_scene) -> FrameResult | None:
         """Run the frame through :func:`process_cloud`; None (logged) if it failed."""
         options = self._options
         try:
             return process_cloud(msg, self._params, segments=options.publish_segments,
                                  reconstruction=options.publish_reconstruction,
                                  model_scene=self._model_scene,
-                                 tracking=self._current_tracking(options.tracking))
-        except PointCloud2Error as exc:
+                                 tracking=self._current_tracking(options.tracking),
+                                 to_scene=to_scene)
+        except (PointCloud2Error, DepthImageError) as exc:
             self._count_failure()
             frame_id, _ = header_of(msg)
+            kind = "depth image" if isinstance(exc, DepthImageError) else "PointCloud2"
             self.get_logger().warning(
-                f"skipping malformed PointCloud2 (frame '{frame_id}', stamp "
+                f"skipping malformed {kind} (frame '{frame_id}', stamp "
                 f"{_stamp(msg)}): {exc}", throttle_duration_sec=WARN_THROTTLE_S)
         except ModelingError as exc:
             self._count_failure()
@@ -564,10 +640,11 @@ class ModelerNode(Node):
         self._tracking.tracker.config = self._tracker_config
         return self._tracking
 
-    def _process(self, msg: PointCloud2, received_at: float) -> tuple[bool, str]:
+    def _process(self, msg: PointCloud2 | Image, to_scene, received_at: float
+                 ) -> tuple[bool, str]:
         """Model and publish one frame; return (success, summary) for ``~/detect``."""
         t0 = time.perf_counter()
-        frame = self._model(msg)
+        frame = self._model(msg, to_scene)
         if frame is None:
             return False, f"frame {_stamp(msg)} was malformed or failed (see the node's log)"
         t5 = time.perf_counter()

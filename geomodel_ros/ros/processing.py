@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Callable, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,7 +35,7 @@ from msg_adapters.interfaces import MarkerArray, PointCloud2
 from msg_adapters.markers import (primitives_to_markers, reconstruction_cloud, segments_cloud,
                                   tracked_markers)
 from msg_adapters.objects import PrimitiveArray, primitives_to_objects
-from msg_adapters.pointcloud2 import PointCloud2Error, cloud_to_scene
+from msg_adapters.pointcloud2 import PointCloud2Error, ScenePoints, cloud_to_scene
 
 __all__ = ["FrameResult", "ModelingError", "ObjectTracking", "PointCloud2Error", "SceneModeler",
            "process_cloud"]
@@ -161,7 +161,8 @@ def _model(points: np.ndarray, organized: tuple[int, int] | None, n_valid: int,
 def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = True,
                   reconstruction: bool = True,
                   model_scene: SceneModeler = core_model_scene,
-                  tracking: ObjectTracking | None = None) -> FrameResult:
+                  tracking: ObjectTracking | None = None,
+                  to_scene: Callable[[Any], ScenePoints] = cloud_to_scene) -> FrameResult:
     """Model one point cloud and build the node's output messages.
 
     Parameters
@@ -179,6 +180,9 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
         The scene modeling (default: the core's ``model_scene``).
     tracking : ObjectTracking, optional
         Give the objects stable ids (updates its state) and build per-id markers.
+    to_scene : callable
+        Reads ``msg`` into points, grid and header (default: the PointCloud2 reader;
+        the node passes the depth-image reader for ``input: depth``).
 
     Returns
     -------
@@ -192,12 +196,14 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
         If the message is malformed (inconsistent sizes, no float x/y/z, ...).
     ModelingError
         If the core fails on the frame.
+    Exception
+        Whatever ``to_scene`` raises for a malformed message (e.g. ``DepthImageError``).
     """
     timing: dict[str, float] = {}
     lap = _Laps(timing)
     # Every row, NaNs included: labels stay aligned with the input's points (and pixels,
     # for an organized cloud).
-    points, organized, header = cloud_to_scene(msg)
+    points, organized, header = to_scene(msg)
     n_valid = int(np.count_nonzero(np.isfinite(points).all(axis=1)))
     lap("convert_s")
     labels, result = _model_or_nothing(points, organized, n_valid, params, model_scene)
