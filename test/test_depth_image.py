@@ -16,6 +16,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import CameraInfo, Image, RegionOfInterest
 from std_msgs.msg import Header
@@ -221,3 +223,58 @@ def test_rendered_scene_through_a_depth_image_gives_the_ray_cast_points(encoding
     assert err.max() <= atol
     if encoding == "16UC1":  # quantisation really happened (the bound is not vacuous)
         assert err[:, 2].max() > 0.4e-3
+
+
+# --------------------------------------------------------------------------- fuzzing
+SPOILS = (None, None, "encoding", "step", "bytes", "size", "intrinsics")
+
+
+@st.composite
+def _random_pair(draw):
+    """Draw a depth image (any padding, byte order, content) and its CameraInfo.
+
+    At most one thing is spoiled (``SPOILS``): the pair and what was spoiled.
+    """
+    spoil = draw(st.sampled_from(SPOILS))
+    height, width = draw(st.integers(1, 5)), draw(st.integers(1, 5))
+    encoding = draw(st.sampled_from(["16UC1", "32FC1"]))
+    size = 4 if encoding == "32FC1" else 2
+    step = width * size + draw(st.integers(0, 7))  # row padding
+    if spoil == "step":
+        step = draw(st.integers(0, width * size - 1))
+    n_bytes = step * height
+    if spoil == "bytes":
+        n_bytes = draw(st.integers(0, 64).filter(lambda n: n != step * height))
+    data = draw(st.binary(min_size=n_bytes, max_size=n_bytes))
+    image = Image(header=HEADER, height=height, width=width, encoding=encoding,
+                  is_bigendian=draw(st.integers(0, 1)), step=step, data=array.array("B", data))
+    if spoil == "encoding":
+        image.encoding = draw(st.sampled_from(["mono16", "8UC1", "", "16uc1", "32FC3"]))
+    model = CameraModel(draw(st.floats(1.0, 1e4)), draw(st.floats(1.0, 1e4)),
+                        draw(st.floats(-10.0, 10.0)), draw(st.floats(-10.0, 10.0)), width, height)
+    if spoil == "size":
+        model = model._replace(width=width + draw(st.integers(1, 3)))
+    info = camera_info(model, HEADER)
+    if spoil == "intrinsics":
+        p = list(info.p)
+        p[draw(st.sampled_from([0, 2, 5, 6]))] = draw(st.sampled_from([math.nan, math.inf]))
+        info.p = p
+    return image, info, spoil
+
+
+@settings(max_examples=300, deadline=None)
+@given(_random_pair())
+def test_any_image_gives_a_scene_or_a_typed_error(drawn):
+    """Whatever the bytes hold: valid layouts give points, spoiled ones a typed error."""
+    image, info, spoil = drawn
+    if spoil is not None:
+        with pytest.raises(DepthImageError):
+            depth_to_scene(image, info)
+        return
+    scene = depth_to_scene(image, info)
+    h, w = int(image.height), int(image.width)
+    assert scene.points.shape == (h * w, 3)
+    missing = np.isnan(scene.points)
+    assert np.array_equal(missing.any(axis=1), missing.all(axis=1))  # whole rows only
+    assert np.isfinite(scene.points[~missing.any(axis=1)]).all()
+    assert (scene.points[~missing.any(axis=1), 2] > 0).all()

@@ -1,13 +1,19 @@
 """Benchmark of the ``modeler`` node: its own overhead and end-to-end latency.
 
-Run as ``python -m geomodel_ros.tools.bench_node [--scene scene3] [--frames 20]``.
+Run as ``python -m geomodel_ros.tools.bench_node [--scene scene3] [--frames 20]
+[--input points depth]``.
 
 1. **Node overhead** (conversion in, markers and clouds out, publish) per frame: the node
    is given a stand-in for the scene modeling that returns a precomputed result of the real
    :func:`~geomodel_ros.core.modeling.model_scene` for the same scene, so only the node's own
    work is timed (stage times come from :meth:`ModelerNode.stats`).  The publish ->
    MarkerArray-received latency is also given for this case.
-2. **End to end** with the real core: publish -> MarkerArray received.
+2. **End to end** with the real core: publish -> MarkerArray received, and the node's
+   own latency (input callback -> outputs published, ``FrameStats.last_latency_s``).
+
+Both are measured per input (``--input``): the scene as an organized PointCloud2
+(``input: points``) and as a 16UC1 depth image with its CameraInfo (``input: depth``;
+the core then sees the millimetre-quantised cloud).
 
 The node and a peer node (publisher + subscribers of all three outputs, like RViz) run in
 one process, each on its own executor thread, over Fast DDS on loopback.  Each frame is
@@ -36,8 +42,10 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 
 from msg_adapters.header import NS_PER_S, make_header  # noqa: E402
-from msg_adapters.interfaces import MarkerArray, PointCloud2  # noqa: E402
-from msg_adapters.pointcloud2 import cloud_size, xyz_to_cloud  # noqa: E402
+from msg_adapters.depth_image import CameraModel, camera_info, depth_image  # noqa: E402
+from msg_adapters.depth_image import depth_to_scene  # noqa: E402
+from msg_adapters.interfaces import CameraInfo, Image, MarkerArray, PointCloud2  # noqa: E402
+from msg_adapters.pointcloud2 import cloud_size, cloud_to_scene, xyz_to_cloud  # noqa: E402
 
 from geomodel_ros.core.fastmath import retain_freed_memory  # noqa: E402
 from geomodel_ros.core.modeling import model_scene  # noqa: E402
@@ -47,7 +55,7 @@ from geomodel_ros.core.params import ModelingParams  # noqa: E402
 from geomodel_ros.tools.synth import SCENE_NAMES, render_scene  # noqa: E402
 
 _QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-_STAGES = (("convert_s", "convert in (PointCloud2 -> numpy)"),
+_STAGES = (("convert_s", "convert in (message -> numpy)"),
            ("model_s", "core (model_scene)"),
            ("markers_s", "tracking + markers out"),
            ("objects_s", "typed objects out (~/objects)"),
@@ -60,9 +68,13 @@ _STAGES = (("convert_s", "convert in (PointCloud2 -> numpy)"),
 class _Peer:
     """Publishes clouds and records when each output arrives."""
 
-    def __init__(self, context: Context) -> None:
+    def __init__(self, context: Context, input_kind: str) -> None:
         self.node = Node("bench_peer", context=context)
-        self.pub = self.node.create_publisher(PointCloud2, "/bench/points", _QOS)
+        if input_kind == "depth":
+            self.pub = self.node.create_publisher(Image, "/bench/image", _QOS)
+            self.info_pub = self.node.create_publisher(CameraInfo, "/bench/camera_info", _QOS)
+        else:
+            self.pub = self.node.create_publisher(PointCloud2, "/bench/points", _QOS)
         self._cond = threading.Condition()
         self.marker_times: list[float] = []
         self.node.create_subscription(MarkerArray, "/modeler/primitives", self._on_markers, _QOS)
@@ -76,7 +88,7 @@ class _Peer:
             self.marker_times.append(time.perf_counter())
             self._cond.notify_all()
 
-    def publish_and_wait(self, msg: PointCloud2, timeout: float = 60.0) -> float:
+    def publish_and_wait(self, msg: PointCloud2 | Image, timeout: float = 60.0) -> float:
         """Publish ``msg``; seconds until the next MarkerArray arrives."""
         with self._cond:
             n = len(self.marker_times)
@@ -96,18 +108,26 @@ def _wait(predicate, what: str, timeout: float = 30.0) -> None:
         time.sleep(0.002)
 
 
-def _run(cloud: PointCloud2, frames: int, core: SceneModeler, tracking: bool = True
-         ) -> tuple[list[float], list[dict[str, float]]]:
-    """Latencies [s] and node stage timings of ``frames`` frames through a fresh node."""
+def _run(msg: PointCloud2 | Image, info: CameraInfo | None, frames: int, core: SceneModeler,
+         tracking: bool = True) -> tuple[list[float], list[float], list[dict[str, float]]]:
+    """Latencies [s] (publish -> markers; node callback -> published) and stage timings.
+
+    ``frames`` frames of ``msg`` through a fresh node (``input: depth`` when ``info`` is
+    given, after it was delivered).
+    """
     domain = int(os.environ.get("ROS_DOMAIN_ID", 1 + os.getpid() % 100))
     context = Context()
     rclpy.init(args=[], context=context, domain_id=domain)
     node = ModelerNode(context=context, model_scene=core,
-                       cli_args=["--ros-args", "-r", "points:=/bench/points"],
+                       cli_args=["--ros-args", "-r", "points:=/bench/points",
+                                 "-r", "depth/image_raw:=/bench/image",
+                                 "-r", "depth/camera_info:=/bench/camera_info"],
                        parameter_overrides=[Parameter("qos_reliability", value="reliable"),
                                             Parameter("diagnostics", value=False),
-                                            Parameter("tracking", value=tracking)])
-    peer = _Peer(context)
+                                            Parameter("tracking", value=tracking),
+                                            Parameter("input", value="points" if info is None
+                                                      else "depth")])
+    peer = _Peer(context, "points" if info is None else "depth")
     executors, threads = [], []
     for n in (node, peer.node):
         ex = SingleThreadedExecutor(context=context)
@@ -119,13 +139,18 @@ def _run(cloud: PointCloud2, frames: int, core: SceneModeler, tracking: bool = T
     try:
         _wait(lambda: peer.pub.get_subscription_count() >= 1
               and peer.node.count_publishers("/modeler/primitives") >= 1, "discovery")
-        peer.publish_and_wait(cloud)  # warm-up (imports, first allocations)
-        latencies, timings = [], []
+        if info is not None:
+            peer.info_pub.publish(info)
+            _wait(lambda: node._camera_info is not None, "the CameraInfo")
+        peer.publish_and_wait(msg)  # warm-up (imports, first allocations)
+        latencies, node_latencies, timings = [], [], []
         for i in range(frames):
-            latencies.append(peer.publish_and_wait(cloud))
+            latencies.append(peer.publish_and_wait(msg))
             _wait(lambda: node.stats().processed >= i + 2, "the node's statistics")
-            timings.append(node.stats().last_timing)
-        return latencies, timings
+            stats = node.stats()
+            node_latencies.append(stats.last_latency_s)
+            timings.append(stats.last_timing)
+        return latencies, node_latencies, timings
     finally:
         for ex in executors:
             ex.shutdown(timeout_sec=5.0)
@@ -148,38 +173,61 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--tracking", choices=("on", "off"), default="on",
                         help="the node's tracking parameter (stable ids, per-id markers)")
+    parser.add_argument("--input", nargs="+", choices=("points", "depth"),
+                        default=["points", "depth"],
+                        help="inputs to measure (PointCloud2, 16UC1 depth image + CameraInfo)")
     args = parser.parse_args(argv)
     if args.frames < 1:
         parser.error("--frames must be >= 1")
     retain_freed_memory()  # as the node's main does
 
     scene = render_scene(args.scene)
-    cloud = xyz_to_cloud(scene.organized, make_header("camera_optical", 1 * NS_PER_S))
+    header = make_header("camera_optical", 1 * NS_PER_S)
+    inputs = {"points": (xyz_to_cloud(scene.organized, header), None),
+              "depth": (depth_image(scene.organized[..., 2], header, encoding="16UC1"),
+                        camera_info(CameraModel(**scene.intrinsics), header))}
     h, w = scene.organized.shape[:2]
-    rows = scene.organized.reshape(-1, 3).astype(np.float32).astype(np.float64)
-    labels, result = model_scene(rows, ModelingParams(), organized_shape=(h, w))
+    print(f"scene {args.scene}: {h} x {w} organized, {len(scene.points)} valid points; "
+          f"{args.frames} frames; input messages: PointCloud2 "
+          f"{cloud_size(inputs['points'][0]).nbytes / 1e6:.1f} MB, 16UC1 depth image "
+          f"{len(inputs['depth'][0].data) / 1e6:.2f} MB")
+    tracking = args.tracking == "on"
+    for kind in args.input:
+        msg, info = inputs[kind]
+        _report(kind, msg, info, args.frames, tracking)
+    return 0
+
+
+def _precomputed(msg: PointCloud2 | Image, info: CameraInfo | None) -> SceneModeler:
+    """Stand-in core returning the real core's result for the scene as the node reads it."""
+    rows = cloud_to_scene(msg).points if info is None else depth_to_scene(msg, info).points
+    labels, result = model_scene(rows, ModelingParams(),
+                                 organized_shape=(int(msg.height), int(msg.width)))
 
     def precomputed(_points, _params, **_organized_shape):
         return labels, result
 
-    print(f"scene {args.scene}: {h} x {w} organized cloud, {len(scene.points)} valid points, "
-          f"{len(result.objects)} objects; {args.frames} frames; "
-          f"{cloud_size(cloud).nbytes / 1e6:.1f} MB per input message")
-    tracking = args.tracking == "on"
-    lat_null, tim_null = _run(cloud, args.frames, precomputed, tracking)
-    lat_real, tim_real = _run(cloud, args.frames, model_scene, tracking)
+    return precomputed
 
-    print(f"\n  {'node overhead (core = precomputed result)':<44s} {'median ms':>9s} "
+
+def _report(kind: str, msg: PointCloud2 | Image, info: CameraInfo | None, frames: int,
+            tracking: bool) -> None:
+    """Measure and print both tables for one input."""
+    lat_null, node_null, tim_null = _run(msg, info, frames, _precomputed(msg, info), tracking)
+    lat_real, node_real, tim_real = _run(msg, info, frames, model_scene, tracking)
+    print(f"\n  input: {kind}")
+    print(f"  {'node overhead (core = precomputed result)':<44s} {'median ms':>9s} "
           f"{'p95 ms':>9s}")
     for key, name in _STAGES:
         if key != "model_s":
             print(_row(name, [t[key] for t in tim_null]))
+    print(_row("node callback -> outputs published", node_null))
     print(_row("publish -> MarkerArray received", lat_null))
-    print(f"\n  {'end to end (real core)':<44s} {'median ms':>9s} {'p95 ms':>9s}")
+    print(f"  {'end to end (real core)':<44s} {'median ms':>9s} {'p95 ms':>9s}")
     print(_row("core (model_scene)", [t["model_s"] for t in tim_real]))
     print(_row("node total (incl. core)", [t["total_s"] for t in tim_real]))
+    print(_row("node callback -> outputs published", node_real))
     print(_row("publish -> MarkerArray received", lat_real))
-    return 0
 
 
 if __name__ == "__main__":
