@@ -3,6 +3,9 @@
 Usage::
 
     ros2 launch geomodel_ros modeler.launch.py points_topic:=/camera/depth/points rviz:=true
+    ros2 launch geomodel_ros modeler.launch.py input:=depth \
+        depth_image_topic:=/camera/depth/image_rect_raw \
+        camera_info_topic:=/camera/depth/camera_info
     ros2 launch geomodel_ros modeler.launch.py namespace:=cam2 \
         points_topic:=/cam2/depth/points params_file:=/path/to/kinect.yaml
 
@@ -12,11 +15,20 @@ The launch arguments:
   ``config/kinect.yaml`` and ``config/sensor_noise.yaml`` are installed beside it).
 * ``namespace``: namespace of the node, for a second camera (outputs then live under
   ``/<namespace>/modeler/...``; the RViz config shows the un-namespaced ``/modeler/...``).
+* ``input``: ``points`` (PointCloud2, default) or ``depth`` (depth image + CameraInfo:
+  4-8x smaller messages, delivered between processes with the middleware's defaults).
 * ``points_topic``: the PointCloud2 to model (remap of the node's ``points`` input).
-* ``qos_reliability``: ``best_effort`` (live sensors) or ``reliable`` (bag replay).
+* ``depth_image_topic``, ``camera_info_topic``: the depth image (16UC1 mm or 32FC1 m,
+  rectified/registered) and its CameraInfo (remaps of ``depth/image_raw`` and
+  ``depth/camera_info``), used with ``input:=depth``.
+* ``qos_reliability``: ``auto`` (default: reliable when every publisher is reliable, else
+  best effort), ``best_effort`` or ``reliable``.
 * ``use_large_data_profile``: ``true`` sets ``FASTRTPS_DEFAULT_PROFILES_FILE`` to the
-  installed ``config/fastdds_large_data.xml`` (shared memory only) for the processes this
-  file starts; needed for clouds of several MB.  The camera driver needs the same profile.
+  installed ``config/fastdds_large_data.xml`` (shared memory only, 64 MiB segments) for
+  every process this file starts (the node and RViz); it carries clouds of several MB even
+  from a best-effort publisher.  A driver started elsewhere needs the same variable (the
+  README gives the command lines); off by default because a process with the profile
+  talks only to processes on this host.
 * ``rviz``: ``true`` also starts ``rviz2`` with the installed ``config/modeler.rviz``.
 """
 
@@ -39,6 +51,9 @@ def generate_launch_description():
     params_file = LaunchConfiguration("params_file")
     namespace = LaunchConfiguration("namespace")
     points_topic = LaunchConfiguration("points_topic")
+    input_kind = LaunchConfiguration("input")
+    depth_image_topic = LaunchConfiguration("depth_image_topic")
+    camera_info_topic = LaunchConfiguration("camera_info_topic")
     qos_reliability = LaunchConfiguration("qos_reliability")
     use_large_data_profile = LaunchConfiguration("use_large_data_profile")
     rviz = LaunchConfiguration("rviz")
@@ -54,8 +69,18 @@ def generate_launch_description():
             "points_topic", default_value="/camera/depth/points",
             description="sensor_msgs/PointCloud2 input, remapped onto the node's 'points'."),
         DeclareLaunchArgument(
-            "qos_reliability", default_value="best_effort",
-            description="Reliability of the input subscription: best_effort or reliable."),
+            "input", default_value="points",
+            description="What to model: points (PointCloud2) or depth (image + CameraInfo)."),
+        DeclareLaunchArgument(
+            "depth_image_topic", default_value="/camera/depth/image_rect_raw",
+            description="sensor_msgs/Image depth input (input:=depth), 16UC1 or 32FC1."),
+        DeclareLaunchArgument(
+            "camera_info_topic", default_value="/camera/depth/camera_info",
+            description="sensor_msgs/CameraInfo of the depth image (input:=depth)."),
+        DeclareLaunchArgument(
+            "qos_reliability", default_value="auto",
+            description="Input reliability: auto (follow the publishers), best_effort or "
+                        "reliable."),
         DeclareLaunchArgument(
             "use_large_data_profile", default_value="false",
             description="Use config/fastdds_large_data.xml (shared memory, large clouds)."),
@@ -71,8 +96,10 @@ def generate_launch_description():
             executable="modeler",
             name="modeler",
             namespace=namespace,
-            parameters=[params_file, {"qos_reliability": qos_reliability}],
-            remappings=[("points", points_topic)],
+            parameters=[params_file, {"qos_reliability": qos_reliability,
+                                      "input": input_kind}],
+            remappings=[("points", points_topic), ("depth/image_raw", depth_image_topic),
+                        ("depth/camera_info", camera_info_topic)],
             output="screen",
         ),
         Node(

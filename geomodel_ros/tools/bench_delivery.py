@@ -14,8 +14,10 @@ subscription delivered; the table prints delivered/sent per set-up:
 * the driver's publisher: reliable or best effort (keep last 10);
 * the node's ``qos_reliability``: ``best_effort`` (the default before ``auto``) or
   ``auto`` (the default: follows the publisher);
-* middleware: Fast DDS defaults, or the large-data profile
-  (``FASTRTPS_DEFAULT_PROFILES_FILE=config/fastdds_large_data.xml``) in both processes.
+* middleware: Fast DDS defaults; the large-data profile
+  (``FASTRTPS_DEFAULT_PROFILES_FILE=config/fastdds_large_data.xml``) in both processes
+  (``large_data``); or in the node's process only (``node_only``: the launch file's
+  ``use_large_data_profile:=true`` with a driver started elsewhere with defaults).
 
 Every process runs with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and the caller's
 ``ROS_DOMAIN_ID`` (or a private one); set-ups run one after the other.
@@ -59,7 +61,10 @@ class Setup(NamedTuple):
     size: str
     publisher: str
     node: str
-    profile: bool
+    profile: str
+
+
+PROFILES = ("default", "large_data", "node_only")
 
 
 def _env(domain: int, profile: bool) -> dict[str, str]:
@@ -176,11 +181,12 @@ def _last_json(text: str) -> dict:
 
 def measure(setup: Setup, frames: int, rate: float, domain: int) -> dict:
     """Run one set-up in two fresh processes; return sent/delivered and details."""
-    env = _env(domain, setup.profile)
+    env = _env(domain, setup.profile == "large_data")
     me = [sys.executable, "-m", "geomodel_ros.tools.bench_delivery"]
     node = subprocess.Popen(me + ["--role", "node", "--node-reliability", setup.node,
                                   "--kind", setup.kind],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            env=_env(domain, setup.profile != "default"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         driver = subprocess.run(
             me + ["--role", "driver", "--kind", setup.kind, "--size", setup.size,
@@ -212,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
                         default=["reliable", "best_effort"])
     parser.add_argument("--node", nargs="+", choices=("best_effort", "auto", "reliable"),
                         default=["best_effort", "auto"], help="the node's qos_reliability")
-    parser.add_argument("--profile", nargs="+", choices=("default", "large_data"),
+    parser.add_argument("--profile", nargs="+", choices=PROFILES,
                         default=["default", "large_data"])
     parser.add_argument("--json", help="also write the rows to this file")
     parser.add_argument("--role", choices=("bench", "node", "driver"), default="bench",
@@ -226,7 +232,6 @@ def main(argv: list[str] | None = None) -> int:
                             args.rate)
     if args.frames < 1 or not args.rate > 0:
         parser.error("--frames must be >= 1 and --rate > 0")
-    args.profile = [p == "large_data" for p in args.profile]
     domain = int(os.environ.get("ROS_DOMAIN_ID", 1 + os.getpid() % 100))
     print(f"{args.frames} frames per set-up at {args.rate:g} Hz, one set-up at a time, "
           f"ROS_DOMAIN_ID {domain}, loopback only")
@@ -238,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
         print(f"{setup.kind:<9s} {setup.size:<9s} {_payload_mb(setup.kind, setup.size):5.2f}  "
               f"{setup.publisher:<11s} {setup.node:<11s} "
-              f"{'large_data' if setup.profile else 'defaults':<11s} "
+              f"{setup.profile:<11s} "
               f"{'/'.join(r or '-' for r in row['subscribed']):<12s} "
               f"{row['delivered']:>6d}/{row['sent']:<7d}", flush=True)
     if args.json:
