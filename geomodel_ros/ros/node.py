@@ -371,7 +371,7 @@ class ModelerNode(Node):
             Trigger, "~/detect", self._on_detect,
             callback_group=MutuallyExclusiveCallbackGroup())
         self.get_logger().info(
-            f"modeling {self._options.input} from "
+            f"modeling {'depth images' if self._options.input == 'depth' else 'clouds'} from "
             f"{', '.join(repr(s.topic_name) for s in self._inputs)} "
             f"({self._options.qos_reliability}, depth {self._options.qos_depth}; "
             f"{'continuous' if self._options.continuous else 'on demand'}); publishing "

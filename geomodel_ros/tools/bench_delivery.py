@@ -138,7 +138,7 @@ def _role_driver(kind: str, size: str, reliability: str, frames: int, rate: floa
     import rclpy
     from rclpy.duration import Duration
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+    from msg_adapters.interfaces import CameraInfo, Image, PointCloud2
 
     msg, info = _messages(kind, size)
     policy = ReliabilityPolicy.RELIABLE if reliability == "reliable" else \
