@@ -11,6 +11,7 @@ from geomodel_ros.core.fitting.cloud import ObjectCloud
 from geomodel_ros.core.fitting.cone import fit_cone
 from geomodel_ros.core.fitting.cuboid import fit_cuboid
 from geomodel_ros.core.fitting.cylinder import fit_cylinder
+from geomodel_ros.core.fitting.frustum import fit_frustum
 from geomodel_ros.core.fitting.plane import fit_plane
 from geomodel_ros.core.fitting.result import (FitOutcome, FitTask, Fitted, Rejected,
                                               is_finite_primitive)
@@ -35,6 +36,7 @@ FITTING_UNITS: Mapping[PrimitiveType, FittingUnit] = {
     PrimitiveType.CYLINDER: fit_cylinder,
     PrimitiveType.CONE: fit_cone,
     PrimitiveType.SPHERE: fit_sphere,
+    PrimitiveType.FRUSTUM: fit_frustum,
 }
 
 #: Numerical failures of a unit (singular systems, degenerate least squares) that reject
