@@ -19,6 +19,8 @@ import pytest
 from geomodel_ros.core.fitting.frustum import FRUSTUM_MIN_TAPER, FRUSTUM_MIN_TOP_RATIO, \
     frustum_sizes
 from geomodel_ros.core.fitting.result import Fitted, Rejected
+from geomodel_ros.core.fitting.units import fit_first
+from geomodel_ros.core.model_graph import GraphDecision
 from geomodel_ros.core.modeling import model_objects, model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import DIMENSION_NAMES, Primitive, PrimitiveType
@@ -140,6 +142,20 @@ def test_frustum_unit_sizes_a_cone_side_that_stops_short_of_its_apex():
 def test_frustum_unit_rejects_a_full_cone_and_a_cylinder(points, reason):
     out = fit("frustum", cloud_of(points()))
     assert out == Rejected(PrimitiveType.FRUSTUM, reason)
+
+
+def test_the_frustum_is_tried_only_after_a_cone_that_stops_short_of_its_apex():
+    decision = GraphDecision("curved", ("cone", "frustum", "cylinder"), -1)
+    # A truncated cone side: the cone unit rejects it for its apex, the frustum fits.
+    prim, reasons = fit_first(cloud_of(cone_points(start=0.6)), decision)
+    assert prim is not None and prim.type == "frustum"
+    assert reasons == ["cone rejected: its points stop 42 mm short of the apex (a frustum)",
+                       "frustum verified"]
+    # A cylinder: the cone's half-angle check would reject the frustum too; not tried.
+    prim, reasons = fit_first(cloud_of(cylinder_points()), decision)
+    assert prim is not None and prim.type == "cylinder"
+    assert len(reasons) == 2 and reasons[0].startswith("cone half-angle")
+    assert reasons[1] == "cylinder verified"
 
 
 # ---------------------------------------------------------------------------------------
