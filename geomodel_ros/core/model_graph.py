@@ -20,9 +20,10 @@ unit rejects a cone whose points stop short of its apex (``verify.CONE_APEX_REAC
 the frustum unit one whose points reach near it (``fitting.frustum.FRUSTUM_MIN_TOP_RATIO``,
 the same share), so exactly one of them accepts a truncated cone. Open cups and bowls
 (no cap, the inner wall seen through the opening) are all-curved objects: the same
-candidates through their curvatures. A frustum is tried after the cylinder and cone
-wherever the graph proposed those before (normals perpendicular to the plane, k1
-constant), so that no object the method typed before changes type.
+candidates through their curvatures. Where the surface looks conical (normals at a
+constant angle, k1 varying) the frustum comes before the cylinder, which would fit a
+tapered side only loosely (a bowl as a cylinder of its mean radius); where it looks
+cylindrical (normals perpendicular to the plane, k1 constant) it comes last.
 
 An object no rule accepts gets no candidate and becomes ``unknown``.
 """
