@@ -8,9 +8,10 @@ Marker layout of one frame (``primitives_to_markers``):
 
 * a ``DELETEALL`` marker first, so objects of the previous frame disappear;
 * one shape marker per object in the namespace of its type (``"plane"``, ``"cuboid"``,
-  ``"cylinder"``, ``"cone"``, ``"sphere"``, ``"unknown"``) with the object id as marker id:
-  ``CUBE`` for cuboids and (2 mm thin) planes, ``CYLINDER``, ``SPHERE``, a ``TRIANGLE_LIST``
-  mesh for cones and a small ``SPHERE`` at the centroid of ``unknown`` objects;
+  ``"cylinder"``, ``"cone"``, ``"sphere"``, ``"frustum"``, ``"unknown"``) with the object id
+  as marker id: ``CUBE`` for cuboids and (2 mm thin) planes, ``CYLINDER``, ``SPHERE``, a
+  ``TRIANGLE_LIST`` mesh for cones and frustums (side and caps, vertices in metres in the
+  object's frame) and a small ``SPHERE`` at the centroid of ``unknown`` objects;
 * one ``TEXT_VIEW_FACING`` label per object in namespace ``"labels"`` (same id), e.g.
   ``"cylinder r=50.0 h=60.0 mm"``, placed just above the object.
 
@@ -59,7 +60,7 @@ PLANE_THICKNESS: Final = 0.002
 LABEL_NAMESPACE: Final = "labels"
 #: Diameter [m] of the sphere that marks the centroid of an ``unknown`` object.
 UNKNOWN_MARKER_SIZE: Final = 0.01
-#: Triangle-fan segments of a cone mesh.
+#: Triangle-fan segments of a cone or frustum mesh.
 CONE_SEGMENTS: Final = 32
 #: Gap [m] between an object's top and the bottom of its label (clear of the shape).
 LABEL_GAP: Final = 0.005
@@ -73,6 +74,7 @@ TYPE_COLOURS: Final[Mapping[str, tuple[float, float, float, float]]] = {
     "cylinder": (0.20, 0.50, 0.95, 0.85),
     "cone": (0.20, 0.80, 0.30, 0.85),
     "sphere": (0.85, 0.20, 0.60, 0.85),
+    "frustum": (0.10, 0.75, 0.75, 0.85),
     "unknown": (0.75, 0.75, 0.75, 0.85),
 }
 _TEXT_COLOUR: Final = (1.0, 1.0, 1.0, 1.0)
@@ -211,27 +213,38 @@ def _half_extent_along(p: Primitive, rotation: NDArray[np.float64], up: NDArray[
     if p.type == "cuboid":
         return 0.5 * (abs(local[0]) * d["length"] + abs(local[1]) * d["width"]
                       + abs(local[2]) * d["height"])
-    if p.type in ("cylinder", "cone"):
+    if p.type in ("cylinder", "cone", "frustum"):
         along = abs(float(local[2]))
         across = math.sqrt(max(0.0, 1.0 - along * along))
         return 0.5 * along * d["height"] + across * d["radius"]
     return float(d["radius"])  # sphere
 
 
-def _cone_mesh(radius: float, height: float, segments: int) -> list[Point]:
-    """Triangles (counter-clockwise seen from outside) of a cone in its local frame.
+def _round_mesh(radius: float, top_radius: float, height: float, segments: int) -> list[Point]:
+    """Triangles (counter-clockwise seen from outside) of a cone or frustum in its local frame.
 
-    Base disc at z = -height/2, apex at z = +height/2 (the object's z points base -> apex).
+    Base circle of ``radius`` at z = -height/2, top circle of ``top_radius`` (0: a cone's
+    apex) at z = +height/2 (the object's z points base -> top); the top disc is drawn
+    only for a frustum.
     """
     t = np.linspace(0.0, 2.0 * math.pi, segments, endpoint=False)
-    ring = np.stack([radius * np.cos(t), radius * np.sin(t), np.full(segments, -0.5 * height)],
-                    axis=1)
+    circle = np.stack([np.cos(t), np.sin(t), np.zeros(segments)], axis=1)
+    ring = circle * [radius, radius, 0.0] + [0.0, 0.0, -0.5 * height]
     nxt = np.roll(ring, -1, axis=0)
-    apex = np.broadcast_to([0.0, 0.0, 0.5 * height], ring.shape)
     base = np.broadcast_to([0.0, 0.0, -0.5 * height], ring.shape)
-    lateral = np.stack([ring, nxt, apex], axis=1)  # outward normals
     disc = np.stack([base, nxt, ring], axis=1)  # normal -z
-    tri = np.concatenate([lateral, disc]).reshape(-1, 3)
+    if top_radius <= 0.0:
+        apex = np.broadcast_to([0.0, 0.0, 0.5 * height], ring.shape)
+        lateral = np.stack([ring, nxt, apex], axis=1)  # outward normals
+        tri = np.concatenate([lateral, disc]).reshape(-1, 3)
+    else:
+        top = circle * [top_radius, top_radius, 0.0] + [0.0, 0.0, 0.5 * height]
+        top_nxt = np.roll(top, -1, axis=0)
+        centre = np.broadcast_to([0.0, 0.0, 0.5 * height], ring.shape)
+        lateral = np.concatenate([np.stack([ring, nxt, top_nxt], axis=1),
+                                  np.stack([ring, top_nxt, top], axis=1)])
+        lid = np.stack([centre, top, top_nxt], axis=1)  # normal +z
+        tri = np.concatenate([lateral, disc, lid]).reshape(-1, 3)
     return [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in tri.tolist()]
 
 
@@ -282,11 +295,12 @@ def _draw_shape(shape: Marker, p: Primitive, center: NDArray[np.float64],
         shape.type = Marker.SPHERE
         shape.pose = _pose(center, None)
         shape.scale = _scale(2.0 * d["radius"], 2.0 * d["radius"], 2.0 * d["radius"])
-    else:  # cone
+    else:  # cone or frustum
         shape.type = Marker.TRIANGLE_LIST
         shape.pose = _pose(center, rotation)
         shape.scale = Vector3(x=1.0, y=1.0, z=1.0)
-        shape.points = _cone_mesh(float(d["radius"]), float(d["height"]), CONE_SEGMENTS)
+        top = float(d["top_radius"]) if p.type == "frustum" else 0.0
+        shape.points = _round_mesh(float(d["radius"]), top, float(d["height"]), CONE_SEGMENTS)
 
 
 def _object_markers(p: Primitive, header: Header, lifetime: Duration, text: bool,
@@ -570,13 +584,22 @@ def _quaternion_to_rotation(q) -> NDArray[np.float64]:
     ])
 
 
+def _round_mesh_dimensions(kind: str, pts: NDArray[np.float64]) -> dict[str, float]:
+    """Sizes [m] of a cone or frustum from its mesh vertices (n, 3) in its local frame."""
+    rho = np.hypot(pts[:, 0], pts[:, 1])
+    dims = {"radius": float(rho.max()), "height": float(np.ptp(pts[:, 2]))}
+    if kind == "frustum":
+        dims["top_radius"] = float(rho[pts[:, 2] >= pts[:, 2].max()].max())
+    return dims
+
+
 def markers_to_primitives(markers: MarkerArray) -> list[Primitive]:
     """Read back the primitives a :func:`primitives_to_markers` array describes (its inverse).
 
     For subscribers of ``~/primitives`` (planners, recorders) that want typed objects back:
-    type from the namespace, pose from the marker pose, sizes from the scale (cones from
-    their mesh). Labels, DELETEALL and ``unknown`` placeholders give no primitive; point
-    counts, rmse and faces are not carried by markers (0 / empty).
+    type from the namespace, pose from the marker pose, sizes from the scale (cones and
+    frustums from their mesh). Labels, DELETEALL and ``unknown`` placeholders give no
+    primitive; point counts, rmse and faces are not carried by markers (0 / empty).
     """
     out: list[Primitive] = []
     for m in markers.markers:
@@ -593,10 +616,8 @@ def markers_to_primitives(markers: MarkerArray) -> list[Primitive]:
             dims = {"radius": 0.5 * s.x, "height": s.z}
         elif m.ns == "sphere" and m.type == Marker.SPHERE:
             dims, r = {"radius": 0.5 * s.x}, np.eye(3)
-        elif m.ns == "cone" and m.type == Marker.TRIANGLE_LIST and m.points:
-            pts = np.array([[p.x, p.y, p.z] for p in m.points])
-            dims = {"radius": float(np.hypot(pts[:, 0], pts[:, 1]).max()),
-                    "height": float(np.ptp(pts[:, 2]))}
+        elif m.ns in ("cone", "frustum") and m.type == Marker.TRIANGLE_LIST and m.points:
+            dims = _round_mesh_dimensions(m.ns, np.array([[p.x, p.y, p.z] for p in m.points]))
         else:
             continue
         out.append(Primitive(int(m.id), m.ns, c, r, {k: float(v) for k, v in dims.items()},

@@ -14,6 +14,10 @@ The conventions are those documented in ``geomodel_msgs/msg/Primitive.msg`` (Mov
   from the base to the apex (``fitting/cone.py``: ``centre = apex + axis * height / 2``,
   ``z = -axis`` with ``axis`` from the apex towards the base), so the pose is again the
   core's centre and rotation;
+* frustum -> its enclosing CYLINDER ``[height, radius]`` (``SolidPrimitive`` has no
+  frustum; ``radius`` is the base's, the larger circle), centred on the midpoint of the axis
+  segment with pose z from the base towards the smaller top circle, as the core's; the true
+  shape is in ``dimensions`` (``radius, top_radius, height``);
 * sphere -> SPHERE ``[radius]``; unknown -> type 0, no dimensions (pose = points' centroid).
 
 Orientation: the unit quaternion of the core's rotation (nearest proper rotation, ``w >= 0``,
@@ -48,7 +52,8 @@ __all__ = ["PrimitiveArray", "PrimitiveMsg", "primitives_to_objects", "objects_t
 TYPE_CODES: dict[str, int] = {
     "plane": PrimitiveMsg.PLANE, "cuboid": PrimitiveMsg.CUBOID,
     "cylinder": PrimitiveMsg.CYLINDER, "cone": PrimitiveMsg.CONE,
-    "sphere": PrimitiveMsg.SPHERE, "unknown": PrimitiveMsg.UNKNOWN,
+    "sphere": PrimitiveMsg.SPHERE, "frustum": PrimitiveMsg.FRUSTUM,
+    "unknown": PrimitiveMsg.UNKNOWN,
 }
 _TYPE_NAMES: dict[int, str] = {v: k for k, v in TYPE_CODES.items()}
 
@@ -66,7 +71,7 @@ def _shape(type_name: str, d: Mapping[str, float]) -> SolidPrimitive:
                               dimensions=[d["length"], d["width"], d["height"]])
     if type_name == "plane":
         return SolidPrimitive(type=SolidPrimitive.BOX, dimensions=[d["length"], d["width"], 0.0])
-    if type_name == "cylinder":
+    if type_name in ("cylinder", "frustum"):  # a frustum's enclosing cylinder
         return SolidPrimitive(type=SolidPrimitive.CYLINDER, dimensions=[d["height"], d["radius"]])
     if type_name == "cone":
         return SolidPrimitive(type=SolidPrimitive.CONE, dimensions=[d["height"], d["radius"]])

@@ -137,6 +137,7 @@ SCENE = [
     prim(3, "cone", {"radius": 0.03, "height": 0.05}),
     prim(4, "sphere", {"radius": 0.025}, rotation=np.eye(3)),
     prim(5, "unknown", {}, rotation=np.eye(3)),
+    prim(6, "frustum", {"radius": 0.045, "top_radius": 0.03, "height": 0.09}),
 ]
 
 
@@ -229,6 +230,43 @@ def test_cone_is_a_closed_triangle_mesh_from_base_to_apex():
     assert np.all(np.einsum("ij,ij->i", normals[:, :2], centroids[:, :2]) > 0)
 
 
+def test_frustum_is_a_closed_triangle_mesh_on_its_analytic_surface():
+    (m,) = by_ns(primitives_to_markers(SCENE, HEADER), "frustum")
+    assert m.type == Marker.TRIANGLE_LIST
+    assert (m.scale.x, m.scale.y, m.scale.z) == (1.0, 1.0, 1.0)  # vertices in metres
+    local = np.array([[p.x, p.y, p.z] for p in m.points])
+    # per segment: two side triangles, one of the base disc, one of the top disc
+    assert len(local) == 12 * CONE_SEGMENTS
+    r, top, h = 0.045, 0.03, 0.09
+    rho, z = np.hypot(local[:, 0], local[:, 1]), local[:, 2]
+    # Every vertex is a disc centre or on a rim: base (rho = r, z = -h/2) or top
+    # (rho = top, z = +h/2); the side between the rims is the line joining them.
+    at_base, at_top = np.isclose(z, -h / 2, atol=1e-15), np.isclose(z, h / 2, atol=1e-15)
+    assert np.all(at_base | at_top)
+    assert np.allclose(rho[at_base & (rho > 1e-12)], r, atol=1e-15)
+    assert np.allclose(rho[at_top & (rho > 1e-12)], top, atol=1e-15)
+    tri = local.reshape(-1, 3, 3)
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    centroids = tri.mean(axis=1)
+    side = slice(0, 2 * CONE_SEGMENTS)
+    # side triangles face outwards; their centroids lie on the side's plane chords, inside
+    # the analytic surface rho = r - (r - top) (z + h/2) / h by at most the chord's sag
+    assert np.all(np.einsum("ij,ij->i", normals[side, :2], centroids[side, :2]) > 0)
+    surface_rho = r - (r - top) * (centroids[side, 2] + h / 2) / h
+    sag = 1.0 - math.cos(math.pi / CONE_SEGMENTS)
+    assert np.all(np.hypot(centroids[side, 0], centroids[side, 1]) <= surface_rho + 1e-15)
+    assert np.all(np.hypot(centroids[side, 0], centroids[side, 1]) >= surface_rho * (1 - sag))
+    base_n = normals[2 * CONE_SEGMENTS:3 * CONE_SEGMENTS]
+    lid_n = normals[3 * CONE_SEGMENTS:]
+    assert np.all(base_n[:, 2] < 0) and np.all(lid_n[:, 2] > 0)  # caps face out
+    # in the scene frame the base centre is centre - h/2 z, the top's centre + h/2 z
+    world = local @ marker_rotation(m).T + marker_position(m)
+    for sign, radius in ((-1.0, r), (1.0, top)):
+        ring = world[np.isclose(z, sign * h / 2, atol=1e-15) & (rho > 1e-12)]
+        centre = SCENE[6].center + sign * h / 2 * ROT[:, 2]
+        assert np.allclose(np.linalg.norm(ring - centre, axis=1), radius, atol=1e-12)
+
+
 def test_unknown_object_gets_a_small_sphere_and_a_label_only():
     out = primitives_to_markers(SCENE, HEADER)
     (m,) = by_ns(out, "unknown")
@@ -247,6 +285,7 @@ def test_label_texts_give_type_and_dimensions_in_mm():
         3: "cone r=30.0 h=50.0 mm",
         4: "sphere r=25.0 mm",
         5: "unknown",
+        6: "frustum r=45.0 t=30.0 h=90.0 mm",
     }
     for m in by_ns(out, LABEL_NAMESPACE):
         assert m.type == Marker.TEXT_VIEW_FACING and m.scale.z > 0
@@ -389,9 +428,12 @@ def test_markers_to_primitives_inverts_primitives_to_markers():
                   10, 0.0),
         Primitive(5, "sphere", np.array([0.2, 0.2, 0.9]), np.eye(3), {"radius": 0.025}, 10, 0.0),
         Primitive(6, "unknown", np.array([0.0, 0.0, 1.0]), np.eye(3), {}, 10, 0.0),
+        Primitive(7, "frustum", np.array([0.1, 0.1, 0.8]), rot,
+                  {"radius": 0.045, "top_radius": 0.03, "height": 0.09}, 10, 0.0),
     ]
     back = markers_to_primitives(primitives_to_markers(prims, Header(frame_id="cam")))
-    assert [p.id for p in back] == [1, 2, 3, 4, 5]  # unknown has no shape to recover
+    assert [p.id for p in back] == [1, 2, 3, 4, 5, 7]  # unknown has no shape to recover
+    prims = [p for p in prims if p.type != "unknown"]
     for orig, got in zip(prims, back):
         assert got.type == orig.type
         np.testing.assert_allclose(got.center, orig.center, atol=1e-9)

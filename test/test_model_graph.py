@@ -185,7 +185,7 @@ def test_cap_and_perpendicular_curved_normals_give_cylinder_first():
     faces = [curved(_ring_normals(axis, 0.0, 400)), planar(axis, [0, 0, 0.5], 100)]
     d = decide(faces)
     assert d.category == "mixed"
-    assert d.candidates == ("cylinder", "cone")
+    assert d.candidates == ("cylinder", "cone", "frustum")
     assert d.main_face == 1
 
 
@@ -194,7 +194,7 @@ def test_base_and_constant_angle_normals_give_cone_first():
     faces = [curved(_ring_normals(axis, math.radians(31), 400)), planar(-axis, [0, 0, 0.5], 120)]
     d = decide(faces)
     assert d.category == "mixed"
-    assert d.candidates == ("cone", "cylinder")
+    assert d.candidates == ("cone", "frustum", "cylinder")
     assert d.main_face == 1
 
 
@@ -234,7 +234,7 @@ def test_sphere_like_curvatures():
 def test_cylinder_like_curvatures():
     rng = np.random.default_rng(1)
     assert _cands(1 / 0.02 + rng.normal(0, 1.0, 500), rng.normal(0, 1.0, 500)) == \
-        ("cylinder", "cone")
+        ("cylinder", "cone", "frustum")
 
 
 def test_cone_like_curvatures():
@@ -242,7 +242,7 @@ def test_cone_like_curvatures():
     rng = np.random.default_rng(2)
     radius = rng.uniform(0.01, 0.04, 500)
     k1 = math.cos(math.radians(30)) / radius
-    assert _cands(k1, rng.normal(0, 0.5, 500)) == ("cone", "cylinder")
+    assert _cands(k1, rng.normal(0, 0.5, 500)) == ("cone", "frustum", "cylinder")
 
 
 def test_torus_like_curvatures_give_no_candidate():
@@ -274,7 +274,7 @@ def test_all_curved_uses_curvature_in_decide_type():
     d = decide(faces, curvature=(k, k))
     assert d == GraphDecision("curved", ("sphere",), -1, (), d.reason)
     d = decide(faces, curvature=None)
-    assert d.candidates == ("cylinder", "cone", "sphere")
+    assert d.candidates == ("cylinder", "cone", "sphere", "frustum")
 
 
 def test_a_curved_sliver_on_a_box_does_not_make_it_mixed():
@@ -309,7 +309,7 @@ def _cap_ring_and_oblique(oblique_size):
 def test_small_oblique_planar_sliver_does_not_veto_the_cylinder(size):
     d = decide(_cap_ring_and_oblique(size))
     assert d.category == "mixed"
-    assert d.candidates == ("cylinder", "cone")
+    assert d.candidates == ("cylinder", "cone", "frustum")
     assert d.main_face == 1
 
 

@@ -68,7 +68,7 @@ rclpy.shutdown()
 #: SolidPrimitive type constants (shape_msgs): BOX, SPHERE, CYLINDER, CONE.
 BOX, SPHERE, CYLINDER, CONE = 1, 2, 3, 4
 #: Primitive.msg type constants.
-TYPES = {"plane": 0, "cuboid": 1, "cylinder": 2, "cone": 3, "sphere": 4}
+TYPES = {"plane": 0, "cuboid": 1, "cylinder": 2, "cone": 3, "sphere": 4, "frustum": 5}
 
 
 def _moveit_size_mm(obj: dict) -> dict[str, float]:
@@ -150,3 +150,77 @@ def test_objects_reach_another_process_with_the_scenes_types_and_sizes(node_and_
     assert abs(np.dot([a, b, c], desk.rotation[:, 2])) == pytest.approx(1.0, abs=0.01)
     assert d > 0  # the sensor (origin) is on the normal's side
     assert np.dot([a, b, c], desk.center) + d == pytest.approx(0.0, abs=0.005)
+
+
+# --- frustums -------------------------------------------------------------------------------
+
+#: A cup standing on its smaller end: base (rim) radius 45 mm, bottom 30 mm, 90 mm tall; z
+#: from the base towards the top (down).
+CUP_DIMS = {"radius": 0.045, "top_radius": 0.03, "height": 0.09}
+
+
+def test_a_frustum_travels_as_its_enclosing_cylinder_with_its_full_dimensions():
+    from geomodel_ros.core.primitives import Primitive
+    from msg_adapters.objects import PrimitiveMsg, objects_to_primitives, primitives_to_objects
+    from std_msgs.msg import Header
+
+    down = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])  # 180 deg about x
+    cup = Primitive(4, "frustum", np.array([0.1, -0.05, 0.7]), down, dict(CUP_DIMS), 2500,
+                    0.001, reason="frustum verified")
+    msg = primitives_to_objects([cup], Header(frame_id=FRAME))
+    (m,) = msg.primitives
+    assert m.type == PrimitiveMsg.FRUSTUM == 5
+    # MoveIt: CYLINDER [height, radius] with the base's (larger) radius encloses the cup.
+    assert m.shape.type == CYLINDER and list(m.shape.dimensions) == [0.09, 0.045]
+    assert dict(zip(m.dimension_names, m.dimensions)) == CUP_DIMS
+    assert list(m.dimension_names) == ["radius", "top_radius", "height"]
+    # 180 deg about x: quaternion (1, 0, 0, 0)
+    q = m.pose.orientation
+    assert (q.x, q.y, q.z, q.w) == pytest.approx((1.0, 0.0, 0.0, 0.0), abs=1e-12)
+    (back,) = objects_to_primitives(msg)
+    assert back.type == "frustum" and back.dimensions == CUP_DIMS
+    np.testing.assert_allclose(back.center, cup.center, atol=1e-12)
+    np.testing.assert_allclose(back.rotation, down, atol=1e-12)
+
+
+def test_a_rendered_cup_reaches_another_process_as_a_frustum(node_and_peer):
+    from dataclasses import replace
+
+    from builtin_interfaces.msg import Time
+    from std_msgs.msg import Header
+
+    from geomodel_ros.tools.synth import (DESK_CENTER, DESK_NORMAL, PAPER_CAMERA, Frustum,
+                                          Rectangle, desk_frame)
+    from msg_adapters.pointcloud2 import xyz_to_cloud
+
+    frame = desk_frame()
+    down = frame @ np.diag([1.0, -1.0, -1.0])  # z into the desk: the rim is the base
+    cup = Frustum(**CUP_DIMS, base_cap=False, center=DESK_CENTER, rotation=down)
+    lowest = -cup.support(-DESK_NORMAL) - DESK_CENTER @ DESK_NORMAL
+    cup = replace(cup, center=cup.center - lowest * DESK_NORMAL)
+    organized, _ = PAPER_CAMERA.scaled(0.5).render(
+        [Rectangle(0.4, 0.4, center=DESK_CENTER, rotation=frame), cup])
+    cloud = xyz_to_cloud(organized, Header(stamp=Time(sec=7, nanosec=0), frame_id=FRAME))
+
+    node, peer = node_and_peer
+    pub = peer.create_publisher(PointCloud2, "/test/points", RELIABLE)
+    listener = subprocess.Popen([sys.executable, "-c", SUBSCRIBER, str(3 * TIMEOUT)],
+                                cwd=REPO, env=dict(os.environ), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+    try:
+        wait_until(lambda: node._pub_objects.get_subscription_count() >= 1
+                   and pub.get_subscription_count() >= 1, "the listener process to match")
+        pub.publish(cloud)
+        out, err = listener.communicate(timeout=4 * TIMEOUT)
+    finally:
+        if listener.poll() is None:
+            listener.kill()
+            listener.wait()
+    line = out.strip().splitlines()[-1] if out.strip() else ""
+    assert line and line != "NONE", f"no objects received by the listener:\n{err}"
+    got = json.loads(line)
+    (obj,) = [o for o in got["objects"] if o["type"] == 5]  # FRUSTUM
+    assert obj["shape_type"] == CYLINDER
+    assert obj["shape"] == pytest.approx([0.09, 0.045], abs=0.3e-3)
+    assert obj["dimensions"] == pytest.approx(CUP_DIMS, abs=0.3e-3)
+    assert np.linalg.norm(np.array(obj["position"]) - cup.center) < 0.3e-3

@@ -7,9 +7,23 @@ proposes the object's type, as an ordered list of candidates that RANSAC then ve
   adjacent face -> cuboid (every face must then align with one of three orthogonal
   axes); all faces parallel and coplanar -> one plane (desk, wall, floor).
 * planar + curved faces: the largest plane is the auxiliary matching surface. Curved
-  normals perpendicular to its normal -> cylinder; at a constant other angle -> cone.
+  normals perpendicular to its normal -> cylinder; at a constant other angle -> cone,
+  or frustum (truncated cone: cup, bowl, flower pot) when the fitted cone's apex lies
+  beyond the object.
 * only curved faces: principal curvatures k1 (largest magnitude) and k2: k2 ~ 0 with k1
-  constant -> cylinder, k2 ~ 0 with k1 varying -> cone, k1 ~ k2 -> sphere.
+  constant -> cylinder, k2 ~ 0 with k1 varying -> cone or frustum, k1 ~ k2 -> sphere.
+
+Cone and frustum share one surface (normals at a constant non-right angle to the axis,
+k1 varying along it); which of the two an object is depends on where the fitted cone's
+apex lies, which only the fit knows: the graph proposes both, the cone first. The cone
+unit rejects a cone whose points stop short of its apex (``verify.CONE_APEX_REACH``),
+the frustum unit one whose points reach near it (``fitting.frustum.FRUSTUM_MIN_TOP_RATIO``,
+the same share), so exactly one of them accepts a truncated cone. Open cups and bowls
+(no cap, the inner wall seen through the opening) are all-curved objects: the same
+candidates through their curvatures. Where the surface looks conical (normals at a
+constant angle, k1 varying) the frustum comes before the cylinder, which would fit a
+tapered side only loosely (a bowl as a cylinder of its mean radius); where it looks
+cylindrical (normals perpendicular to the plane, k1 constant) it comes last.
 
 An object no rule accepts gets no candidate and becomes ``unknown``.
 """
@@ -144,10 +158,10 @@ def _mixed_decision(faces: list[FaceInfo], tol: float) -> GraphDecision:
     median = float(np.median(angles))
     q1, q3 = np.percentile(angles, [25, 75])
     if median <= tol:
-        return GraphDecision("mixed", ("cylinder", "cone"), main, (),
+        return GraphDecision("mixed", ("cylinder", "cone", "frustum"), main, (),
                              "curved normals perpendicular to the plane normal")
     if q3 - q1 <= CONE_ANGLE_SPREAD * tol:
-        return GraphDecision("mixed", ("cone", "cylinder"), main, (),
+        return GraphDecision("mixed", ("cone", "frustum", "cylinder"), main, (),
                              f"curved normals at a constant {math.degrees(median):.1f} deg "
                              "to the plane")
     return GraphDecision("mixed", (), main, (), "curved normals at varying angles to the plane")
@@ -184,8 +198,8 @@ def curvature_candidates(k_max: NDArray[np.float64], k_min: NDArray[np.float64],
         q1, med, q3 = np.percentile(a_max, [25, 50, 75])
         variation = float((q3 - q1) / med)
         if variation > cone_variation:
-            return ("cone", "cylinder"), f"k2 ~ 0, k1 varies ({variation:.2f})"
-        return ("cylinder", "cone"), f"k2 ~ 0, k1 constant ({variation:.2f})"
+            return ("cone", "frustum", "cylinder"), f"k2 ~ 0, k1 varies ({variation:.2f})"
+        return ("cylinder", "cone", "frustum"), f"k2 ~ 0, k1 constant ({variation:.2f})"
     return (), f"principal curvature ratio {ratio:.2f} fits no primitive"
 
 
@@ -233,6 +247,7 @@ def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
                                  d.reason + " (curved slivers ignored)")
         return _mixed_decision(faces, tol)
     if curvature is None:
-        return GraphDecision("curved", ("cylinder", "cone", "sphere"), -1, (), "all faces curved")
+        return GraphDecision("curved", ("cylinder", "cone", "sphere", "frustum"), -1, (),
+                             "all faces curved")
     cands, why = curvature_candidates(*curvature, sphere_ratio, developable_ratio, cone_variation)
     return GraphDecision("curved", cands, -1, (), why)

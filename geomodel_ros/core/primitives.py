@@ -25,6 +25,7 @@ class PrimitiveType(str, Enum):
     CYLINDER = "cylinder"
     CONE = "cone"
     SPHERE = "sphere"
+    FRUSTUM = "frustum"
     UNKNOWN = "unknown"
 
     def __str__(self) -> str:
@@ -39,13 +40,17 @@ class PrimitiveType(str, Enum):
 #: Types an object can be given, in the order of :class:`PrimitiveType`.
 PRIMITIVE_TYPES: tuple[PrimitiveType, ...] = tuple(PrimitiveType)
 
-#: Dimension names per type, all in metres.
+#: Dimension names per type, all in metres. A frustum (truncated cone: cup, bowl, flower
+#: pot, bucket) has ``radius`` at its base, the larger circle (the base of the cone it is
+#: cut from), ``top_radius`` at the smaller circle, nearer the cone's apex, and ``height``
+#: between the two along its axis.
 DIMENSION_NAMES: dict[PrimitiveType, tuple[str, ...]] = {
     PrimitiveType.PLANE: ("length", "width"),
     PrimitiveType.CUBOID: ("length", "width", "height"),
     PrimitiveType.CYLINDER: ("radius", "height"),
     PrimitiveType.CONE: ("radius", "height"),
     PrimitiveType.SPHERE: ("radius",),
+    PrimitiveType.FRUSTUM: ("radius", "top_radius", "height"),
     PrimitiveType.UNKNOWN: (),
 }
 
@@ -91,11 +96,13 @@ class Primitive:
         construction; any other value is kept as given (input from outside the modeling,
         e.g. markers read back, which consumers must guard against).
     center : (3,) float64 array [m]
-        Box centre (plane, cuboid), midpoint of the axis segment (cylinder, cone), centre
-        (sphere); for ``unknown`` the centroid of the points.
+        Box centre (plane, cuboid), midpoint of the axis segment (cylinder, cone,
+        frustum), centre (sphere); for ``unknown`` the centroid of the points.
     rotation : (3, 3) float64 array
-        Columns are the object's x, y, z axes: z = plane normal / cylinder or cone axis
-        (cone: base -> apex) / cuboid third axis. Identity for spheres and ``unknown``.
+        Columns are the object's x, y, z axes: z = plane normal / cylinder, cone or
+        frustum axis (cone: base -> apex; frustum: base (larger circle) -> top, i.e.
+        towards the apex of its cone, so a cup standing on its smaller end has z pointing
+        down) / cuboid third axis. Identity for spheres and ``unknown``.
     dimensions : dict[str, float]
         Sizes [m] named by :data:`DIMENSION_NAMES`.
     point_count : int

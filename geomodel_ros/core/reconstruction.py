@@ -17,12 +17,13 @@ __all__ = ["sample_primitive", "reconstruct", "surface_area"]
 
 #: Fewest samples along a side of a grid (both of its ends).
 MIN_GRID_SAMPLES = 2
-#: Fewest samples round a circle (a disc's rim, a cylinder's or cone's side): an octagon.
+#: Fewest samples round a circle (a disc's rim, a round primitive's side): an octagon.
 MIN_CIRCLE_SAMPLES = 8
 #: Fewest samples of a sphere, however small.
 MIN_SPHERE_SAMPLES = 20
-#: Seed of the thinning that keeps a cone side's density uniform towards the apex: the
-#: same primitive always gives the same samples (no caller's random stream is used up).
+#: Seed of the thinning that keeps a cone's or frustum's side density uniform towards the
+#: apex: the same primitive always gives the same samples (no caller's random stream is
+#: used up).
 CONE_THINNING_SEED = 0
 #: Default budget of samples per object.
 MAX_POINTS_PER_OBJECT = 2_000_000
@@ -62,24 +63,38 @@ def _box(dims: dict[str, float], spacing: float) -> NDArray[np.float64]:
     return np.vstack(parts)
 
 
+def _radii(kind: PrimitiveType, dims: dict[str, float]) -> tuple[float, float]:
+    """Radii [m] of a round primitive at its base (z = -height/2) and top (z = +height/2)."""
+    r = dims["radius"]
+    if kind == PrimitiveType.CONE:
+        return r, 0.0
+    if kind == PrimitiveType.FRUSTUM:
+        return r, dims["top_radius"]
+    return r, r
+
+
 def _round(kind: PrimitiveType, dims: dict[str, float], spacing: float) -> NDArray[np.float64]:
-    """Sample a cylinder or cone (apex at +height/2 on z) with its base(s): (n, 3)."""
-    cone = kind == PrimitiveType.CONE
-    r, h = dims["radius"], dims["height"]
+    """Sample a cylinder, cone or frustum with its caps: (n, 3).
+
+    Base circle at z = -height/2, top circle (a cone's apex) at z = +height/2.
+    """
+    r, top = _radii(kind, dims)
+    h = dims["height"]
     nt = max(MIN_CIRCLE_SAMPLES, int(math.ceil(2 * math.pi * r / spacing)))
-    slant = math.hypot(r, h) if cone else h
+    slant = math.hypot(r - top, h)
     nz = max(MIN_GRID_SAMPLES, int(math.ceil(slant / spacing)) + 1)
     t, z = np.meshgrid(np.linspace(0, 2 * math.pi, nt, endpoint=False), np.linspace(0, 1, nz))
     t, z = t.ravel(), z.ravel()
-    rr = r * (1 - z) if cone else np.full_like(z, r)
-    side = np.stack([rr * np.cos(t), rr * np.sin(t), -h / 2 + h * z], axis=1)
-    if cone:  # keep roughly uniform density towards the apex
+    share = 1 - z * (1 - (top / r if r > 0 else 1.0))  # local radius over the base radius
+    side = np.stack([r * share * np.cos(t), r * share * np.sin(t), -h / 2 + h * z], axis=1)
+    if top != r:  # keep roughly uniform density where the side narrows
         thin = np.random.default_rng(CONE_THINNING_SEED).random(len(side))
-        side = side[thin <= np.maximum(1 - z, 1.0 / nt)]
+        side = side[thin <= np.maximum(share, 1.0 / nt)]
     base = _disc(r, spacing)
     caps = [np.c_[base, np.full(len(base), -h / 2)]]
-    if not cone:
-        caps.append(np.c_[base, np.full(len(base), h / 2)])
+    if top > 0:
+        lid = _disc(top, spacing)
+        caps.append(np.c_[lid, np.full(len(lid), h / 2)])
     return np.vstack([side] + caps)
 
 
@@ -91,7 +106,7 @@ def _local_surface(kind: PrimitiveType, dims: dict[str, float], spacing: float
         return np.c_[g, np.zeros(len(g))]
     if kind == PrimitiveType.CUBOID:
         return _box(dims, spacing)
-    if kind in (PrimitiveType.CYLINDER, PrimitiveType.CONE):
+    if kind in (PrimitiveType.CYLINDER, PrimitiveType.CONE, PrimitiveType.FRUSTUM):
         return _round(kind, dims, spacing)
     if kind == PrimitiveType.SPHERE:
         r = dims["radius"]
@@ -118,6 +133,9 @@ def surface_area(primitive: Primitive) -> float:
         return math.pi * d["radius"] * (d["radius"] + math.hypot(d["radius"], d["height"]))
     if primitive.type == "sphere":
         return 4.0 * math.pi * d["radius"] ** 2
+    if primitive.type == "frustum":
+        r, top = d["radius"], d["top_radius"]
+        return math.pi * ((r + top) * math.hypot(r - top, d["height"]) + r * r + top * top)
     return 0.0
 
 

@@ -188,7 +188,7 @@ def _cuboid_stretch(points: np.ndarray, labels: np.ndarray, objects) -> list[flo
 
 def osd_type_lines(rows: list[dict]) -> list[str]:
     """Per group: how the labelled objects (their best-matching segments) were modeled."""
-    kinds = ("plane", "cuboid", "cylinder", "cone", "sphere", "unknown", "none")
+    kinds = ("plane", "cuboid", "cylinder", "cone", "sphere", "frustum", "unknown", "none")
     lines = [f"{'group':<10} " + " ".join(f"{k:>8}" for k in kinds)]
     for name, members in _groups_and_all().items():
         ts = [t for r in rows if r["scene"] in members for t in r.get("object_types", {}).values()]

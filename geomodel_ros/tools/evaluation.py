@@ -15,7 +15,8 @@ __all__ = ["expected_type", "DimensionError", "dimension_errors", "ObjectScore",
 
 def expected_type(gt_type: str) -> str:
     """Return the type the modeling must output for a ground-truth type (else unknown)."""
-    return gt_type if gt_type in ("plane", "cuboid", "cylinder", "cone", "sphere") else "unknown"
+    return gt_type if gt_type in ("plane", "cuboid", "cylinder", "cone", "sphere",
+                                  "frustum") else "unknown"
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,8 @@ def dimension_errors(est: Primitive, gt) -> list[DimensionError]:
 
     Planes and cuboids are compared axis by axis: each estimated axis is paired with the
     ground-truth axis closest to it, so the result does not depend on how the axes are
-    named. Empty when the types differ.
+    named; the other types by name (a frustum's ``radius``, ``top_radius``, ``height``).
+    Empty when the types differ.
     """
     if est.type != gt.type:
         return []

@@ -436,7 +436,7 @@ def primitive_normals(points, ids, primitives: Iterable[Primitive]) -> NDArray[n
             k = np.argmax(np.abs(q) / np.maximum(half, 1e-12), axis=1)
             nl = np.zeros_like(q)
             nl[np.arange(len(q)), k] = np.sign(q[np.arange(len(q)), k])
-        else:  # cylinder, cone
+        else:  # cylinder, cone, frustum
             r, hgt = d["radius"], d["height"]
             rr = np.hypot(q[:, 0], q[:, 1])
             radial = q[:, :2] / np.maximum(rr, 1e-12)[:, None]
@@ -446,9 +446,12 @@ def primitive_normals(points, ids, primitives: Iterable[Primitive]) -> NDArray[n
                 cap = (np.abs(np.abs(q[:, 2]) - hgt / 2) < eps) & (rr < r - eps)
                 nl[cap] = np.c_[np.zeros((cap.sum(), 2)), np.sign(q[cap, 2])]
             else:
-                nl = np.c_[hgt * radial, np.full(len(q), r)]
+                top = d.get("top_radius", 0.0)  # a frustum's top circle; a cone's apex
+                nl = np.c_[hgt * radial, np.full(len(q), r - top)]
                 base = (q[:, 2] + hgt / 2 < eps) & (rr < r - eps)
                 nl[base] = [0.0, 0.0, -1.0]
+                lid = (hgt / 2 - q[:, 2] < eps) & (rr < top - eps)
+                nl[lid] = [0.0, 0.0, 1.0]
         nl = nl / np.maximum(np.linalg.norm(nl, axis=1, keepdims=True), 1e-12)
         out[m] = _rotate(nl, p.rotation)
     return out
@@ -626,13 +629,15 @@ def legend_label(p: Primitive) -> str:
     """``"id type size"`` with the main sizes in mm, e.g. ``"3 cylinder r50 h60 mm"``.
 
     Planes and cuboids give length x width (x height), cylinders and cones radius and
-    height, spheres the radius.
+    height, frustums radius, top radius and height, spheres the radius.
     """
     d = p.dimensions
     if p.type in ("plane", "cuboid"):
         size = "x".join(_mm(d[k]) for k in ("length", "width", "height") if k in d) + " mm"
     elif p.type in ("cylinder", "cone"):
         size = f"r{_mm(d['radius'])} h{_mm(d['height'])} mm"
+    elif p.type == "frustum":
+        size = f"r{_mm(d['radius'])} t{_mm(d['top_radius'])} h{_mm(d['height'])} mm"
     elif p.type == "sphere":
         size = f"r{_mm(d['radius'])} mm"
     else:

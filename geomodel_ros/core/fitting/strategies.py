@@ -50,7 +50,7 @@ MIN_FLAT_MEAN_NORM = 1e-9
 #: ``seg_plane_threshold`` plus the RANSAC threshold) and its median lies above it by more.
 SUPPORT_BELOW_PERCENTILE = 1.0
 SUPPORT_TOLERANCE_FACTOR = 2.0
-ROUND_TYPES = (PrimitiveType.CYLINDER, PrimitiveType.CONE)
+ROUND_TYPES = (PrimitiveType.CYLINDER, PrimitiveType.CONE, PrimitiveType.FRUSTUM)
 FLAT_TYPES = (PrimitiveType.PLANE, PrimitiveType.CUBOID)
 
 

@@ -115,13 +115,15 @@ def check_apex(lo: float, height: float) -> Rejected | None:
     return None
 
 
-def check_bulk_reach(radius: float, reach: float) -> Rejected | None:
+def check_bulk_reach(radius: float, reach: float,
+                     kind: PrimitiveType = PrimitiveType.CONE) -> Rejected | None:
     """Reject a cone radius [m] beyond BULK_FACTOR times the points' ``reach`` + BULK_MARGIN.
 
-    A nearly flat cone whose points cover only the region round its apex.
+    A nearly flat cone whose points cover only the region round its apex; ``kind`` (a
+    cone or frustum) is named in the rejection.
     """
     if radius > BULK_FACTOR * reach + BULK_MARGIN:
-        return Rejected(PrimitiveType.CONE,
-                        f"cone rejected: radius {radius * 1000:.0f} mm, the object's points "
+        return Rejected(kind,
+                        f"{kind} rejected: radius {radius * 1000:.0f} mm, the object's points "
                         f"reach {reach * 1000:.0f} mm from its axis")
     return None

@@ -28,7 +28,7 @@ from .scenes import (
     render_scene,
     scene_geometry,
 )
-from .shapes import Box, Cone, Cylinder, Rectangle, Shape, Sphere, Torus
+from .shapes import Box, Cone, Cylinder, Frustum, Rectangle, Shape, Sphere, Torus
 
 __all__ = [
     "PinholeCamera",
@@ -38,6 +38,7 @@ __all__ = [
     "Box",
     "Cylinder",
     "Cone",
+    "Frustum",
     "Sphere",
     "Torus",
     "GroundTruthObject",

@@ -53,6 +53,7 @@ GROUND_TRUTH_TYPES: dict[str, tuple[str, ...]] = {
     "cylinder": ("radius", "height"),
     "cone": ("radius", "height"),
     "sphere": ("radius",),
+    "frustum": ("radius", "top_radius", "height"),
     "torus": ("major_radius", "minor_radius"),
 }
 
@@ -67,7 +68,7 @@ class GroundTruthObject:
         Label value used in :attr:`Scene.labels` / :attr:`Scene.label_image`.
     type : str
         One of ``"plane"``, ``"cuboid"``, ``"cylinder"``, ``"cone"``,
-        ``"sphere"``, ``"torus"``.
+        ``"sphere"``, ``"frustum"``, ``"torus"``.
     center : (3,) float64 array [m]
         Box centre (plane, cuboid), midpoint of the axis segment (cylinder,
         cone), centre (sphere, torus).

@@ -34,6 +34,7 @@ __all__ = [
     "Box",
     "Cylinder",
     "Cone",
+    "Frustum",
     "Sphere",
     "Torus",
     "DEFAULT_EPS",
@@ -245,11 +246,11 @@ class Shape:
 
 @dataclass(frozen=True, eq=False)
 class _AxialShape(Shape):
-    """A shape symmetric about its local z axis (cylinder, cone, torus)."""
+    """A shape symmetric about its local z axis (cylinder, cone, frustum, torus)."""
 
     @property
     def axis(self) -> np.ndarray:
-        """Unit symmetry axis (3,) = local z (a cone's points base -> apex)."""
+        """Unit symmetry axis (3,) = local z (a cone's and frustum's points base -> apex)."""
         return self.rotation[:, 2]
 
 
@@ -489,6 +490,101 @@ class Cone(_AxialShape):
 
     def ground_truth(self, id: int):
         return self._gt(id, "cone", {"radius": self.radius, "height": self.height})
+
+
+@dataclass(frozen=True, eq=False)
+class Frustum(_AxialShape):
+    """Truncated cone (cup, bowl, flower pot, bucket), closed or open at either end.
+
+    Parameters
+    ----------
+    radius : float [m]
+        Radius of the base, the larger circle, at local z = -height/2.
+    top_radius : float [m]
+        Radius of the smaller circle at local z = +height/2, in (0, radius).
+    height : float [m]
+        Distance between the two circles along local z, in (0, inf).
+    base_cap, top_cap : bool
+        Whether the base / top disc is closed. An open end shows the inside of the side
+        (a zero-thickness wall: an upright cup or bowl is ``Frustum(..., base_cap=False)``
+        turned so that z points down, its rim the base).
+    center : (3,) float64 array [m]
+        Midpoint of the axis segment.
+    rotation : (3, 3) float64 array
+        Columns = local x, y, z axes; z points base -> top (towards the apex of the cone
+        the frustum is cut from).
+
+    Notes
+    -----
+    With an open end the shape is a shell: ``signed_distance`` is then unsigned (as for
+    :class:`Rectangle`). ``support`` and ``bounding_radius`` are those of the solid.
+    """
+
+    radius: float
+    top_radius: float
+    height: float
+    base_cap: bool = True
+    top_cap: bool = True
+
+    _LENGTHS = ("radius", "top_radius", "height")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.top_radius >= self.radius:
+            raise ValueError("top_radius must lie in (0, radius) (the base is the larger "
+                             f"circle), got top_radius={self.top_radius}, radius={self.radius}")
+
+    @property
+    def closed(self) -> bool:
+        """Whether both ends are capped (a solid)."""
+        return bool(self.base_cap and self.top_cap)
+
+    @property
+    def bounding_radius(self) -> float:
+        return float(np.hypot(self.radius, 0.5 * self.height))
+
+    def _intersect_local(self, o, d, eps):
+        r, rt, hh = self.radius, self.top_radius, 0.5 * self.height
+        k = (r - rt) / self.height  # radius lost per metre along z
+        w0 = r / k - hh - o[:, 2]  # distance below the apex (z = r / k - hh) along the axis
+        k2 = k * k
+        a = d[:, 0] ** 2 + d[:, 1] ** 2 - k2 * d[:, 2] ** 2
+        b = o[:, 0] * d[:, 0] + o[:, 1] * d[:, 1] + k2 * w0 * d[:, 2]
+        c = o[:, 0] ** 2 + o[:, 1] ** 2 - k2 * w0 * w0
+        t1, t2 = _quadratic_roots(a, b, c)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tb = (-hh - o[:, 2]) / d[:, 2]
+            tt = (hh - o[:, 2]) / d[:, 2]
+            cand = np.stack([t1, t2, tb, tt], axis=1)
+            p = o[:, None, :] + cand[:, :, None] * d[:, None, :]
+            z_side = p[:, :2, 2]
+            side_ok = (z_side >= -hh) & (z_side <= hh)  # rejects the mirror nappe
+            rho2 = p[:, 2:, 0] ** 2 + p[:, 2:, 1] ** 2
+            base_ok = (rho2[:, :1] <= r * r) & self.base_cap
+            top_ok = (rho2[:, 1:] <= rt * rt) & self.top_cap
+        return _nearest_positive(cand, np.concatenate([side_ok, base_ok, top_ok], axis=1), eps)
+
+    def _sdf_local(self, p):
+        r, rt, hh = self.radius, self.top_radius, 0.5 * self.height
+        rho = np.hypot(p[:, 0], p[:, 1])
+        z = p[:, 2]
+        dist = _segment_distance_2d(rho, z, r, -hh, rt, hh)
+        if self.base_cap:
+            dist = np.minimum(dist, _segment_distance_2d(rho, z, 0.0, -hh, r, -hh))
+        if self.top_cap:
+            dist = np.minimum(dist, _segment_distance_2d(rho, z, 0.0, hh, rt, hh))
+        if not self.closed:
+            return dist
+        inside = (z >= -hh) & (z <= hh) & (rho <= r - (r - rt) * (z + hh) / self.height)
+        return np.where(inside, -dist, dist)
+
+    def _support_local(self, u):
+        hh, across = 0.5 * self.height, float(np.hypot(u[0], u[1]))
+        return max(-hh * u[2] + self.radius * across, hh * u[2] + self.top_radius * across)
+
+    def ground_truth(self, id: int):
+        dims = {"radius": self.radius, "top_radius": self.top_radius, "height": self.height}
+        return self._gt(id, "frustum", dims)
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,0 +1,141 @@
+"""Fitting unit of a frustum (truncated cone: cup, bowl, flower pot, bucket).
+
+The side is a cone fitted as the cone unit fits it (same RANSAC model and hypothesis
+bounds, same side verification); the object is a frustum when its points stop well short
+of that cone's apex: their extent along the axis, from ``lo`` to ``hi`` measured from the
+apex, has ``lo > FRUSTUM_MIN_TOP_RATIO * hi``. Caps, supports and the edge correction
+close the ends as for cylinders and cones (:func:`~.axial.axial_extent`).
+
+Sizes: ``radius`` of the base (the larger circle, at ``hi``), ``top_radius`` of the
+smaller circle (at ``lo``, nearer the apex) and ``height = hi - lo``; centre at the
+midpoint of the axis segment, rotation z from the base towards the top (towards the apex,
+as a cone's z), so a cup standing on its smaller end has z pointing down.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from functools import partial
+
+import numpy as np
+from numpy.typing import NDArray
+
+from geomodel_ros.core.fitting.axial import axial_extent, verified_side
+from geomodel_ros.core.fitting.cloud import ObjectCloud
+from geomodel_ros.core.fitting.cone import cone_hypothesis_ok
+from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
+from geomodel_ros.core.fitting.measure import bulk_extent, bulk_reach
+from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
+from geomodel_ros.core.fitting.verify import (CONE_APEX_REACH, check_bulk_length,
+                                              check_bulk_reach, check_radius)
+from geomodel_ros.core.geometry import frame_with_z
+from geomodel_ros.core.primitives import Primitive, PrimitiveType
+from geomodel_ros.core.ransac import ConeModel
+
+__all__ = ["FRUSTUM_MIN_TOP_RATIO", "FRUSTUM_MIN_TAPER", "frustum_sizes", "fit_frustum"]
+
+FRUSTUM = PrimitiveType.FRUSTUM
+#: A frustum's top radius is more than this share of its base radius: its points stop
+#: farther from the cone's apex than this share of the base's distance (radius grows
+#: linearly from the apex). It is the cone unit's CONE_APEX_REACH, so that a truncated
+#: cone is exactly one of the two: a cone when its points reach within half its height
+#: of the apex, a frustum otherwise. Half the height is a clear truncation: noise and the
+#: edge lose a cone a few millimetres round its tip, never half of it.
+FRUSTUM_MIN_TOP_RATIO = CONE_APEX_REACH
+#: A frustum's radii differ by more than this many RANSAC thresholds. With a smaller
+#: taper a cylinder of the mean radius lies within one threshold of every point of the
+#: side: the points cannot tell the two apart, and the object is left to the cylinder
+#: unit (measured on osd_learn: tins the Kinect sees with a 10 mm taper and a tilted
+#: axis, real bowls and cups with 24-35 mm).
+FRUSTUM_MIN_TAPER = 2.0
+
+
+def frustum_sizes(model: ConeModel, lo: float, hi: float, threshold: float
+                  ) -> dict[str, float] | Rejected:
+    """Sizes [m] of the frustum of ``model`` between ``lo`` and ``hi`` [m] from its apex.
+
+    Returns ``{"radius", "top_radius", "height"}`` (base = the circle at ``hi``), or the
+    rejection when the points reach within FRUSTUM_MIN_TOP_RATIO of ``hi`` of the apex
+    (a cone) or lie on both sides of it, or when the radii differ by at most
+    FRUSTUM_MIN_TAPER times ``threshold`` [m] (the RANSAC threshold: a cylinder).
+    """
+    if hi <= 0 or lo <= FRUSTUM_MIN_TOP_RATIO * hi:
+        return Rejected(FRUSTUM, f"frustum rejected: its points reach {max(lo, 0.0) * 1000:.0f}"
+                                 f" mm from the apex of a {max(hi, 0.0) * 1000:.0f} mm cone "
+                                 "(a cone)")
+    slope = math.tan(model.half_angle)
+    taper = (hi - lo) * slope
+    if taper <= FRUSTUM_MIN_TAPER * threshold:
+        return Rejected(FRUSTUM, f"frustum rejected: its radii differ by {taper * 1000:.1f} mm "
+                                 "only (a cylinder)")
+    return {"radius": hi * slope, "top_radius": lo * slope, "height": hi - lo}
+
+
+def _own_stream(cloud: ObjectCloud) -> ObjectCloud:
+    """``cloud`` with a child of its random stream (the parent's draws stay as they were).
+
+    The frustum is tried between other candidates; drawing from its own child stream
+    leaves the fits after it exactly as they were without it.
+    """
+    try:
+        child = cloud.rng.spawn(1)[0]
+    except (TypeError, ValueError):  # a generator without a seed sequence: share it
+        return cloud
+    return dataclasses.replace(cloud, rng=child)
+
+
+def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None
+                   ) -> tuple[list, NDArray[np.int64], NDArray[np.float64]] | Rejected:
+    """Caps, each point's surface and the side's points, once axis, coverage, arc, angle pass."""
+    checked = verified_side(task, side, prior, FRUSTUM, side.model.apex)
+    if isinstance(checked, Rejected):
+        return checked
+    if side.model.half_angle < task.cloud.params.min_cone_half_angle:
+        return Rejected(FRUSTUM, f"frustum half-angle {math.degrees(side.model.half_angle):.1f} "
+                                 "deg too small")
+    return checked
+
+
+def _sized(task: FitTask, model: ConeModel, lo: float, hi: float) -> dict[str, float] | Rejected:
+    """Sizes [m] of the frustum whose points run from ``lo`` to ``hi`` from the apex, checked."""
+    points = task.cloud.points
+    bad = check_bulk_length(hi - lo, bulk_extent(points, model.axis), FRUSTUM)
+    if bad:
+        return bad
+    dims = frustum_sizes(model, lo, hi, task.cloud.params.ransac_threshold)
+    if isinstance(dims, Rejected):
+        return dims
+    bad = check_radius(dims["radius"], task.cloud.params, FRUSTUM) or \
+        check_bulk_reach(dims["radius"], bulk_reach(points, model.apex, model.axis), FRUSTUM)
+    return bad if bad else dims
+
+
+def fit_frustum(task: FitTask) -> FitOutcome:
+    """Fit a frustum to the curved faces of ``task.cloud``; planar faces may close its ends.
+
+    The axis follows ``task.axis_prior`` or else the main planar face's normal, if any.
+    Returns a frustum whose z points from its base (larger circle) to its top, or the
+    rejection.
+    """
+    cloud = _own_stream(task.cloud)
+    task = dataclasses.replace(task, cloud=cloud)
+    prior = axis_prior(task)
+    side = fit_curved(cloud, FRUSTUM, ConeModel,
+                      partial(cone_hypothesis_ok, params=cloud.params, prior=prior),
+                      with_caps=True)
+    if not isinstance(side, CurvedFit):
+        return side
+    checked = _verified_side(task, side, prior)
+    if isinstance(checked, Rejected):
+        return checked
+    caps, nearest, side_points = checked
+    model = side.model
+    lo, hi = axial_extent(cloud, side_points, caps, nearest, model.apex, model.axis)
+    dims = _sized(task, model, lo, hi)
+    if isinstance(dims, Rejected):
+        return dims
+    prim = Primitive(cloud.oid, FRUSTUM, model.apex + model.axis * (lo + hi) / 2,
+                     frame_with_z(-model.axis), {k: float(v) for k, v in dims.items()},
+                     len(cloud.points), side.rmse)
+    return Fitted(prim, "frustum verified")
