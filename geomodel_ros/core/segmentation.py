@@ -24,7 +24,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.errors import as_points
-from geomodel_ros.core.faces import WorkingCloud, estimate_normals, split_faces, voxelize
+from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, neighborhood_moments,
+                                     smallest_eigenpairs_sym, split_faces, voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.fastmath import row_norms, rows_finite, take_rows
 from geomodel_ros.core.joins import join_contained_parts, join_occluded_parts, merge_patches
@@ -41,6 +42,9 @@ MIN_INPUT_POINTS = 3
 MIN_WORKING_POINTS = 4
 #: Guard against division by a zero length.
 _TINY = 1e-12
+#: A patch-restricted normal needs this many neighbours in the point's own patch (a plane
+#: through fewer, on a voxel grid, is poorly determined).
+PATCH_NORMAL_MIN_NEIGHBORS = 6
 
 
 @dataclass
@@ -242,6 +246,7 @@ def _convex_objects(points: NDArray[np.float64], params: ModelingParams) -> NDAr
     patches = split_faces(cloud, params.face_angle_threshold, params.edge_variation_threshold,
                           params.min_face_points, max_edge).labels
     n_p = int(patches.max()) + 1
+    normals = _patch_normals(points, normals, nbrs, patches)
     a, b, votes, yes = _border_votes(points, normals, nbrs, sqdist, patches, n_p, max_edge,
                                      params.seg_concavity_tolerance)
     obj = merge_patches(n_p, a, b, votes, yes)
@@ -273,13 +278,47 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     i, j = i[ok], j[ok]
     d = take_rows(points, i) - take_rows(points, j)
     dist = row_norms(d)
-    convexity = np.einsum("ij,ij->i", take_rows(normals, i) - take_rows(normals, j), d) \
-        / np.maximum(dist, _TINY)
     pi, pj = patches[i], patches[j]
     cross = pi != pj
+    i, j, d, dist = i[cross], j[cross], d[cross], dist[cross]
+    # Each point on or below the other's tangent plane (within the tolerance).
+    below_i = np.einsum("ij,ij->i", take_rows(normals, i), d) / np.maximum(dist, _TINY)
+    below_j = -np.einsum("ij,ij->i", take_rows(normals, j), d) / np.maximum(dist, _TINY)
+    good = (below_i >= -tolerance) & (below_j >= -tolerance)
     key = np.minimum(pi[cross], pj[cross]) * n_p + np.maximum(pi[cross], pj[cross])
-    good = convexity[cross] >= -tolerance
     pairs, inv = np.unique(key, return_inverse=True)
     votes = np.bincount(inv, minlength=len(pairs))
     yes = np.bincount(inv, weights=good, minlength=len(pairs))
     return pairs // n_p, pairs % n_p, votes, yes
+
+
+def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
+                   nbrs: NDArray[np.int64], patches: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Normals re-estimated from each point's neighbours in its own patch.
+
+    Near a crease a point's neighbourhood straddles both surfaces and its normal blends
+    them, which blurs the convexity of the links across the crease; restricted to its own
+    patch the neighbourhood holds one surface. Points with fewer than
+    :data:`PATCH_NORMAL_MIN_NEIGHBORS` neighbours in their patch keep ``normals``.
+
+    Parameters
+    ----------
+    points, normals : (M, 3) float64 arrays
+        Working points [m] (sensor at the origin) and their unit normals.
+    nbrs : (M, k) int64 array
+        Nearest neighbours of every point (itself among them).
+    patches : (M,) int64 array
+        Patch of every point.
+
+    Returns
+    -------
+    (M, 3) float64 array
+        Unit normals oriented towards the sensor.
+    """
+    same = patches[nbrs] == patches[:, None]
+    own = np.where(same, nbrs, np.arange(len(points))[:, None])
+    _, refined = smallest_eigenpairs_sym(*neighborhood_moments(points, own))
+    refined[np.einsum("ij,ij->i", refined, points) > 0] *= -1
+    keep = same.sum(axis=1) < PATCH_NORMAL_MIN_NEIGHBORS
+    refined[keep] = normals[keep]
+    return refined
