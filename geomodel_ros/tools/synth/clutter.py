@@ -33,8 +33,9 @@ from .shapes import (Box, Cone, Cylinder, Rectangle, Shape, Sphere, _AxialShape,
                      _nearest_positive, _quadratic_roots, _segment_distance_2d)
 
 __all__ = ["OpenFrustum", "Footprint", "Placeable", "ClutterScene", "KINECT_CAMERA",
-           "KINECT_NOISE", "KIND_BUILDERS", "clutter_geometry", "render_clutter",
-           "footprints_overlap"]
+           "KINECT_NOISE", "KIND_BUILDERS", "camera_pose", "footprints_overlap", "make_box",
+           "make_can", "make_cone", "make_container", "make_lying_can", "make_sphere",
+           "clutter_layout", "render_clutter", "render_layout", "stack_on"]
 
 #: A Kinect-class depth camera (640 x 480, 525 px focal length: 62 x 49 degrees).
 KINECT_CAMERA = PinholeCamera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
@@ -144,15 +145,22 @@ class OpenFrustum(_AxialShape):
         return _nearest_positive(cand, valid, eps)
 
     def _sdf_local(self, p):
-        mid, k = self._slope()
         hh = 0.5 * self.height
         rho, z = np.hypot(p[:, 0], p[:, 1]), p[:, 2]
-        d_wall = _segment_distance_2d(rho, z, self.bottom_radius, -hh, self.top_radius, hh)
-        d_base = _segment_distance_2d(rho, z, 0.0, -hh, self.bottom_radius, -hh)
-        d_rim = _segment_distance_2d(rho, z, 0.0, hh, self.top_radius, hh)
-        dist = np.minimum(np.minimum(d_wall, d_base), d_rim)
-        inside = (np.abs(z) <= hh) & (rho <= mid + k * z)
-        return np.where(inside, -dist, dist)
+        return _frustum_sdf(rho, z, self.bottom_radius, self.top_radius, -hh, hh)
+
+    def surface_distance(self, points) -> np.ndarray:
+        """Distance [m] of points (M, 3) [m] to the container's surface, (M,).
+
+        The surface is the outer one (wall, bottom, rim) and the cavity's (inner wall and
+        floor).
+        """
+        p = self.to_local(np.atleast_2d(points))
+        mid, k = self._slope()
+        hh, t, f = 0.5 * self.height, self.wall, self.floor
+        rho, z = np.hypot(p[:, 0], p[:, 1]), p[:, 2]
+        cavity = _frustum_sdf(rho, z, mid + k * (f - hh) - t, self.top_radius - t, f - hh, hh)
+        return np.minimum(np.abs(self._sdf_local(p)), np.abs(cavity))
 
     def _support_local(self, u):
         hh, lateral = 0.5 * self.height, float(np.hypot(u[0], u[1]))
@@ -171,6 +179,17 @@ class OpenFrustum(_AxialShape):
             return self._gt(id, "frustum", dims)
         return self._gt(id, "cylinder", {"radius": max(self.bottom_radius, self.top_radius),
                                          "height": self.height})
+
+
+def _frustum_sdf(rho, z, r_bottom: float, r_top: float, z_bottom: float, z_top: float):
+    """Signed distance [m] of points (radius rho, height z; (M,) each) to a solid frustum."""
+    d_wall = _segment_distance_2d(rho, z, r_bottom, z_bottom, r_top, z_top)
+    d_base = _segment_distance_2d(rho, z, 0.0, z_bottom, r_bottom, z_bottom)
+    d_top = _segment_distance_2d(rho, z, 0.0, z_top, r_top, z_top)
+    dist = np.minimum(np.minimum(d_wall, d_base), d_top)
+    radius = r_bottom + (r_top - r_bottom) * (z - z_bottom) / (z_top - z_bottom)
+    inside = (z >= z_bottom) & (z <= z_top) & (rho <= radius)
+    return np.where(inside, -dist, dist)
 
 
 def _cone_roots(o, d, mid, k):
@@ -290,23 +309,21 @@ def _upright(kind: str, shape: Shape, radius: float) -> Placeable:
     return Placeable(kind, shape, Footprint(np.zeros(2), None, 0.0, radius))
 
 
-def _box(rng: np.random.Generator) -> Placeable:
-    length, width, height = rng.uniform([0.04, 0.04, 0.03], [0.16, 0.12, 0.15])
-    yaw = rng.uniform(0.0, np.pi)
+def make_box(length: float, width: float, height: float, yaw: float = 0.0) -> Placeable:
+    """Box standing on the desk origin, its length turned ``yaw`` [rad] from the desk's x."""
     shape = Box(length, width, height, center=[0.0, 0.0, 0.5 * height],
                 rotation=_yaw_rotation(yaw))
     half = np.array([0.5 * length, 0.5 * width])
     return Placeable("box", shape, Footprint(np.zeros(2), half, yaw, float(np.hypot(*half))))
 
 
-def _can(rng: np.random.Generator) -> Placeable:
-    radius, height = rng.uniform([0.025, 0.06], [0.05, 0.16])
+def make_can(radius: float, height: float) -> Placeable:
+    """Upright cylinder (a can, a tin) standing on the desk origin."""
     return _upright("can", Cylinder(radius, height, center=[0.0, 0.0, 0.5 * height]), radius)
 
 
-def _lying_can(rng: np.random.Generator) -> Placeable:
-    radius, length = rng.uniform([0.02, 0.08], [0.04, 0.16])
-    yaw = rng.uniform(0.0, np.pi)
+def make_lying_can(radius: float, length: float, yaw: float = 0.0) -> Placeable:
+    """Cylinder lying on the desk origin, its axis turned ``yaw`` [rad] from the desk's x."""
     axis = np.array([np.cos(yaw), np.sin(yaw), 0.0])
     up = np.array([0.0, 0.0, 1.0])
     rotation = np.stack([up, np.cross(axis, up), axis], axis=1)
@@ -316,28 +333,53 @@ def _lying_can(rng: np.random.Generator) -> Placeable:
                      Footprint(np.zeros(2), half, yaw, float(np.hypot(*half))))
 
 
+def make_container(bottom_radius: float, top_radius: float, height: float,
+                   kind: str = "cup") -> Placeable:
+    """Open container (:class:`OpenFrustum`) standing on the desk origin."""
+    shape = OpenFrustum(bottom_radius, top_radius, height, center=[0.0, 0.0, 0.5 * height])
+    return _upright(kind, shape, max(bottom_radius, top_radius))
+
+
+def make_sphere(radius: float) -> Placeable:
+    """Ball resting on the desk origin."""
+    return _upright("sphere", Sphere(radius, center=[0.0, 0.0, radius]), radius)
+
+
+def make_cone(radius: float, height: float) -> Placeable:
+    """Cone standing on its base on the desk origin."""
+    return _upright("cone", Cone(radius, height, center=[0.0, 0.0, 0.5 * height]), radius)
+
+
+def _box(rng: np.random.Generator) -> Placeable:
+    return make_box(*rng.uniform([0.04, 0.04, 0.03], [0.16, 0.12, 0.15]),
+                    yaw=rng.uniform(0.0, np.pi))
+
+
+def _can(rng: np.random.Generator) -> Placeable:
+    return make_can(*rng.uniform([0.025, 0.06], [0.05, 0.16]))
+
+
+def _lying_can(rng: np.random.Generator) -> Placeable:
+    return make_lying_can(*rng.uniform([0.02, 0.08], [0.04, 0.16]),
+                          yaw=rng.uniform(0.0, np.pi))
+
+
 def _cup(rng: np.random.Generator) -> Placeable:
     bottom, height = rng.uniform([0.03, 0.06], [0.05, 0.12])
-    top = bottom * rng.uniform(1.0, 1.3)
-    shape = OpenFrustum(bottom, top, height, center=[0.0, 0.0, 0.5 * height])
-    return _upright("cup", shape, top)
+    return make_container(bottom, bottom * rng.uniform(1.0, 1.3), height, "cup")
 
 
 def _bowl(rng: np.random.Generator) -> Placeable:
     bottom, height = rng.uniform([0.035, 0.04], [0.055, 0.07])
-    top = bottom * rng.uniform(1.6, 2.0)
-    shape = OpenFrustum(bottom, top, height, center=[0.0, 0.0, 0.5 * height])
-    return _upright("bowl", shape, top)
+    return make_container(bottom, bottom * rng.uniform(1.6, 2.0), height, "bowl")
 
 
 def _ball(rng: np.random.Generator) -> Placeable:
-    radius = rng.uniform(0.025, 0.06)
-    return _upright("sphere", Sphere(radius, center=[0.0, 0.0, radius]), radius)
+    return make_sphere(rng.uniform(0.025, 0.06))
 
 
 def _cone(rng: np.random.Generator) -> Placeable:
-    radius, height = rng.uniform([0.03, 0.05], [0.05, 0.12])
-    return _upright("cone", Cone(radius, height, center=[0.0, 0.0, 0.5 * height]), radius)
+    return make_cone(*rng.uniform([0.03, 0.05], [0.05, 0.12]))
 
 
 #: Object kinds: builder of a random object at the desk origin, and the kind's weight.
@@ -410,7 +452,7 @@ def _place_stacked(table: _Table, obj: Placeable, rng: np.random.Generator
     fp = obj.footprint.moved(xy)
     if not _contains(base.footprint, fp) or not table.free(fp, k + 1):
         return None
-    return obj.at(xy, base.shape.support(np.array([0.0, 0.0, 1.0])))
+    return stack_on(obj, base, xy)
 
 
 _PLACERS = {"apart": _place_apart, "touch": _place_touching, "stack": _place_stacked}
@@ -457,23 +499,45 @@ def _base_of(table: _Table, placed: Placeable) -> int:
 
 
 # --------------------------------------------------------------------------- camera
-def _camera_pose(rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Return the rotation (3, 3) desk -> optical frame and the camera position (3,) [m].
+def camera_pose(distance: float, elevation: float, azimuth: float,
+                aim: tuple[float, float] = (0.0, 0.0)
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Pose of a camera looking at the desk point ``aim`` (x, y) [m].
 
-    Optical frame of REP 103: z along the view, x to the right, y down.
+    Parameters
+    ----------
+    distance : float
+        Distance [m] from the camera to the aim point.
+    elevation, azimuth : float
+        Direction [rad] from the aim point to the camera: angle above the desk, and angle
+        about the desk normal from the desk's x axis.
+    aim : (2,) floats
+        Desk point the camera looks at.
+
+    Returns
+    -------
+    rotation : (3, 3) float64 array
+        Desk frame -> optical frame (REP 103: z along the view, x right, y down).
+    position : (3,) float64 array
+        Camera position [m] in the desk frame.
     """
-    distance = rng.uniform(*CAMERA_DISTANCE)
-    elevation = rng.uniform(*CAMERA_ELEVATION)
-    azimuth = rng.uniform(0.0, 2.0 * np.pi)
-    aim = np.append(rng.uniform(-np.array(AIM_OFFSET), AIM_OFFSET), 0.0)
-    position = aim + distance * np.array([np.cos(elevation) * np.cos(azimuth),
-                                          np.cos(elevation) * np.sin(azimuth),
-                                          np.sin(elevation)])
-    forward = (aim - position) / distance
+    target = np.array([aim[0], aim[1], 0.0])
+    position = target + distance * np.array([np.cos(elevation) * np.cos(azimuth),
+                                             np.cos(elevation) * np.sin(azimuth),
+                                             np.sin(elevation)])
+    forward = (target - position) / distance
     right = np.cross(forward, [0.0, 0.0, 1.0])
     right /= np.linalg.norm(right)
     down = np.cross(forward, right)
     return np.stack([right, down, forward]), position
+
+
+def _camera_pose(rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    distance = rng.uniform(*CAMERA_DISTANCE)
+    elevation = rng.uniform(*CAMERA_ELEVATION)
+    azimuth = rng.uniform(0.0, 2.0 * np.pi)
+    aim = rng.uniform(-np.array(AIM_OFFSET), AIM_OFFSET)
+    return camera_pose(distance, elevation, azimuth, (aim[0], aim[1]))
 
 
 def _to_camera(shape: Shape, rotation: NDArray[np.float64], position: NDArray[np.float64]
@@ -505,25 +569,68 @@ class ClutterScene(Scene):
     desk_normal: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
 
 
-def clutter_geometry(seed: int) -> tuple[list[Shape], list[str], list[int], NDArray[np.float64]]:
-    """Shapes of clutter scene ``seed`` in the optical frame of its camera.
+def stack_on(obj: Placeable, base: Placeable, xy: tuple[float, float] | None = None
+             ) -> Placeable:
+    """Return ``obj`` standing on the top of the box ``base`` at ``xy`` (default its centre)."""
+    at = base.footprint.center if xy is None else np.asarray(xy, dtype=np.float64)
+    return obj.at(at, base.shape.support(np.array([0.0, 0.0, 1.0])))
+
+
+def render_layout(items: list[Placeable], bases: list[int], pose, *,
+                  noise: NoiseModel | None = None, rng=None,
+                  camera: PinholeCamera = KINECT_CAMERA, name: str = "layout") -> ClutterScene:
+    """Render placed objects on the desk seen from ``pose`` (see :func:`camera_pose`).
+
+    Parameters
+    ----------
+    items : list of Placeable
+        Objects placed in desk coordinates (:meth:`Placeable.at`, :func:`stack_on`); the
+        caller makes sure they rest on the desk or on each other without overlapping.
+    bases : list of int
+        What each item stands on: 0 the desk, k the k-th item (1-based).
+    pose : (rotation (3, 3), position (3,))
+        Camera pose from :func:`camera_pose`.
+    noise : NoiseModel, optional
+        Sensor degradations; None gives the exact cloud.
+    rng : None, int or Generator
+        Randomness of the noise.
+    camera : PinholeCamera
+        Intrinsics (identity pose).
+    name : str
+        Scene name.
 
     Returns
     -------
-    shapes : list of Shape
-        Desk first, then the objects (ids = list indices).
-    kinds, bases : lists
-        See :class:`ClutterScene`.
-    desk_normal : (3,) float64 array
-        Unit desk normal in the optical frame.
+    ClutterScene
+        Labels: desk 0, item k at id k, -1 no return.
+    """
+    rotation, position = pose
+    shapes = [_to_camera(s, rotation, position)
+              for s in [Rectangle(*DESK_EXTENT)] + [i.shape for i in items]]
+    organized, labels = camera.render(shapes)
+    if noise is not None:
+        organized, labels = apply_noise(organized, labels, noise, rng)
+    objects = [s.ground_truth(i) for i, s in enumerate(shapes)]
+    return ClutterScene(name, organized, labels, objects, camera.intrinsics, shapes,
+                        ["desk"] + [i.kind for i in items], [-1] + list(bases),
+                        rotation[:, 2].copy())
+
+
+def clutter_layout(seed: int) -> tuple[list[Placeable], list[int], tuple]:
+    """Objects, their bases and the camera pose of clutter scene ``seed`` (not rendered).
+
+    Returns
+    -------
+    items : list of Placeable
+        8-16 objects placed in desk coordinates (desk plane z = 0, normal +z).
+    bases : list of int
+        What each stands on: 0 the desk, k the k-th item (1-based).
+    pose : (rotation (3, 3), position (3,))
+        Camera pose (:func:`camera_pose`).
     """
     rng = np.random.default_rng(seed)
     table = _place_objects(rng)
-    rotation, position = _camera_pose(rng)
-    desk = Rectangle(*DESK_EXTENT)
-    shapes = [_to_camera(s, rotation, position) for s in [desk] + [i.shape for i in table.items]]
-    kinds = ["desk"] + [i.kind for i in table.items]
-    return shapes, kinds, [-1] + table.bases, rotation[:, 2].copy()
+    return table.items, table.bases, _camera_pose(rng)
 
 
 def render_clutter(seed: int, noise: NoiseModel | None = None,
@@ -544,11 +651,7 @@ def render_clutter(seed: int, noise: NoiseModel | None = None,
     ClutterScene
         Labels: desk 0, objects 1..K, -1 no return.
     """
-    shapes, kinds, bases, up = clutter_geometry(seed)
-    organized, labels = camera.render(shapes)
-    if noise is not None:
-        organized, labels = apply_noise(organized, labels, noise,
-                                        np.random.default_rng([seed, 1]))
-    objects = [s.ground_truth(i) for i, s in enumerate(shapes)]
-    return ClutterScene(f"clutter{seed}", organized, labels, objects, camera.intrinsics,
-                        shapes, kinds, bases, up)
+    items, bases, pose = clutter_layout(seed)
+    return render_layout(items, bases, pose, noise=noise,
+                         rng=np.random.default_rng([seed, 1]), camera=camera,
+                         name=f"clutter{seed}")
