@@ -120,47 +120,57 @@ def _separation(a, b) -> float:
 
     gap(u) = min over b of p . u - max over a of p . u, from the analytic support
     functions; positive when a plane with normal u lies between them. Horizontal
-    directions (where shapes standing side by side separate) are scanned at 0.5 degrees
+    directions (where shapes standing side by side separate) are scanned at 1 degree
     and the best refined; the vertical (a shape on top of another) is tried as well.
     """
     def gap(theta: float) -> float:
         u = np.array([np.cos(theta), np.sin(theta), 0.0])
         return -b.support(-u) - a.support(u)
 
-    thetas = np.radians(np.arange(0.0, 360.0, 0.5))
+    thetas = np.radians(np.arange(0.0, 360.0, 1.0))
     best = thetas[int(np.argmax([gap(t) for t in thetas]))]
-    step = np.radians(0.5)
+    step = np.radians(1.0)
     res = minimize_scalar(lambda t: -gap(t), bounds=(best - step, best + step),
                           method="bounded", options={"xatol": 1e-12})
     vertical = max(-b.support(-UP) - a.support(UP), -a.support(-UP) - b.support(UP))
     return max(-res.fun, gap(best), vertical)
 
 
-@pytest.mark.parametrize("seed", range(10))
-def test_no_two_objects_overlap(seed):
+@functools.lru_cache(maxsize=None)
+def _pair_gaps(seed: int) -> dict[tuple[int, int], float]:
+    """Separation of every pair of objects (ids from 1) of clutter scene ``seed``."""
     items, _, _ = clutter_layout(seed)
-    gaps = []
-    for x in range(len(items)):
-        for y in range(x + 1, len(items)):
-            g = _separation(items[x].shape, items[y].shape)
-            assert g >= -CONTACT, (seed, x + 1, y + 1, items[x].kind, items[y].kind, g)
-            gaps.append(g)
-    # Objects pushed against each other: some pairs touch.
-    assert min(gaps) < 2 * CONTACT
+    return {(x + 1, y + 1): _separation(items[x].shape, items[y].shape)
+            for x in range(len(items)) for y in range(x + 1, len(items))}
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_no_two_objects_overlap(seed):
+    gaps = _pair_gaps(seed)
+    kinds = _scene(seed).kinds
+    for (x, y), g in gaps.items():
+        assert g >= -CONTACT, (seed, x, y, kinds[x], kinds[y], g)
 
 
 def test_scenes_hold_touching_stacked_and_cut_off_objects():
-    stacked = touching = cut = 0
-    for seed in range(10):
-        items, bases, _ = clutter_layout(seed)
-        stacked += sum(b > 0 for b in bases)
-        touching += sum(_separation(items[x].shape, items[y].shape) < 2 * CONTACT
-                        for x in range(len(items)) for y in range(x + 1, len(items)))
+    stacked = sum(b > 0 for seed in SEEDS for b in clutter_layout(seed)[1])
+    touching = sum(g < 2 * CONTACT for seed in SEEDS for g in _pair_gaps(seed).values())
+    cut = 0
     for seed in SEEDS:
         img = _scene(seed).label_image
         border = np.concatenate([img[0], img[-1], img[:, 0], img[:, -1]])
         cut += len(set(border[border > 0].tolist()))
-    assert stacked >= 3 and touching >= 20 and cut >= 3, (stacked, touching, cut)
+    assert stacked >= 2 and touching >= 10 and cut >= 3, (stacked, touching, cut)
+
+
+def test_separation_is_negative_for_overlapping_shapes():
+    # Two cans of radius 30 mm whose centres are 50 mm apart overlap by 10 mm; 70 mm
+    # apart they are 10 mm apart; a can on a box's top touches it from above.
+    a, b = make_can(0.03, 0.1).shape, make_can(0.03, 0.1)
+    assert _separation(a, b.at(np.array([0.05, 0.0])).shape) == pytest.approx(-0.01, abs=1e-9)
+    assert _separation(a, b.at(np.array([0.0, 0.07])).shape) == pytest.approx(0.01, abs=1e-9)
+    box = make_box(0.1, 0.1, 0.05)
+    assert _separation(box.shape, stack_on(b, box).shape) == pytest.approx(0.0, abs=1e-12)
 
 
 def test_footprints_touch_without_overlapping():
