@@ -6,8 +6,9 @@
    ``seg_min_support_area``.
 3. The rest is split into objects by local convexity (as in LCCP, Stein et al. 2014):
    smooth patches are joined where most neighbour links across their common border are
-   flat or convex, not across a concave crease (object on object, object against object)
-   nor a depth jump (occlusion boundary); tiny objects are noise. Two further joins
+   flat or convex, not across a concave crease (object on object, object against object),
+   a step (parallel faces at different heights) nor a depth jump (occlusion boundary);
+   tiny objects are noise. Two further joins
    (:mod:`geomodel_ros.core.joins`) put together the parts of one surface cut by an
    occluder and the inner and outer walls of an open round container.
 4. Objects are numbered by size, largest first, after the supports; labels go back to every
