@@ -347,7 +347,7 @@ def test_step_free_tells_a_step_from_a_plane_and_an_edge(p_j, n_j, convex, step)
     points = np.array([[0.0, 0.0, 0.0], p_j])
     normals = np.array([UP, n_j])
     below_i, below_j, no_step = _step_free(points, normals, np.array([0]), np.array([1]),
-                                           0.001)
+                                           np.full(2, 0.001))
     assert below_i[0] + below_j[0] == pytest.approx(convex, abs=1e-12)
     assert bool(no_step[0]) is not step
 
@@ -368,7 +368,7 @@ def test_a_patch_is_cut_along_a_step_and_a_plane_is_not(height, pieces):
     _, _, nbrs, sqdist = estimate_normals(points, 16, return_sqdist=True)
     normals = np.tile(UP, (len(points), 1))
     out = _cut_steps(points, normals, nbrs, sqdist, np.zeros(len(points), dtype=np.int64),
-                     0.01, 0.001)
+                     0.01, np.full(len(points), 0.001))
     assert len(np.unique(out)) == pieces
     if pieces == 2:  # cut exactly along the step
         assert len(np.unique(out[points[:, 0] < 0])) == 1
@@ -392,3 +392,79 @@ def test_patch_normals_keep_each_face_apart_at_a_crease():
     raw_err = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", raw, exact), -1, 1)))
     assert raw_err.max() > 10.0  # the raw normals blend the faces along the crease
     assert err.max() < 1e-6
+
+
+def test_a_patch_is_cut_only_along_steps_not_where_it_is_unlinked():
+    from geomodel_ros.core.faces import estimate_normals
+    from geomodel_ros.core.segmentation import _cut_steps
+
+    # One flat strip and a speck of 3 points 3 cm beyond its end, at the same height,
+    # given to the strip's patch (as split_faces gives edge points and small faces to the
+    # nearest face): no link reaches the speck (links are at most 1 cm), but no step
+    # separates it either, so it stays in the patch.
+    strip = _grid(-0.06, 0.0, 0.0)
+    speck = np.array([[0.03, 0.0, 0.0], [0.034, 0.0, 0.0], [0.03, 0.004, 0.0]])
+    points = np.vstack([strip, speck])
+    _, _, nbrs, sqdist = estimate_normals(points, 16, return_sqdist=True)
+    normals = np.tile(UP, (len(points), 1))
+    out = _cut_steps(points, normals, nbrs, sqdist, np.zeros(len(points), dtype=np.int64),
+                     0.01, np.full(len(points), 0.001))
+    assert len(np.unique(out)) == 1
+
+
+class _QuadraticNoise:
+    """Depth noise sigma = b z^2 [m] (a DepthNoise)."""
+
+    def __init__(self, b: float) -> None:
+        self.b = b
+
+    def sigma(self, z):
+        return self.b * np.square(z)
+
+
+def test_step_heights_follow_the_noise_at_each_range():
+    from geomodel_ros.core.params import ModelingParams
+    from geomodel_ros.core.segmentation import STEP_NOISE_SIGMAS, STEP_SHARE, step_heights
+
+    params = ModelingParams(seg_plane_threshold=0.004)
+    points = np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 2.0], [1.2, 0.0, 1.6]])  # ranges 0.5, 2, 2
+    assert np.all(step_heights(points, params) == STEP_SHARE * 0.004)  # 1 mm everywhere
+    # sigma = 2 mm x z^2: 0.5 mm at 0.5 m (3 sigma = 1.5 mm), 8 mm at 2 m (24 mm).
+    steps = step_heights(points, params, _QuadraticNoise(0.002))
+    assert steps == pytest.approx([0.0015, 0.024, 0.024], rel=1e-12)
+    # A quiet sensor does not lower the step below its floor.
+    assert np.all(step_heights(points, params, _QuadraticNoise(1e-6)) == 0.001)
+    assert STEP_NOISE_SIGMAS == 3.0
+
+
+@pytest.mark.parametrize("height, noise_known, pieces", [
+    (0.0, False, None),   # a noisy plane with the fixed 1 mm step falls apart
+    (0.0, True, 1),       # with its noise known it stays one patch
+    (0.05, True, 2),      # a step of 50 mm (12.5 sigma) is still cut
+])
+def test_a_noisy_far_plane_is_cut_only_at_a_step_above_its_noise(height, noise_known, pieces):
+    from geomodel_ros.core.faces import estimate_normals
+    from geomodel_ros.core.params import ModelingParams
+    from geomodel_ros.core.segmentation import _cut_steps, step_heights
+
+    # A plane facing the sensor at 2 m, sampled every 8 mm (a Kinect's spacing at 2 m is
+    # 4 mm; coarser here to keep the test small), depth noise sigma = 1 mm x z^2 = 4 mm
+    # along z; the half at x >= 0 is `height` nearer the sensor.
+    rng = np.random.default_rng(3)
+    x, y = np.meshgrid(np.arange(-0.2, 0.2, 0.008), np.arange(-0.1, 0.1, 0.008))
+    x, y = x.ravel(), y.ravel()
+    z = 2.0 - np.where(x >= 0, height, 0.0) + rng.normal(0.0, 0.004, x.size)
+    points = np.column_stack([x, y, z])
+    _, _, nbrs, sqdist = estimate_normals(points, 16, return_sqdist=True)
+    normals = np.tile(-UP, (len(points), 1))  # exact: the test is of the step, not normals
+    params = ModelingParams(seg_plane_threshold=0.004)
+    step = step_heights(points, params, _QuadraticNoise(0.001) if noise_known else None)
+    out = _cut_steps(points, normals, nbrs, sqdist, np.zeros(len(points), dtype=np.int64),
+                     0.03, step)
+    sizes = np.sort(np.bincount(out))[::-1]
+    if pieces is None:
+        assert sizes[0] < 0.9 * len(points)  # no piece holds the plane
+    else:
+        assert len(sizes) == pieces
+        if pieces == 2:  # cut exactly along the step
+            assert len(np.unique(out[x < 0])) == 1 and len(np.unique(out[x >= 0])) == 1
