@@ -438,32 +438,33 @@ def test_step_heights_follow_the_noise_at_each_range():
 
 
 @pytest.mark.parametrize("height, noise_known, pieces", [
-    (0.0, False, None),   # a noisy plane with the fixed 1 mm step falls apart
+    (0.0, False, None),   # with the fixed 1 mm step points of the noisy plane are cut off
     (0.0, True, 1),       # with its noise known it stays one patch
-    (0.05, True, 2),      # a step of 50 mm (12.5 sigma) is still cut
+    (0.01, True, 2),      # a step of 10 mm (10 sigma) is still cut
 ])
 def test_a_noisy_far_plane_is_cut_only_at_a_step_above_its_noise(height, noise_known, pieces):
     from geomodel_ros.core.faces import estimate_normals
     from geomodel_ros.core.params import ModelingParams
     from geomodel_ros.core.segmentation import _cut_steps, step_heights
 
-    # A plane facing the sensor at 2 m, sampled every 8 mm (a Kinect's spacing at 2 m is
-    # 4 mm; coarser here to keep the test small), depth noise sigma = 1 mm x z^2 = 4 mm
-    # along z; the half at x >= 0 is `height` nearer the sensor.
+    # A plane facing the sensor at 2 m, sampled every 8 mm, depth noise sigma = 0.25 mm x
+    # z^2 = 1 mm along z (the difference of two neighbours' depths spreads 1.4 mm, beyond
+    # the fixed 1 mm step; 3 sigma = 3 mm with the noise known); the half at x >= 0 is
+    # `height` nearer the sensor. Exact normals: the test is of the step, not of normals.
     rng = np.random.default_rng(3)
     x, y = np.meshgrid(np.arange(-0.2, 0.2, 0.008), np.arange(-0.1, 0.1, 0.008))
     x, y = x.ravel(), y.ravel()
-    z = 2.0 - np.where(x >= 0, height, 0.0) + rng.normal(0.0, 0.004, x.size)
+    z = 2.0 - np.where(x >= 0, height, 0.0) + rng.normal(0.0, 0.001, x.size)
     points = np.column_stack([x, y, z])
     _, _, nbrs, sqdist = estimate_normals(points, 16, return_sqdist=True)
-    normals = np.tile(-UP, (len(points), 1))  # exact: the test is of the step, not normals
+    normals = np.tile(-UP, (len(points), 1))
     params = ModelingParams(seg_plane_threshold=0.004)
-    step = step_heights(points, params, _QuadraticNoise(0.001) if noise_known else None)
+    step = step_heights(points, params, _QuadraticNoise(0.00025) if noise_known else None)
     out = _cut_steps(points, normals, nbrs, sqdist, np.zeros(len(points), dtype=np.int64),
                      0.03, step)
     sizes = np.sort(np.bincount(out))[::-1]
     if pieces is None:
-        assert sizes[0] < 0.9 * len(points)  # no piece holds the plane
+        assert len(sizes) > 1  # points far off by noise lose every link: specks
     else:
         assert len(sizes) == pieces
         if pieces == 2:  # cut exactly along the step
