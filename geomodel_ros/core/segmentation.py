@@ -38,7 +38,7 @@ from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import fit_plane_svd
 from geomodel_ros.core.support import REFIT_MAX_POINTS, support_plane_equation, support_planes
 
-__all__ = ["DepthNoise", "Segmentation", "segment_scene", "step_heights"]
+__all__ = ["DepthNoise", "Segmentation", "segment_scene", "working_noise"]
 
 #: Fewer finite input points than a plane's three make no scene (every label is -1).
 MIN_INPUT_POINTS = 3
@@ -57,13 +57,15 @@ PATCH_NORMAL_MIN_NEIGHBORS = 6
 #: (20 scenes, ``python -m geomodel_ros.tools.bench_clutter``): 0.25 / 0.5 / 1.0 leave
 #: 5.2 / 8.4 / 8.8 % of the objects under-segmented noise-free.
 STEP_SHARE = 0.25
-#: With a known depth noise (:class:`DepthNoise`) the step at a point is at least this
-#: many sigma of the noise at its range: the height of a neighbour above a point's tangent
-#: plane on one noisy surface is the difference of two noisy depths, spread sqrt(2) sigma
-#: (less after voxel averaging), so 3 sigma leaves about 1 in 30 links of one surface
-#: across a "step" (too few to cut a surface apart) while a real Kinect at 1.5-2 m
-#: (sigma 5-8 mm, depth quantised in terraces) no longer cuts its floor at every terrace.
-STEP_NOISE_SIGMAS = 3.0
+#: With a known depth noise (:class:`DepthNoise`) the step at a working point is at least
+#: this many times its noise (:func:`working_noise`). One, as the share above is of a plane
+#: band of 4 sigma: the step stays at the noise of the surface, so the noisy links it cuts
+#: do not close around a piece, while a real Kinect at 1.5-2.5 m (sigma 4-20 mm, depth
+#: quantised in terraces) no longer cuts its floor along every terrace. Measured with the
+#: noise estimate of the frame (synthetic clutter with Kinect-class noise, 20 scenes): 1 /
+#: 3 sigma leave 6.0 / 20.8 % of the objects under-segmented (the larger step no longer
+#: parts objects that touch tangentially: whole scenes merge).
+STEP_NOISE_SIGMAS = 1.0
 
 
 class DepthNoise(Protocol):
@@ -116,8 +118,11 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
         Randomness for the plane RANSAC; defaults to ``params.seed``.
     noise : DepthNoise, optional
         The sensor's depth noise (e.g. the frame's estimate): the step between two
-        surfaces grows with it at each point's range (:func:`step_heights`). Without it
-        the step is ``STEP_SHARE * seg_plane_threshold`` everywhere.
+        surfaces grows with the noise of the working points (:func:`working_noise`), and
+        a point next to a patch border takes its normal from its own patch only where
+        its neighbourhood lies off its plane by more than that noise (a crease). Without
+        it the step is ``STEP_SHARE * seg_plane_threshold`` everywhere and every such
+        point takes its normal from its own patch.
 
     Returns
     -------
@@ -167,7 +172,7 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
         Working-point indices of each support plane.
     params : ModelingParams
     noise : DepthNoise, optional
-        Depth noise for the step heights (:func:`step_heights`).
+        Depth noise of the working points (:func:`working_noise`).
 
     Returns
     -------
@@ -191,7 +196,7 @@ def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
                      ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
     """Convex objects among the ``free`` (M,) working points (not in a support).
 
-    ``noise`` sets the step heights (:func:`step_heights`).
+    ``noise`` is the depth noise (:func:`working_noise`).
 
     Returns
     -------
@@ -205,7 +210,7 @@ def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
     comp = np.full(len(wp), -1, dtype=np.int64)
     if len(rest_idx) >= MIN_WORKING_POINTS:
         # Normals recomputed without the supports, so they do not blend into the desk.
-        comp[rest_idx] = _convex_objects(wp[rest_idx], params, noise)
+        comp[rest_idx] = _convex_objects(wp[rest_idx], counts[rest_idx], params, noise)
     rest = comp >= 0
     size = np.bincount(comp[rest], weights=counts[rest], minlength=int(comp.max()) + 1)
     comp_ok = rest.copy()
@@ -253,41 +258,43 @@ def _claim_contact_rims(p: NDArray[np.float64], finite: NDArray[np.int64],
     return planes
 
 
-def step_heights(points: NDArray[np.float64], params: ModelingParams,
-                 noise: DepthNoise | None = None) -> NDArray[np.float64]:
-    """Largest height [m] of a neighbour above a point's tangent plane on one surface.
+def working_noise(points: NDArray[np.float64], counts: NDArray[np.int64],
+                  noise: DepthNoise | None = None) -> NDArray[np.float64]:
+    """Depth noise [m] of every working point: sigma at its range over sqrt(count).
 
     Parameters
     ----------
     points : (M, 3) float64 array [m]
         Working points, sensor at the origin.
-    params : ModelingParams
-        ``seg_plane_threshold`` gives the floor, :data:`STEP_SHARE` of it.
+    counts : (M,) int64 array
+        Input points averaged into each working point.
     noise : DepthNoise, optional
-        Depth noise: at least :data:`STEP_NOISE_SIGMAS` sigma at each point's range.
+        The sensor's depth noise; without it every value is 0 (noise unknown).
 
     Returns
     -------
     (M,) float64 array [m]
     """
-    floor = np.full(len(points), STEP_SHARE * params.seg_plane_threshold)
     if noise is None:
-        return floor
+        return np.zeros(len(points))
     sigma = np.asarray(noise.sigma(np.linalg.norm(points, axis=1)), dtype=np.float64)
-    return np.maximum(floor, STEP_NOISE_SIGMAS * sigma)
+    return sigma / np.sqrt(np.maximum(counts, 1))
 
 
-def _convex_objects(points: NDArray[np.float64], params: ModelingParams,
-                    noise: DepthNoise | None = None) -> NDArray[np.int64]:
+def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
+                    params: ModelingParams, noise: DepthNoise | None = None
+                    ) -> NDArray[np.int64]:
     """Object label of every point of a support-free working cloud (local convexity).
 
     Parameters
     ----------
     points : (M, 3) float64 array [m]
         Working points that are in no support.
+    counts : (M,) int64 array
+        Input points per working point.
     params : ModelingParams
     noise : DepthNoise, optional
-        Depth noise for the step heights (:func:`step_heights`).
+        Depth noise of the working points (:func:`working_noise`).
 
     Returns
     -------
@@ -308,10 +315,11 @@ def _convex_objects(points: NDArray[np.float64], params: ModelingParams,
     max_edge = params.seg_max_edge_factor * params.seg_voxel_size
     patches = split_faces(cloud, params.face_angle_threshold, params.edge_variation_threshold,
                           params.min_face_points, max_edge).labels
-    step = step_heights(points, params, noise)
+    noise_w = working_noise(points, counts, noise)
+    step = np.maximum(STEP_SHARE * params.seg_plane_threshold, STEP_NOISE_SIGMAS * noise_w)
     patches = _cut_steps(points, normals, nbrs, sqdist, patches, max_edge, step)
     n_p = int(patches.max()) + 1
-    normals = _patch_normals(points, normals, nbrs, patches)
+    normals = _patch_normals(points, normals, nbrs, patches, noise_w)
     a, b, votes, yes = _border_votes(points, normals, nbrs, sqdist, patches, n_p, max_edge,
                                      params.seg_concavity_tolerance, step)
     obj = merge_patches(n_p, a, b, votes, yes)
@@ -356,13 +364,18 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
 
 
 def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
-                   nbrs: NDArray[np.int64], patches: NDArray[np.int64]) -> NDArray[np.float64]:
-    """Re-estimate every point's normal from its neighbours in its own patch.
+                   nbrs: NDArray[np.int64], patches: NDArray[np.int64],
+                   noise: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Re-estimate the normals of points next to a crease from their own patch.
 
     Near a crease a point's neighbourhood straddles both surfaces and its normal blends
     them, which blurs the convexity of the links across the crease; restricted to its own
-    patch the neighbourhood holds one surface. Points with fewer than
-    :data:`PATCH_NORMAL_MIN_NEIGHBORS` neighbours in their patch keep ``normals``.
+    patch the neighbourhood holds one surface. Such a neighbourhood is told by its points
+    lying off their best plane by more than the surface's noise (RMS above ``noise``);
+    elsewhere (one smooth surface cut into patches by its noisy normals) the whole
+    neighbourhood gives the better normal, and a one-sided one from a few noisy points
+    would turn the links across the patch border concave. Points with fewer than
+    :data:`PATCH_NORMAL_MIN_NEIGHBORS` neighbours in their patch also keep ``normals``.
 
     Parameters
     ----------
@@ -372,6 +385,10 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
         Nearest neighbours of every point (itself among them).
     patches : (M,) int64 array
         Patch of every point.
+    noise : (M,) float64 array
+        Noise [m] of the surface along its normal at each point (e.g.
+        :func:`working_noise`; 0 where unknown: every border point takes its own patch's
+        normal).
 
     Returns
     -------
@@ -379,10 +396,11 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
         Unit normals oriented towards the sensor.
     """
     same = patches[nbrs] == patches[:, None]
+    off_plane, _ = smallest_eigenpairs_sym(*neighborhood_moments(points, nbrs))
     own = np.where(same, nbrs, np.arange(len(points))[:, None])
     _, refined = smallest_eigenpairs_sym(*neighborhood_moments(points, own))
     refined[np.einsum("ij,ij->i", refined, points) > 0] *= -1
-    keep = same.sum(axis=1) < PATCH_NORMAL_MIN_NEIGHBORS
+    keep = (same.sum(axis=1) < PATCH_NORMAL_MIN_NEIGHBORS) | (off_plane <= noise * noise)
     refined[keep] = normals[keep]
     return refined
 
@@ -400,7 +418,8 @@ def _step_free(points: NDArray[np.float64], normals: NDArray[np.float64], i: NDA
         The two ends of each link.
     step : (M,) float64 array
         Largest height [m] of a neighbour above a point's tangent plane on one surface
-        (:func:`step_heights`); a link takes the larger of its two ends'.
+        (at least :data:`STEP_NOISE_SIGMAS` times :func:`working_noise`); a link takes
+        the larger of its two ends'.
 
     Returns
     -------
