@@ -1,0 +1,135 @@
+"""The scene as the sensor saw it: its returns along viewing rays, for free-space tests.
+
+A depth sensor at the origin of the cloud's frame records, along every ray, the nearest
+surface. Where a hypothesised surface (e.g. the hidden lower part of a box) would lie,
+the returns along the rays towards it say whether that space was seen free (a return
+behind it: the sensor looked through), hidden (a return in front of it: an occluder) or
+unknown (no return). :class:`SceneView` answers that for any set of target points without
+assuming an organized image: the returns are binned on a small angular grid around the
+targets' directions (a gnomonic projection centred on them, uniform near its centre).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import NDArray
+
+from geomodel_ros.core.geometry import perpendicular_basis, unit3
+
+__all__ = ["SceneView", "RayReturns", "MAX_HALF_ANGLE"]
+
+#: Largest half angle [rad] of the cone of directions a query looks at: the gnomonic
+#: projection stays near-uniform well inside it (cell areas grow with 1 / cos^3).
+MAX_HALF_ANGLE = math.radians(45.0)
+#: The cone of a query reaches this many cells beyond its outermost target, so that the
+#: cells of the outermost targets are complete.
+CONE_MARGIN_CELLS = 2.0
+
+
+@dataclass(frozen=True)
+class RayReturns:
+    """The scene's returns near a set of targets.
+
+    Attributes
+    ----------
+    nearest : (m,) float64 [m]
+        Range of the nearest return in each target's angular cell; NaN where there is none.
+    nearest_label : (m,) int64
+        Label of that return (-1 also where there is none).
+    ranges : (m,) float64 [m]
+        Range of each target from the sensor.
+    points : (k, 3) float64 [m]
+        The scene's returns within the query's cone of directions (for occupancy tests).
+    labels : (k,) int64
+        Their labels (-1 = none).
+    """
+
+    nearest: NDArray[np.float64]
+    nearest_label: NDArray[np.int64]
+    ranges: NDArray[np.float64]
+    points: NDArray[np.float64]
+    labels: NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class SceneView:
+    """Every return of a scene, the sensor at the origin.
+
+    Attributes
+    ----------
+    points : (N, 3) float64 [m]
+        The scene's points; non-finite rows are ignored.
+    labels : (N,) int64
+        Object id per point (-1 = none), as given to the modeling.
+    max_range : float [m]
+        Points farther from the origin are ignored (as everywhere in the modeling).
+    """
+
+    points: NDArray[np.float64]
+    labels: NDArray[np.int64]
+    max_range: float
+
+    def __post_init__(self) -> None:
+        """Check that points and labels align."""
+        if self.points.ndim != 2 or self.points.shape[1] != 3 or \
+                self.labels.shape != (len(self.points),):
+            raise ValueError("SceneView needs (N, 3) points and (N,) labels, got "
+                             f"{self.points.shape} and {self.labels.shape}")
+
+    @cached_property
+    def ranges(self) -> NDArray[np.float64]:
+        """Range [m] of every point (N,) from the sensor (NaN for non-finite rows)."""
+        p = self.points
+        return np.sqrt(np.einsum("ij,ij->i", p, p))
+
+    def returns(self, targets: NDArray[np.float64], cell: float) -> RayReturns:
+        """Find the scene's nearest return along the ray to each of ``targets`` (m, 3) [m].
+
+        Returns are binned in angular cells of ``cell`` [rad] (tangent-plane units of a
+        gnomonic projection centred on the targets' mean direction); a target's return is
+        the nearest one in its cell. Targets beyond MAX_HALF_ANGLE of that direction get
+        none.
+        """
+        r_t = np.sqrt(np.einsum("ij,ij->i", targets, targets))
+        dirs = targets / np.maximum(r_t, np.finfo(float).tiny)[:, None]
+        e3 = unit3(dirs.sum(axis=0))
+        e1, e2 = perpendicular_basis(e3)
+        spread = math.acos(min(1.0, max(-1.0, float((dirs @ e3).min()))))
+        half = min(spread + CONE_MARGIN_CELLS * cell, MAX_HALF_ANGLE)
+        r = self.ranges
+        with np.errstate(invalid="ignore"):
+            sel = np.flatnonzero((self.points @ e3 > math.cos(half) * r) & (r <= self.max_range))
+        pts = self.points[sel]
+        frame = np.column_stack([e1, e2, e3])
+        labels = self.labels[sel]
+        # Sorted by cell, nearest first; a sentinel cell (key -2, range NaN, label -1) in
+        # front keeps the look-up below free of empty cases.
+        keys = np.r_[-2, _cell_keys(pts @ frame, cell, half)]
+        ranges = np.r_[np.nan, r[sel]]
+        order = np.lexsort((ranges, keys))
+        cells, first = np.unique(keys[order], return_index=True)
+        head = order[first]
+        tkeys = _cell_keys(targets @ frame, cell, half)
+        at = np.minimum(np.searchsorted(cells, tkeys), len(cells) - 1)
+        found = (cells[at] == tkeys) & (tkeys >= 0)
+        nearest = np.where(found, ranges[head][at], np.nan)
+        nearest_label = np.where(found, np.r_[-1, labels][head][at], -1)
+        return RayReturns(nearest, nearest_label, r_t, pts, labels)
+
+
+def _cell_keys(local: NDArray[np.float64], cell: float, half: float) -> NDArray[np.int64]:
+    """Angular cell index (n,) of points given in a frame whose z is the cone's axis (n, 3).
+
+    Points outside the cone of half angle ``half`` [rad] get -1 (no cell).
+    """
+    k = int(math.ceil(math.tan(half) / cell)) + 1
+    z = local[:, 2]
+    ok = z > math.cos(half) * np.sqrt(np.einsum("ij,ij->i", local, local))
+    zs = np.where(ok, z, 1.0)
+    iu = np.clip(np.floor(local[:, 0] / zs / cell), -k, k).astype(np.int64) + k
+    iv = np.clip(np.floor(local[:, 1] / zs / cell), -k, k).astype(np.int64) + k
+    return np.where(ok, iu * (2 * k + 1) + iv, -1)
