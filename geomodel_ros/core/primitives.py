@@ -92,8 +92,8 @@ class Confidence:
     inlier_ratio : float
         Share of the object's points within the noise scale of the fitted surface, [0, 1].
     rmse_ratio : float or None
-        RMS distance of the object's points to the fitted surface divided by the noise
-        scale [1]; None when nothing was fitted.
+        RMS distance to the fitted surface of the object's points near it (within three
+        noise scales) divided by the noise scale [1]; None when nothing was fitted.
     coverage : float or None
         Cylinder, cone: share of the full circle round the axis that the side's points
         span; sphere: share of the sphere's directions (solid angle) they cover; in

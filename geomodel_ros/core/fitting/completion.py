@@ -55,9 +55,6 @@ MAX_THROUGH_SHARE = 0.2
 #: ... and at least this share of the probe rays have a return (holes and dropouts
 #: decide nothing).
 MIN_KNOWN_SHARE = 0.5
-#: The ray look-up also covers a ring of this many footprint radii round the object's
-#: observed end (the returns there are searched for a ledge).
-FOOTPRINT_REACH = 2.0
 #: Fewest other returns on a ledge or inside the extension that count as a surface (a few
 #: flying pixels do not).
 MIN_OTHER_RETURNS = 20
@@ -169,6 +166,11 @@ class Extension:
         """Local coordinates (m, 3) (s1, s2, t) of the points ``x`` (m, 3) [m]."""
         return (x - self.origin) @ self.frame
 
+    def diameter(self) -> float:
+        """Largest width [m] of the section (its outline's extent)."""
+        s, _ = self.section.outline()
+        return float(np.linalg.norm(s.max(axis=0) - s.min(axis=0)))
+
     def end_centre(self) -> NDArray[np.float64]:
         """Centre (3,) [m] of the section at the observed end."""
         c = self.section.centre()
@@ -224,8 +226,11 @@ def hidden_extension(cloud: ObjectCloud, ext: Extension) -> bool:
         return False
     rng = float(np.linalg.norm(cloud.center))
     cell = CELL_SPACINGS * cloud.spacing / max(rng, np.finfo(float).tiny)
-    ring = ext.end_centre() + FOOTPRINT_REACH * _outline_world(ext)
-    got = view.returns(np.concatenate([probes, ring]), cell)
+    contact = SUPPORT_END_FACTOR * cloud.params.seg_plane_threshold
+    ring = ext.end_centre() + _outline_world(ext, contact)
+    r_probes = np.linalg.norm(probes, axis=1)
+    band = (float(r_probes.min()) - contact, float(r_probes.max()) + ext.diameter() + contact)
+    got = view.returns(np.concatenate([probes, ring]), cell, band)
     nearest, r_t = got.nearest[:len(probes)], got.ranges[:len(probes)]
     tol = OUTLIER_FACTOR * cloud.params.ransac_threshold + cell * r_t
     # The object's own points in front of a probe hide it from itself, which says nothing
@@ -239,11 +244,11 @@ def hidden_extension(cloud: ObjectCloud, ext: Extension) -> bool:
     return not _held_or_filled(cloud, ext, got.points[got.labels != cloud.oid])
 
 
-def _outline_world(ext: Extension) -> NDArray[np.float64]:
-    """Return the section's outline (k, 3) relative to its centre, in world directions [m]."""
-    s, _ = ext.section.outline()
-    c = ext.section.centre()
-    return (s[:, :1] - c[0]) * ext.frame[:, 0] + (s[:, 1:] - c[1]) * ext.frame[:, 1]
+def _outline_world(ext: Extension, grow: float) -> NDArray[np.float64]:
+    """Return the section's outline (k, 3) [m] grown by ``grow`` [m], from its centre."""
+    s, n = ext.section.outline()
+    s = s - ext.section.centre() + grow * n
+    return s[:, :1] * ext.frame[:, 0] + s[:, 1:] * ext.frame[:, 1]
 
 
 def _held_or_filled(cloud: ObjectCloud, ext: Extension, others: NDArray[np.float64]) -> bool:
@@ -252,7 +257,7 @@ def _held_or_filled(cloud: ObjectCloud, ext: Extension, others: NDArray[np.float
     q = ext.local(others)
     t = q[:, 2]
     at_end = np.abs(t - ext.t_end) <= tol
-    ledge = at_end & (ext.section.outside(q[:, :2]) <= tol)
+    ledge = at_end & (ext.section.outside(q[:, :2]) <= tol)  # under or right beside it
     lo, hi = sorted((ext.t_end, ext.t_plane))
     between = (t > lo + tol) & (t < hi - tol)
     inside = between & ext.section.contains(q[:, :2], tol)
