@@ -184,3 +184,19 @@ def test_primitive_without_estimate_serialises_null_confidence():
     p = _cylinder()
     d = p.to_dict()
     assert d["confidence"] is None and d["confidence_terms"] is None and d["completed"] == []
+
+
+def test_objects_message_carries_the_confidence_and_nan_when_not_estimated():
+    from std_msgs.msg import Header
+
+    from msg_adapters.objects import primitives_to_objects
+
+    header = Header(frame_id="camera_optical")
+    scored = Primitive(1, "sphere", np.array([0, 0, 1.0]), EYE, {"radius": 0.05}, 100, 0.001,
+                       confidence=Confidence(0.75, 1.0, 0.0, 0.375))
+    unknown = Primitive(2, "unknown", np.array([0, 0, 1.0]), EYE, {}, 10, 0.0,
+                        confidence=Confidence())
+    bare = Primitive(3, "sphere", np.array([0, 0, 1.0]), EYE, {"radius": 0.05}, 100, 0.001)
+    got = [m.confidence for m in primitives_to_objects([scored, unknown, bare],
+                                                       header).primitives]
+    assert got[:2] == [0.75, 0.0] and math.isnan(got[2])

@@ -312,3 +312,31 @@ def test_hidden_extension_needs_another_occluder_in_front_and_nothing_inside():
     points = np.vstack([sheet, ledge])
     labels = np.r_[np.full(len(sheet), 2), np.full(len(ledge), 3)]
     assert not hidden_extension(_cloud_seeing(points, labels), ext)
+
+
+# --------------------------------------------------------------------------- messages
+def test_objects_message_and_labels_say_which_dimensions_were_completed():
+    from std_msgs.msg import Header
+
+    from geomodel_ros.core.primitives import Confidence, Primitive
+    from msg_adapters.markers import LABEL_NAMESPACE, primitives_to_markers
+    from msg_adapters.objects import objects_to_primitives, primitives_to_objects
+
+    conf = Confidence(0.8125, 0.875, 0.5, None)  # exact in float32
+    box = Primitive(3, "cuboid", np.array([0.0, 0.1, 0.6]), np.eye(3),
+                    {"length": 0.08, "width": 0.06, "height": 0.1}, 500, 0.001,
+                    completed=("height",), confidence=conf)
+    seen = Primitive(4, "cylinder", np.array([0.1, 0.1, 0.6]), np.eye(3),
+                     {"radius": 0.03, "height": 0.1}, 500, 0.001, confidence=conf)
+    header = Header(frame_id="camera_optical")
+    msg = primitives_to_objects([box, seen], header)
+    assert list(msg.primitives[0].dimension_names) == ["length", "width", "height"]
+    assert list(msg.primitives[0].dimension_completed) == [False, False, True]
+    assert list(msg.primitives[1].dimension_completed) == [False, False]
+    assert [m.confidence for m in msg.primitives] == [0.8125, 0.8125]
+    back = objects_to_primitives(msg)
+    assert [p.completed for p in back] == [("height",), ()]
+    labels = {m.id: m.text for m in primitives_to_markers([box, seen], header).markers
+              if m.ns == LABEL_NAMESPACE}
+    assert labels == {3: "cuboid l=80.0 w=60.0 h=100.0* mm, confidence 0.81",
+                      4: "cylinder r=30.0 h=100.0 mm, confidence 0.81"}
