@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -60,28 +61,24 @@ MIN_KNOWN_SHARE = 0.5
 MIN_OTHER_RETURNS = 20
 
 
-class Section:
+class Section(Protocol):
     """Cross-section of an object perpendicular to its axis, in (s1, s2) coordinates [m]."""
 
     def outline(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Points (k, 2) on the outline and their outward unit normals (k, 2)."""
-        raise NotImplementedError
 
     def contains(self, s: NDArray[np.float64], margin: float) -> NDArray[np.bool_]:
         """Whether the points ``s`` (m, 2) lie inside by more than ``margin`` [m]."""
-        raise NotImplementedError
 
     def outside(self, s: NDArray[np.float64]) -> NDArray[np.float64]:
         """Distance [m] (m,) of ``s`` (m, 2) [m] outside the section (0 inside)."""
-        raise NotImplementedError
 
     def centre(self) -> NDArray[np.float64]:
         """Centre (2,) [m] of the section."""
-        raise NotImplementedError
 
 
 @dataclass(frozen=True)
-class RectangleSection(Section):
+class RectangleSection:
     """A box's cross-section: [lo1, hi1] x [lo2, hi2] [m]."""
 
     lo: NDArray[np.float64]
@@ -117,7 +114,7 @@ class RectangleSection(Section):
 
 
 @dataclass(frozen=True)
-class CircleSection(Section):
+class CircleSection:
     """A cylinder's cross-section: a circle of ``radius`` [m] round (0, 0)."""
 
     radius: float
@@ -295,9 +292,10 @@ def complete_box(cloud: ObjectCloud, rot: NDArray[np.float64], lo: NDArray[np.fl
         end, t_plane = beyond
         frame = np.column_stack([rot[:, b], rot[:, c], rot[:, a]])
         section = RectangleSection(np.array([lo[b], lo[c]]), np.array([hi[b], hi[c]]))
-        ext = Extension(frame, np.zeros(3), section, float((lo, hi)[end][a]), t_plane)
-        if hidden_extension(cloud, ext):
-            (lo, hi)[end][a] = t_plane
+        ends = lo if end == 0 else hi
+        if hidden_extension(cloud, Extension(frame, np.zeros(3), section, float(ends[a]),
+                                             t_plane)):
+            ends[a] = t_plane
             done.append(a)
     return lo, hi, tuple(done)
 
