@@ -81,21 +81,19 @@ class SceneView:
                              f"{self.points.shape} and {self.labels.shape}")
 
     @cached_property
-    def _usable(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
-                               NDArray[np.int64]]:
-        """Usable returns once: points (n, 3), unit directions as rows (3, n), ranges (n,), labels.
+    def _columns(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Coordinates by row (3, N) [m] and ranges (N,) [m] of every point, computed once.
 
-        Directions are stored by coordinate (contiguous rows): a query's cone test is then
-        three multiply-adds over contiguous arrays, several times faster than a product of
-        the (N, 3) cloud with a vector.
+        Stored by coordinate (contiguous rows): a query's cone test is then four
+        multiply-adds over contiguous arrays, several times faster than a product of the
+        (N, 3) cloud with a vector. Non-finite rows and rows beyond ``max_range`` get a
+        NaN range, which no test accepts.
         """
-        p = self.points
+        cols = np.ascontiguousarray(self.points.T)
+        r = np.sqrt(cols[0] * cols[0] + cols[1] * cols[1] + cols[2] * cols[2])
         with np.errstate(invalid="ignore"):
-            r = np.sqrt(np.einsum("ij,ij->i", p, p))
-            rows = np.flatnonzero((r > 0.0) & (r <= self.max_range))
-        pts, rr = p[rows], r[rows]
-        dirs = np.ascontiguousarray((pts / rr[:, None]).T)
-        return pts, dirs, rr, self.labels[rows]
+            r[r > self.max_range] = np.nan
+        return cols, r
 
     def returns(self, targets: NDArray[np.float64], cell: float,
                 band: tuple[float, float] = (0.0, math.inf)) -> RayReturns:
@@ -113,11 +111,12 @@ class SceneView:
         e1, e2 = perpendicular_basis(e3)
         spread = math.acos(min(1.0, max(-1.0, float((dirs @ e3).min()))))
         half = min(spread + CONE_MARGIN_CELLS * cell, MAX_HALF_ANGLE)
-        all_pts, all_dirs, all_r, all_labels = self._usable
-        cos_axis = all_dirs[0] * e3[0] + all_dirs[1] * e3[1] + all_dirs[2] * e3[2]
-        sel = np.flatnonzero(cos_axis > math.cos(half))
-        d_sel, c_sel = all_dirs[:, sel], cos_axis[sel]
-        keys = _cell_keys((e1 @ d_sel) / c_sel, (e2 @ d_sel) / c_sel, cell, half)
+        cols, all_r = self._columns
+        along = cols[0] * e3[0] + cols[1] * e3[1] + cols[2] * e3[2]
+        with np.errstate(invalid="ignore"):
+            sel = np.flatnonzero(along > math.cos(half) * all_r)
+        p_sel, a_sel = cols[:, sel], along[sel]
+        keys = _cell_keys((e1 @ p_sel) / a_sel, (e2 @ p_sel) / a_sel, cell, half)
         tkeys = _cell_keys(dirs @ e1 / (dirs @ e3), dirs @ e2 / (dirs @ e3), cell, half)
         tkeys[dirs @ e3 <= math.cos(half)] = -1
         # Only the targets' cells matter: sorted by cell, nearest first; a sentinel cell
@@ -131,10 +130,10 @@ class SceneView:
         at = np.minimum(np.searchsorted(cells, tkeys), len(cells) - 1)
         found = (cells[at] == tkeys) & (tkeys >= 0)
         nearest = np.where(found, ranges[head][at], np.nan)
-        nearest_label = np.where(found, np.r_[-1, all_labels[sel[hit]]][head][at], -1)
+        nearest_label = np.where(found, np.r_[-1, self.labels[sel[hit]]][head][at], -1)
         r_sel = all_r[sel]
         near = sel[(r_sel >= band[0]) & (r_sel <= band[1])]
-        return RayReturns(nearest, nearest_label, r_t, all_pts[near], all_labels[near])
+        return RayReturns(nearest, nearest_label, r_t, self.points[near], self.labels[near])
 
 
 def _cell_keys(u: NDArray[np.float64], v: NDArray[np.float64], cell: float,
