@@ -7,11 +7,11 @@ shelf, floor) lies beyond an open end of an object along an axis perpendicular t
 end is *completed* down to the plane if the evidence says the part in between is hidden
 and not empty:
 
-* the sensor cannot have seen the gap: along the rays to the sides of the hypothesised
-  extension that face the sensor, at most MAX_THROUGH_SHARE of the returns lie behind
-  those sides (a floating object shows the support or the background through the gap),
-  and at least MIN_KNOWN_SHARE of the rays have a return in front of or on them that is
-  not the object's own (an object hides the space behind itself, which is no evidence);
+* the sensor cannot have seen the gap: of the rays to the sides of the hypothesised
+  extension that face the sensor, at least MIN_KNOWN_SHARE have a return (the object's
+  own points in front of a side do not count: an object hides the space behind itself,
+  which is no evidence), and at most MAX_THROUGH_SHARE of those lie behind the sides (a
+  floating object shows the support or the background through the gap);
 * nothing else holds the object up short of the plane: no surface of other points at the
   object's observed end under or right beside its footprint (within the contact
   tolerance: a ledge, such as the top of a box it stands on);
