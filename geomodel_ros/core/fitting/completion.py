@@ -224,11 +224,16 @@ def hidden_extension(cloud: ObjectCloud, ext: Extension) -> bool:
     rng = float(np.linalg.norm(cloud.center))
     cell = CELL_SPACINGS * cloud.spacing / max(rng, np.finfo(float).tiny)
     contact = SUPPORT_END_FACTOR * cloud.params.seg_plane_threshold
+    # The look-up also covers the outline at the observed end, grown by the contact
+    # tolerance (where a ledge would be), and returns the points in the range band of
+    # the extension (for the ledge and occupancy tests).
     ring = ext.end_centre() + _outline_world(ext, contact)
     r_probes = np.linalg.norm(probes, axis=1)
     band = (float(r_probes.min()) - contact, float(r_probes.max()) + ext.diameter() + contact)
     got = view.returns(np.concatenate([probes, ring]), cell, band)
     nearest, r_t = got.nearest[:len(probes)], got.ranges[:len(probes)]
+    # A return counts as on a side within the sizing's outlier band, plus the depth
+    # spread of one cell on a surface seen at an angle.
     tol = OUTLIER_FACTOR * cloud.params.ransac_threshold + cell * r_t
     # The object's own points in front of a probe hide it from itself, which says nothing
     # about what lies there (the gap behind a box towards a wall).
