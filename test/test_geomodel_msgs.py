@@ -57,7 +57,8 @@ PRIMITIVE_FIELDS = {
     "id": "uint32", "type": "uint8", "shape": "shape_msgs/SolidPrimitive",
     "pose": "geometry_msgs/Pose", "plane": "shape_msgs/Plane",
     "dimensions": "sequence<double>", "dimension_names": "sequence<string>",
-    "rmse": "float", "point_count": "uint32", "confidence": "float", "reason": "string",
+    "dimension_completed": "sequence<boolean>", "rmse": "float", "point_count": "uint32",
+    "confidence": "float", "reason": "string",
 }
 SUPPORT_FIELDS = {"id": "uint32", "plane": "shape_msgs/Plane",
                   "supported_ids": "sequence<uint32>"}
