@@ -73,7 +73,7 @@ def _primitive(pid, kind, shape_type, shape_dims, position, orientation, dims, *
              Primitive.CUBOID: ["length", "width", "height"],
              Primitive.CYLINDER: ["radius", "height"], Primitive.CONE: ["radius", "height"],
              Primitive.SPHERE: ["radius"],
-             Primitive.FRUSTUM: ["bottom_radius", "top_radius", "height"],
+             Primitive.FRUSTUM: ["radius", "top_radius", "height"],
              Primitive.UNKNOWN: []}[kind]
     return Primitive(
         id=pid, type=kind, shape=SolidPrimitive(type=shape_type, dimensions=shape_dims),
@@ -265,7 +265,7 @@ def test_primitive_array_crosses_processes_unchanged(delivered):
     assert list(cone.shape.dimensions) == [0.1, 0.04]
     cup = next(p for p in got.primitives if p.type == Primitive.FRUSTUM)
     assert dict(zip(cup.dimension_names, cup.dimensions)) == {
-        "bottom_radius": 0.045, "top_radius": 0.035, "height": 0.095}
+        "radius": 0.045, "top_radius": 0.035, "height": 0.095}
     assert list(got.support_surfaces[0].supported_ids) == [7, 8, 9, 12, 13]
     assert "µ" in cup.reason
     assert deserialize_message(raw[0], PrimitiveArray) == sent

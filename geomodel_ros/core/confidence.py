@@ -72,9 +72,8 @@ def _profile(p: Primitive) -> list[tuple[float, float]] | None:
         return [(0.0, -h), (r, -h), (r, h), (0.0, h)]
     if kind == "cone":  # base at -h, apex at +h (rotation z: base -> apex)
         return [(0.0, -h), (d["radius"], -h), (0.0, h)]
-    if kind == "frustum":  # bottom circle at -h, top circle at +h
-        bottom = d.get("bottom_radius", d.get("radius", 0.0))
-        return [(0.0, -h), (bottom, -h), (d.get("top_radius", 0.0), h), (0.0, h)]
+    if kind == "frustum":  # base circle at -h, top circle at +h (rotation z: base -> top)
+        return [(0.0, -h), (d["radius"], -h), (d["top_radius"], h), (0.0, h)]
     return None
 
 
