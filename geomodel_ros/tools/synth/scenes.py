@@ -29,6 +29,7 @@ __all__ = [
     "GROUND_TRUTH_TYPES",
     "NoiseModel",
     "SENSOR_NOISE",
+    "KINECT_NOISE",
     "Scene",
     "SCENE_NAMES",
     "PAPER_SCENE_NAMES",
@@ -125,7 +126,7 @@ class NoiseModel:
     sigma_at_0_5m : float
         Standard deviation [m] of the Gaussian range noise at 0.5 m depth, in
         [0, inf).  A point at depth z [m] is displaced along its viewing ray by
-        ``N(0, sigma)`` with ``sigma = sigma_at_0_5m * (z / 0.5) ** 2``.
+        ``N(0, sigma)`` with ``sigma = sigma_offset + sigma_at_0_5m * (z / 0.5) ** 2``.
     dropout : float
         Fraction of the valid pixels removed at random, in [0, 1)
         (``round(dropout * n_valid)`` pixels exactly).
@@ -133,11 +134,15 @@ class NoiseModel:
         Number of random elliptical holes (pixels set to NaN / label -1), in
         [0, inf).  Centres uniform over the image, semi-axes uniform in
         [0.02, 0.08] x min(width, height) pixels, random orientation.
+    sigma_offset : float
+        Depth-independent part of sigma [m], in [0, inf) (default 0: sigma grows with the
+        square of the depth only).
     """
 
     sigma_at_0_5m: float = 0.0
     dropout: float = 0.0
     holes: int = 0
+    sigma_offset: float = 0.0
 
     def __post_init__(self) -> None:
         s = float(self.sigma_at_0_5m)
@@ -152,10 +157,21 @@ class NoiseModel:
         object.__setattr__(self, "sigma_at_0_5m", s)
         object.__setattr__(self, "dropout", d)
         object.__setattr__(self, "holes", int(h))
+        o = float(self.sigma_offset)
+        if not np.isfinite(o) or o < 0.0:
+            raise ValueError(f"sigma_offset must be in [0, inf) [m], got {self.sigma_offset!r}")
+        object.__setattr__(self, "sigma_offset", o)
+
+    def sigma(self, depth) -> np.ndarray:
+        """Noise sigma [m] at depth ``depth`` [m] (array or scalar)."""
+        return self.sigma_offset + self.sigma_at_0_5m * (np.asarray(depth) / 0.5) ** 2
 
 
 #: A typical close-range structured-light / stereo sensor.
 SENSOR_NOISE = NoiseModel(sigma_at_0_5m=0.001, dropout=0.02, holes=0)
+#: A Kinect-class RGB-D camera: sigma = 1.2 mm + 0.8 mm * z^2 (1.4 mm at 0.5 m, 2.0 mm at
+#: 1 m, 3.0 mm at 1.5 m), 5 % dropout and three holes.
+KINECT_NOISE = NoiseModel(sigma_at_0_5m=0.0002, dropout=0.05, holes=3, sigma_offset=0.0012)
 
 
 def apply_noise(
@@ -197,9 +213,9 @@ def apply_noise(
     flat_lab = lab.reshape(-1)
     valid = np.flatnonzero(np.isfinite(flat).all(axis=1))
 
-    if noise.sigma_at_0_5m > 0.0 and valid.size:
+    if (noise.sigma_at_0_5m > 0.0 or noise.sigma_offset > 0.0) and valid.size:
         p = flat[valid]
-        sigma = noise.sigma_at_0_5m * (p[:, 2] / 0.5) ** 2
+        sigma = noise.sigma(p[:, 2])
         rng_noise = rng.standard_normal(valid.size) * sigma
         flat[valid] = p + (rng_noise / np.linalg.norm(p, axis=1))[:, None] * p
 

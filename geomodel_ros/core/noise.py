@@ -1,0 +1,342 @@
+"""Per-frame sensor noise and point spacing, and the tolerances they imply.
+
+Depth sensors displace each point along its viewing ray by a noise whose standard
+deviation grows with the range: sigma(z) = a + b z^2 describes structured-light and stereo
+cameras (Khoshelham and Elberink 2012: sigma grows with the square of the depth) and, with
+b ~ 0, laser scanners. :func:`estimate_noise` measures it from the cloud itself: on a random
+sample of a few thousand local neighbourhoods, the residual of the least-squares plane (the
+smallest eigenvalue of the neighbourhood's covariance) is the noise along the normal; divided
+by the cosine between normal and ray it is the noise along the ray. Most neighbourhoods of an
+indoor scene lie on smooth surfaces, so the median in each depth bin is the noise there
+(edges and small curved objects are the minority). The same sample gives the point spacing,
+proportional to the range for a camera or a scanner with a fixed angular step.
+
+With ``noise_model = auto`` the tolerances that stand for the noise and the sampling are
+derived from the estimate (:func:`resolve_params`), each with a floor at its given value,
+so a noise-free cloud keeps every threshold as given:
+
+* noise amplitude t of eq. 6: ``K_AMPLITUDE * sigma`` (t is the noise amplitude itself);
+* RANSAC inlier threshold and support-plane band: ``K_INLIER * sigma`` (3 sigma holds
+  99.7 % of a Gaussian's points);
+* working voxel of an object: ``K_VOXEL * sigma`` (normals from voxels much finer than the
+  noise point anywhere) and ``VOXEL_SPACINGS`` point spacings (a voxel finer than the
+  sampling holds one point);
+* segmentation voxel: ``SEG_VOXEL_SPACINGS`` point spacings (its neighbour links must reach
+  the next sample);
+* reconstruction spacing: the point spacing (finer samples add no detail).
+
+sigma and the spacing are taken at the median range of the points the parameters are for:
+the whole frame for the segmentation, each object for its own modeling.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import nnls
+from scipy.spatial import cKDTree
+
+from geomodel_ros.core.fastmath import rows_finite
+from geomodel_ros.core.input import in_range
+from geomodel_ros.core.params import ModelingParams
+
+__all__ = ["NoiseEstimate", "estimate_noise", "frame_noise", "resolve_params", "object_params",
+           "is_fragment", "K_AMPLITUDE", "K_INLIER", "K_VOXEL", "VOXEL_SPACINGS",
+           "SEG_VOXEL_SPACINGS", "FRAGMENT_SPACINGS"]
+
+#: Points the neighbourhoods are drawn from (a random subset of the cloud): building a
+#: KD-tree on 20k points takes a few milliseconds, and the subset spacing of a 300k-point
+#: frame (about 4 pixels) makes neighbourhoods wide compared with the noise, which the
+#: plane residual needs (it measures sigma only where the neighbourhood's extent along
+#: the surface is well above sigma).
+NOISE_SUBSET = 20000
+#: Neighbourhoods measured per frame: the median of a few hundred per depth bin has a
+#: relative standard error of a few per cent.
+NOISE_QUERIES = 2000
+#: Points per neighbourhood (a plane has 3 degrees of freedom: 17 are left for the residual).
+NOISE_NEIGHBORS = 20
+#: Depth bins (equal counts) of the sigma(z) fit.
+NOISE_BINS = 6
+#: Fewest valid points and usable neighbourhoods for an estimate (fewer: no estimate).
+MIN_NOISE_POINTS = 200
+MIN_NOISE_SAMPLES = 30
+#: Neighbourhoods seen at more than acos(MIN_INCIDENCE_COS) (about 70 degrees) from their
+#: normal are not used: the division by the cosine would magnify their errors.
+MIN_INCIDENCE_COS = 0.35
+#: A neighbourhood's residual variance w0 is sigma_n^2 chi2(nu) / nu with nu = k - 3; the
+#: median of chi2(nu) / nu is about (1 - 2 / (9 nu))^3 (Wilson-Hilferty), so the median of
+#: the residual is divided by its square root to estimate sigma_n.
+_NU = NOISE_NEIGHBORS - 3
+MEDIAN_CHI_FACTOR = math.sqrt((1.0 - 2.0 / (9.0 * _NU)) ** 3)
+#: Median nearest-neighbour distance of a Poisson process of density 1 on a surface:
+#: sqrt(ln 2 / pi) (P(no neighbour within r) = exp(-pi r^2)).
+POISSON_MEDIAN_NN = math.sqrt(math.log(2.0) / math.pi)
+#: Guard against division by a zero length [m].
+_TINY = 1e-12
+
+#: Second entropy word of the estimate's random stream (the first is ``params.seed``): any
+#: fixed value will do; it keeps the stream apart from the modeling's.
+NOISE_STREAM = 14
+#: t of eq. 6 = this many sigma (t is the noise amplitude).
+K_AMPLITUDE = 1.0
+#: Inlier bands (RANSAC, support planes) = this many sigma (99.7 % of a Gaussian).
+K_INLIER = 3.0
+#: Object working voxel >= this many sigma: a normal from a neighbourhood narrower than a
+#: few sigma is dominated by the noise (config/kinect.yaml used 6 mm at sigma ~ 2 mm).
+K_VOXEL = 3.0
+#: Object working voxel >= this many point spacings (a voxel holds several samples).
+VOXEL_SPACINGS = 2.0
+#: Segmentation voxel >= this many point spacings: neighbour links reach
+#: ``seg_max_edge_factor`` voxels, which must span the gaps between samples.
+SEG_VOXEL_SPACINGS = 2.0
+#: An ``unknown`` object is a fragment, not an object for a planner, when its observed area
+#: (points x spacing^2 at its range) is below that of a square of this many point spacings
+#: of the frame's median range... scaled by the segmentation voxel: see :func:`is_fragment`.
+FRAGMENT_SPACINGS = 12.0
+
+
+@dataclass(frozen=True)
+class NoiseEstimate:
+    """Depth noise and point spacing of one frame.
+
+    Attributes
+    ----------
+    a : float [m]
+        Range-independent noise sigma.
+    b : float [1/m]
+        Quadratic term: sigma(z) = a + b z^2 at range z [m] along the ray.
+    spacing_per_m : float
+        Point spacing per metre of range: spacing(z) = spacing_per_m * z [m].
+    spacing : float [m]
+        Median point spacing of the frame.
+    depth : float [m]
+        Median range of the sampled points.
+    samples : int
+        Neighbourhoods used (0: no estimate, every value 0).
+    """
+
+    a: float = 0.0
+    b: float = 0.0
+    spacing_per_m: float = 0.0
+    spacing: float = 0.0
+    depth: float = 0.0
+    samples: int = 0
+
+    def sigma(self, z: float) -> float:
+        """Noise sigma [m] along the ray at range ``z`` [m]."""
+        return self.a + self.b * z * z
+
+    def spacing_at(self, z: float) -> float:
+        """Point spacing [m] at range ``z`` [m]."""
+        return self.spacing_per_m * z
+
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary (the CLI's ``noise``)."""
+        return {"a": float(self.a), "b": float(self.b), "sigma_at_1m": float(self.sigma(1.0)),
+                "spacing_per_m": float(self.spacing_per_m), "spacing": float(self.spacing),
+                "depth": float(self.depth), "samples": int(self.samples)}
+
+
+def _sample(points: NDArray[np.float64], rng: np.random.Generator, max_range: float
+            ) -> tuple[NDArray[np.float64], float]:
+    """Draw a random subset of about NOISE_SUBSET usable rows of ``points`` (N, 3) [m].
+
+    Usable: finite and within ``max_range`` [m] of the origin.
+
+    Rows are kept independently (Bernoulli), so the subset samples every surface like a
+    Poisson process of the full cloud's density times the kept fraction; non-finite rows
+    are dropped from the subset only (no pass over the whole cloud). The subset is
+    returned in random order.
+
+    Returns
+    -------
+    sub : (M, 3) float64 array [m]
+    fraction : float
+        Kept fraction of the finite rows (1 when every row was kept).
+    """
+    n = len(points)
+    fraction = min(1.0, NOISE_SUBSET / max(n, 1))
+    sub = points if fraction >= 1.0 else points[rng.random(n) < fraction]
+    sub = sub[in_range(sub, max_range)]
+    # Random order: the first NOISE_QUERIES rows are the neighbourhoods' centres.
+    return sub[rng.permutation(len(sub))], fraction
+
+
+def _neighbourhoods(sub: NDArray[np.float64], fraction: float
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Noise along the ray, range and spacing of a sample of local neighbourhoods.
+
+    Parameters
+    ----------
+    sub : (M, 3) float64 array [m], finite, in random order, M >= MIN_NOISE_POINTS
+        The subset of the cloud the neighbourhoods are taken from.
+    fraction : float
+        Share of the cloud's points in ``sub``.
+
+    Returns
+    -------
+    sigma_ray, range, spacing : (Q,) float64 arrays [m]
+        Plane residual divided by the incidence cosine, range of the neighbourhood's
+        centre, and the point spacing of the full cloud there.
+    """
+    k = min(NOISE_NEIGHBORS, len(sub))
+    dist, nb = cKDTree(sub).query(sub[:NOISE_QUERIES], k=k)
+    hood = sub[nb]                                             # (Q, k, 3)
+    centre = hood.mean(axis=1)
+    d = hood - centre[:, None, :]
+    w, v = np.linalg.eigh(np.matmul(d.transpose(0, 2, 1), d) / k)
+    z = np.linalg.norm(centre, axis=1)
+    cos = np.abs(np.einsum("qi,qi->q", v[:, :, 0], centre)) / np.maximum(z, _TINY)
+    resid = np.sqrt(np.maximum(w[:, 0], 0.0) * k / max(k - 3, 1))
+    # Nearest-neighbour distance of a random subset: median sqrt(ln 2 / pi) / sqrt(density);
+    # of the full cloud (a regular grid for a camera): about 1 / sqrt(density).
+    nn = dist[:, 1] if fraction >= 1.0 else \
+        dist[:, 1] * math.sqrt(fraction) / POISSON_MEDIAN_NN
+    ok = cos >= MIN_INCIDENCE_COS
+    return resid[ok] / cos[ok] / MEDIAN_CHI_FACTOR, z[ok], nn[ok]
+
+
+def estimate_noise(points: NDArray[np.float64], rng: np.random.Generator | int | None = None,
+                   max_range: float = math.inf) -> NoiseEstimate:
+    """Estimate sigma(z) = a + b z^2 and the point spacing of a cloud in the sensor frame.
+
+    Parameters
+    ----------
+    points : (N, 3) float array [m]
+        Cloud with the sensor at the origin; non-finite rows are ignored.
+    rng : Generator, seed or None
+        Randomness of the neighbourhood sample.
+    max_range : float [m]
+        Rows farther from the origin are ignored (see ``ModelingParams.max_range``).
+
+    Returns
+    -------
+    NoiseEstimate
+        ``samples == 0`` (every value 0) when the cloud is too small to measure.
+    """
+    rng = np.random.default_rng(rng)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    sub, fraction = _sample(pts, rng, max_range)
+    if len(sub) < MIN_NOISE_POINTS:
+        return NoiseEstimate()
+    s, z, spacing = _neighbourhoods(sub, fraction)
+    if len(s) < MIN_NOISE_SAMPLES:
+        return NoiseEstimate()
+    a, b = _fit_quadratic(s, z)
+    per_m = float(np.median(spacing / np.maximum(z, _TINY)))
+    return NoiseEstimate(a, b, per_m, float(np.median(spacing)), float(np.median(z)), len(s))
+
+
+def _fit_quadratic(s: NDArray[np.float64], z: NDArray[np.float64]) -> tuple[float, float]:
+    """Fit sigma = a + b z^2 (a, b >= 0) to the medians of ``s`` in equal-count depth bins."""
+    order = np.argsort(z)
+    bins = np.array_split(order, min(NOISE_BINS, max(1, len(z) // MIN_NOISE_SAMPLES)))
+    zm = np.array([np.median(z[i]) for i in bins])
+    sm = np.array([np.median(s[i]) for i in bins])
+    if zm[-1] - zm[0] <= 1e-9 * max(zm[-1], 1.0) or len(bins) < 2:
+        return float(np.median(s)), 0.0
+    # Scale the columns so that the least squares is well conditioned at any range.
+    zs = float(zm.max())
+    (a, b), _ = nnls(np.stack([np.ones_like(zm), (zm / zs) ** 2], axis=1), sm)
+    return float(a), float(b / (zs * zs))
+
+
+def _median_range(points: NDArray[np.float64]) -> float:
+    """Median distance [m] of the finite rows of ``points`` (N, 3) from the origin."""
+    step = max(1, len(points) // NOISE_SUBSET)
+    sub = points[::step]
+    sub = sub[rows_finite(sub)]
+    return float(np.median(np.linalg.norm(sub, axis=1))) if len(sub) else 0.0
+
+
+def object_params(params: ModelingParams, noise: NoiseEstimate, depth: float
+                  ) -> ModelingParams:
+    """``params`` with the noise- and spacing-dependent tolerances at range ``depth`` [m].
+
+    Every derived value is at least the one given (its floor), so the result equals
+    ``params`` for a noise-free, densely sampled cloud, and applying it twice changes
+    nothing. ``noise_model = fixed`` or an empty estimate return ``params`` itself.
+    """
+    if params.noise_model != "auto" or noise.samples == 0:
+        return params
+    sigma, spacing = noise.sigma(depth), noise.spacing_at(depth)
+    values = {
+        "noise_amplitude": max(params.noise_amplitude, K_AMPLITUDE * sigma),
+        "ransac_threshold": max(params.ransac_threshold, K_INLIER * sigma),
+        "voxel_size": max(params.voxel_size, K_VOXEL * sigma, VOXEL_SPACINGS * spacing),
+        "seg_voxel_size": max(params.seg_voxel_size, SEG_VOXEL_SPACINGS * spacing),
+        "seg_plane_threshold": max(params.seg_plane_threshold, K_INLIER * sigma),
+        "reconstruction_spacing": max(params.reconstruction_spacing, spacing),
+    }
+    if all(values[k] == getattr(params, k) for k in values):
+        return params
+    return dataclasses.replace(params, **_clipped(values))
+
+
+def _clipped(values: dict[str, float]) -> dict[str, float]:
+    """``values`` clipped to their parameters' allowed ranges."""
+    from geomodel_ros.core.params import PARAMETERS
+
+    highs = {p.name: p.high for p in PARAMETERS}
+    return {k: min(v, highs[k]) if highs[k] is not None else v for k, v in values.items()}
+
+
+def frame_noise(points: NDArray[np.float64], params: ModelingParams) -> NoiseEstimate:
+    """Noise estimate of a frame ``points`` (N, 3) [m] from its own random stream.
+
+    The stream is seeded with ``(params.seed, NOISE_STREAM)``: reproducible, and
+    independent of the segmentation's and the modeling's, so that estimating the noise
+    changes none of their random draws.
+    """
+    return estimate_noise(points, np.random.default_rng([params.seed, NOISE_STREAM]),
+                          params.max_range)
+
+
+def resolve_params(points: NDArray[np.float64], params: ModelingParams,
+                   noise: NoiseEstimate | None = None
+                   ) -> tuple[ModelingParams, NoiseEstimate | None]:
+    """Concrete parameters for ``points`` (a frame or one object) and the noise estimate.
+
+    Parameters
+    ----------
+    points : (N, 3) float array [m]
+        The frame (or object) in the sensor frame; non-finite rows are ignored.
+    params : ModelingParams
+        With ``noise_model = fixed`` they are returned unchanged and nothing is estimated.
+    noise : NoiseEstimate, optional
+        The frame's estimate, when known (e.g. for one of its objects); otherwise
+        :func:`frame_noise` of ``points``.
+
+    Returns
+    -------
+    params : ModelingParams
+        :func:`object_params` at the median range of ``points``.
+    noise : NoiseEstimate or None
+        None with ``noise_model = fixed``.
+    """
+    if params.noise_model != "auto":
+        return params, None
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if noise is None:
+        noise = frame_noise(pts, params)
+    return object_params(params, noise, _median_range(pts)), noise
+
+
+def is_fragment(point_count: int, depth: float, noise: NoiseEstimate | None,
+                params: ModelingParams) -> bool:
+    """Tell whether an ``unknown`` object of ``point_count`` points at ``depth`` is a fragment.
+
+    Its observed area, ``point_count * spacing(depth)^2`` [m^2], is compared with the square
+    of ``FRAGMENT_SPACINGS`` segmentation voxels (the resolution at which the scene was
+    cut into objects): a piece a dozen voxels across at most cannot be told from a shred of
+    a larger surface. Only with ``noise_model = auto`` and an estimate.
+    """
+    if params.noise_model != "auto" or noise is None or noise.samples == 0:
+        return False
+    spacing = noise.spacing_at(depth)
+    side = FRAGMENT_SPACINGS * max(params.seg_voxel_size, SEG_VOXEL_SPACINGS * spacing)
+    return point_count * spacing * spacing < side * side
