@@ -48,6 +48,8 @@ SPACING_QUERIES = 500
 #: An object's range (for its noise-dependent tolerances) is the median over about this
 #: many of its points.
 OBJECT_RANGE_SAMPLE = 1000
+#: A uniform distribution of length L has standard deviation L / sqrt(12).
+UNIFORM_SPAN = math.sqrt(12.0)
 #: Labels up to this are grouped by counting and a 16-bit radix sort.
 MAX_INT16_LABEL = int(np.iinfo(np.int16).max)
 
@@ -154,10 +156,19 @@ def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
     return float(np.median(d[:, 1]) * math.sqrt(len(sub) / n))
 
 
-def object_range(points: NDArray[np.float64]) -> float:
-    """Median distance [m] of an object's ``points`` (n, 3) from the sensor (at most 1000)."""
+def object_range(points: NDArray[np.float64]) -> tuple[float, float]:
+    """Range and extent [m] of an object's ``points`` (n, 3), from at most ~1000 of them.
+
+    The range is the median distance from the sensor; the extent is the length across of a
+    uniform segment with the spread of the middle principal axis (2 sqrt(3) std).
+    """
     sub = every_kth(points, OBJECT_RANGE_SAMPLE)
-    return float(np.median(np.sqrt(np.einsum("ij,ij->i", sub, sub)))) if len(sub) else 0.0
+    if len(sub) < MIN_MODEL_POINTS:
+        return 0.0, math.inf
+    q = sub - centroid(sub)
+    mid = float(np.linalg.eigvalsh(q.T @ q / len(sub))[1])
+    return float(np.median(np.sqrt(np.einsum("ij,ij->i", sub, sub)))), \
+        UNIFORM_SPAN * math.sqrt(max(mid, 0.0))
 
 
 def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArray[np.int64],
@@ -182,7 +193,7 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
         orng = streams[k]
         oid = int(ids[k])
         planes = tuple(v for key, v in (supports or {}).items() if key != oid)
-        oparams = params if noise is None else object_params(params, noise, object_range(opts))
+        oparams = params if noise is None else object_params(params, noise, *object_range(opts))
         return model_object(opts, oid, oparams, orng, estimate_spacing(opts, orng),
                             None if flab is None else flab[sel], planes)
 

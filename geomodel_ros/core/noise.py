@@ -16,8 +16,9 @@ derived from the estimate (:func:`resolve_params`), each with a floor at its giv
 so a noise-free cloud keeps every threshold as given:
 
 * noise amplitude t of eq. 6: ``K_AMPLITUDE * sigma`` (t is the noise amplitude itself);
-* RANSAC inlier threshold and support-plane band: ``K_INLIER * sigma`` (3 sigma holds
-  99.7 % of a Gaussian's points);
+* RANSAC inlier threshold: ``K_INLIER * sigma`` (real noise has heavier tails than a
+  Gaussian); support-plane band: the same along the plane's normal, ``K_INLIER * sigma *
+  cos`` at the range and incidence of the frame's dominant plane (:func:`support_band`);
 * working voxel of an object: ``K_VOXEL * sigma`` (normals from voxels much finer than the
   noise point anywhere) and ``VOXEL_SPACINGS`` point spacings (a voxel finer than the
   sampling holds one point);
@@ -81,13 +82,34 @@ _TINY = 1e-12
 #: Second entropy word of the estimate's random stream (the first is ``params.seed``): any
 #: fixed value will do; it keeps the stream apart from the modeling's.
 NOISE_STREAM = 14
+#: The dominant plane of :func:`_plane_scale`: the best of this many neighbourhood planes,
+#: taking the points within PLANE_BAND_SIGMAS local sigmas (wide: the slow errors it
+#: measures are a few local sigmas) or PLANE_BAND_SPACINGS point spacings of it; it must
+#: hold at least PLANE_MIN_SHARE of the sample (a desk, floor or wall, not a box face).
+PLANE_HYPOTHESES = 32
+PLANE_SAMPLE = 5000
+PLANE_BAND_SIGMAS = 10.0
+PLANE_BAND_SPACINGS = 2.0
+PLANE_MIN_SHARE = 0.1
+#: Refits of the dominant plane to its points within PLANE_TRIM robust sigmas (3: the
+#: Gaussian's points, not the objects standing on it).
+PLANE_ITERATIONS = 3
+PLANE_TRIM = 3.0
+#: 1.4826 MAD is the standard deviation of a Gaussian.
+MAD_TO_SIGMA = 1.4826
 #: t of eq. 6 = this many sigma (t is the noise amplitude).
 K_AMPLITUDE = 1.0
-#: Inlier bands (RANSAC, support planes) = this many sigma (99.7 % of a Gaussian).
-K_INLIER = 3.0
-#: Object working voxel >= this many sigma: a normal from a neighbourhood narrower than a
-#: few sigma is dominated by the noise (config/kinect.yaml used 6 mm at sigma ~ 2 mm).
-K_VOXEL = 3.0
+#: Inlier bands (RANSAC, support planes) = this many sigma. Real depth noise has heavier
+#: tails than a Gaussian (flying pixels, stereo mismatches): on the table of the PCL mug
+#: scene and of osd_learn frames, 3 robust sigmas hold 97-98 % of the points (a Gaussian:
+#: 99.7 %), 4 hold 98-99 %.
+K_INLIER = 4.0
+#: Object working voxel >= this many sigma. Normals come from ``normal_neighbors`` (16)
+#: voxels, spread about 1.6 voxels around their centre: a plane fit over them tilts by
+#: about sigma / (4.5 voxels). Region growing joins neighbours whose normals differ by less
+#: than ``face_angle_threshold`` (0.2 rad); with the difference of two such normals at 3
+#: standard deviations (3 sqrt(2) sigma / (4.5 voxels)) below it, voxel >= 4.7 sigma.
+K_VOXEL = 5.0
 #: Object working voxel >= this many point spacings (a voxel holds several samples).
 VOXEL_SPACINGS = 2.0
 #: Segmentation voxel >= this many point spacings: neighbour links reach
@@ -117,6 +139,14 @@ class NoiseEstimate:
         Median range of the sampled points.
     samples : int
         Neighbourhoods used (0: no estimate, every value 0).
+    scale : float
+        Factor (>= 1) by which the residual of the frame's dominant plane exceeded the
+        local noise; ``a`` and ``b`` include it (:func:`_plane_scale`).
+    plane_cos : float
+        Median cosine of the angle between the dominant plane's normal and the rays to its
+        points (1 when there is none): its noise along the normal is sigma * plane_cos.
+    plane_depth : float [m]
+        Median range of the dominant plane's points (0 when there is none).
     """
 
     a: float = 0.0
@@ -125,6 +155,9 @@ class NoiseEstimate:
     spacing: float = 0.0
     depth: float = 0.0
     samples: int = 0
+    scale: float = 1.0
+    plane_cos: float = 1.0
+    plane_depth: float = 0.0
 
     def sigma(self, z: float) -> float:
         """Noise sigma [m] along the ray at range ``z`` [m]."""
@@ -138,7 +171,9 @@ class NoiseEstimate:
         """JSON-ready dictionary (the CLI's ``noise``)."""
         return {"a": float(self.a), "b": float(self.b), "sigma_at_1m": float(self.sigma(1.0)),
                 "spacing_per_m": float(self.spacing_per_m), "spacing": float(self.spacing),
-                "depth": float(self.depth), "samples": int(self.samples)}
+                "depth": float(self.depth), "samples": int(self.samples),
+                "scale": float(self.scale), "plane_cos": float(self.plane_cos),
+                "plane_depth": float(self.plane_depth)}
 
 
 def _sample(points: NDArray[np.float64], rng: np.random.Generator, max_range: float
@@ -167,7 +202,8 @@ def _sample(points: NDArray[np.float64], rng: np.random.Generator, max_range: fl
 
 
 def _neighbourhoods(sub: NDArray[np.float64], fraction: float
-                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                               NDArray[np.float64]]:
     """Noise along the ray, range and spacing of a sample of local neighbourhoods.
 
     Parameters
@@ -182,6 +218,8 @@ def _neighbourhoods(sub: NDArray[np.float64], fraction: float
     sigma_ray, range, spacing : (Q,) float64 arrays [m]
         Plane residual divided by the incidence cosine, range of the neighbourhood's
         centre, and the point spacing of the full cloud there.
+    planes : (Q, 4) float64 array
+        The neighbourhoods' planes (unit normal, offset d: n . x + d = 0).
     """
     k = min(NOISE_NEIGHBORS, len(sub))
     dist, nb = cKDTree(sub).query(sub[:NOISE_QUERIES], k=k)
@@ -197,7 +235,9 @@ def _neighbourhoods(sub: NDArray[np.float64], fraction: float
     nn = dist[:, 1] if fraction >= 1.0 else \
         dist[:, 1] * math.sqrt(fraction) / POISSON_MEDIAN_NN
     ok = cos >= MIN_INCIDENCE_COS
-    return resid[ok] / cos[ok] / MEDIAN_CHI_FACTOR, z[ok], nn[ok]
+    normal = v[ok, :, 0]
+    planes = np.column_stack([normal, -np.einsum("qi,qi->q", normal, centre[ok])])
+    return resid[ok] / cos[ok] / MEDIAN_CHI_FACTOR, z[ok], nn[ok], planes
 
 
 def estimate_noise(points: NDArray[np.float64], rng: np.random.Generator | int | None = None,
@@ -223,12 +263,67 @@ def estimate_noise(points: NDArray[np.float64], rng: np.random.Generator | int |
     sub, fraction = _sample(pts, rng, max_range)
     if len(sub) < MIN_NOISE_POINTS:
         return NoiseEstimate()
-    s, z, spacing = _neighbourhoods(sub, fraction)
+    s, z, spacing, planes = _neighbourhoods(sub, fraction)
     if len(s) < MIN_NOISE_SAMPLES:
         return NoiseEstimate()
     a, b = _fit_quadratic(s, z)
     per_m = float(np.median(spacing / np.maximum(z, _TINY)))
-    return NoiseEstimate(a, b, per_m, float(np.median(spacing)), float(np.median(z)), len(s))
+    scale, plane_cos, plane_depth = _plane_scale(sub, planes, a, b, per_m, rng)
+    return NoiseEstimate(a * scale, b * scale, per_m, float(np.median(spacing)),
+                         float(np.median(z)), len(s), scale, plane_cos, plane_depth)
+
+
+def _plane_scale(sub: NDArray[np.float64], planes: NDArray[np.float64], a: float, b: float,
+                 spacing_per_m: float, rng: np.random.Generator
+                 ) -> tuple[float, float, float]:
+    """Ratio (>= 1) of the noise across the frame's dominant plane to the local noise.
+
+    The local residuals see only the noise within a few centimetres; real sensors add
+    errors that vary slowly across the image (depth distortion, stereo smoothing), which
+    a model fitted to a whole object meets as well. Among PLANE_HYPOTHESES of the
+    neighbourhoods' ``planes`` (Q, 4), the one with the most of the first PLANE_SAMPLE
+    points of ``sub`` (M, 3) [m] within ``PLANE_BAND_SIGMAS`` local sigmas (or
+    ``PLANE_BAND_SPACINGS`` spacings) is refitted to them, then PLANE_ITERATIONS times to
+    the points within ``PLANE_TRIM`` robust sigmas (1.4826 MAD) of it; the robust sigma of
+    the residuals along the ray, over the median local sigma a + b z^2 of the same points,
+    is the ratio. 1 when no plane holds ``PLANE_MIN_SHARE`` of the points or the local
+    noise is ~0.
+
+    Returns
+    -------
+    scale : float
+        The ratio.
+    cos : float
+        Median cosine between the dominant plane's normal and its points' rays (1 when
+        there is no dominant plane).
+    depth : float [m]
+        Median range of the dominant plane's points (0 when there is none).
+    """
+    pts = sub[:PLANE_SAMPLE]
+    z = np.sqrt(np.einsum("ij,ij->i", pts, pts))
+    local = a + b * z * z
+    band = np.maximum(PLANE_BAND_SIGMAS * local, PLANE_BAND_SPACINGS * spacing_per_m * z)
+    pick = planes[rng.permutation(len(planes))[:PLANE_HYPOTHESES]]
+    near = np.abs(pts @ pick[:, :3].T + pick[:, 3]) <= band[:, None]   # (M, H)
+    inl = near[:, int(np.argmax(near.sum(axis=0)))]
+    if np.count_nonzero(inl) < PLANE_MIN_SHARE * len(pts):
+        return 1.0, 1.0, 0.0
+    base = float(np.median(local[inl]))
+    if base <= _TINY:
+        return 1.0, 1.0, 0.0
+    robust = 0.0
+    for _ in range(PLANE_ITERATIONS):
+        q = pts[inl]
+        c = q.mean(axis=0)
+        normal = np.linalg.eigh((q - c).T @ (q - c))[1][:, 0]
+        dist = (pts - c) @ normal
+        robust_n = MAD_TO_SIGMA * float(np.median(np.abs(dist[inl])))
+        inl = inl & (np.abs(dist) <= PLANE_TRIM * robust_n)
+        if np.count_nonzero(inl) < MIN_NOISE_SAMPLES:
+            return 1.0, 1.0, 0.0
+        cos = np.maximum(np.abs(pts[inl] @ normal) / z[inl], MIN_INCIDENCE_COS)
+        robust = MAD_TO_SIGMA * float(np.median(np.abs(dist[inl] / cos)))
+    return max(1.0, robust / base), float(np.median(cos)), float(np.median(z[inl]))
 
 
 def _fit_quadratic(s: NDArray[np.float64], z: NDArray[np.float64]) -> tuple[float, float]:
@@ -253,28 +348,52 @@ def _median_range(points: NDArray[np.float64]) -> float:
     return float(np.median(np.linalg.norm(sub, axis=1))) if len(sub) else 0.0
 
 
-def object_params(params: ModelingParams, noise: NoiseEstimate, depth: float
-                  ) -> ModelingParams:
+def object_params(params: ModelingParams, noise: NoiseEstimate, depth: float,
+                  extent: float = math.inf) -> ModelingParams:
     """``params`` with the noise- and spacing-dependent tolerances at range ``depth`` [m].
 
     Every derived value is at least the one given (its floor), so the result equals
-    ``params`` for a noise-free, densely sampled cloud, and applying it twice changes
-    nothing. ``noise_model = fixed`` or an empty estimate return ``params`` itself.
+    ``params`` for a noise-free, densely sampled cloud. ``noise_model = fixed`` or an
+    empty estimate return ``params`` itself.
+
+    Parameters
+    ----------
+    params : ModelingParams
+    noise : NoiseEstimate
+    depth : float [m]
+        Range of the object (or frame) along the ray.
+    extent : float [m]
+        Size of the object across (its faces' normals tilt by up to the angle the inlier
+        band subtends over it: ``angle_tolerance`` grows by atan(band / extent), added in
+        quadrature; infinite: no change).
     """
     if params.noise_model != "auto" or noise.samples == 0:
         return params
     sigma, spacing = noise.sigma(depth), noise.spacing_at(depth)
+    tilt = math.atan(K_INLIER * sigma / extent) if extent > 0.0 else 0.0
     values = {
+        "angle_tolerance": math.hypot(params.angle_tolerance, tilt),
         "noise_amplitude": max(params.noise_amplitude, K_AMPLITUDE * sigma),
         "ransac_threshold": max(params.ransac_threshold, K_INLIER * sigma),
         "voxel_size": max(params.voxel_size, K_VOXEL * sigma, VOXEL_SPACINGS * spacing),
         "seg_voxel_size": max(params.seg_voxel_size, SEG_VOXEL_SPACINGS * spacing),
-        "seg_plane_threshold": max(params.seg_plane_threshold, K_INLIER * sigma),
+        "seg_plane_threshold": max(params.seg_plane_threshold, support_band(noise, depth)),
         "reconstruction_spacing": max(params.reconstruction_spacing, spacing),
     }
     if all(values[k] == getattr(params, k) for k in values):
         return params
     return dataclasses.replace(params, **_clipped(values))
+
+
+def support_band(noise: NoiseEstimate, depth: float) -> float:
+    """Inlier band [m] of the support planes: K_INLIER sigma along their normal.
+
+    Distances to a plane are measured along its normal, where the noise along the ray is
+    reduced by the cosine of the incidence; both are those of the frame's dominant plane
+    (its median range and incidence), or ``depth`` [m] and 1 when there is none.
+    """
+    at = noise.plane_depth if noise.plane_depth > 0.0 else depth
+    return K_INLIER * noise.sigma(at) * noise.plane_cos
 
 
 def _clipped(values: dict[str, float]) -> dict[str, float]:
