@@ -197,25 +197,23 @@ def _sample(points: NDArray[np.float64], rng: np.random.Generator, max_range: fl
             ) -> tuple[NDArray[np.float64], float]:
     """Draw a random subset of about NOISE_SUBSET usable rows of ``points`` (N, 3) [m].
 
-    Usable: finite and within ``max_range`` [m] of the origin.
-
-    Rows are kept independently (Bernoulli), so the subset samples every surface like a
-    Poisson process of the full cloud's density times the kept fraction; non-finite rows
-    are dropped from the subset only (no pass over the whole cloud). The subset is
-    returned in random order.
+    Usable: finite and within ``max_range`` [m] of the origin. Each usable row is kept
+    independently (Bernoulli), so the subset samples every surface like a random sample of
+    the full cloud's density times the kept fraction, and neither depends on the unusable
+    rows (a driver's garbage changes nothing). The subset is returned in random order.
 
     Returns
     -------
     sub : (M, 3) float64 array [m]
     fraction : float
-        Kept fraction of the finite rows (1 when every row was kept).
+        Kept fraction of the usable rows (1 when every row was kept).
     """
-    n = len(points)
-    fraction = min(1.0, NOISE_SUBSET / max(n, 1))
-    sub = points if fraction >= 1.0 else points[rng.random(n) < fraction]
-    sub = sub[in_range(sub, max_range)]
+    rows = np.flatnonzero(in_range(points, max_range))
+    fraction = min(1.0, NOISE_SUBSET / max(len(rows), 1))
+    if fraction < 1.0:
+        rows = rows[rng.random(len(rows)) < fraction]
     # Random order: the first NOISE_QUERIES rows are the neighbourhoods' centres.
-    return sub[rng.permutation(len(sub))], fraction
+    return points[rows[rng.permutation(len(rows))]], fraction
 
 
 def _neighbourhoods(sub: NDArray[np.float64], fraction: float
