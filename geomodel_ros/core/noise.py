@@ -70,6 +70,13 @@ NOISE_BINS = 6
 #: Fewest valid points and usable neighbourhoods for an estimate (fewer: no estimate).
 MIN_NOISE_POINTS = 200
 MIN_NOISE_SAMPLES = 30
+#: A neighbourhood samples a surface when its residual variance is below this share of its
+#: smaller in-plane variance (noise sigma below half the in-plane spread: on the desk
+#: scenes' neighbourhoods, about 3 mm in radius, sigma is at most a third of it); a cloud
+#: of which fewer than MIN_SURFACE_SHARE do is no sampled surface (a random blob) and gets
+#: no estimate.
+SURFACE_RATIO = 0.25
+MIN_SURFACE_SHARE = 0.5
 #: Neighbourhoods seen at more than acos(MIN_INCIDENCE_COS) (about 70 degrees) from their
 #: normal are not used: the division by the cosine would magnify their errors.
 MIN_INCIDENCE_COS = 0.35
@@ -235,6 +242,10 @@ def _neighbourhoods(sub: NDArray[np.float64], fraction: float
         centre, and the point spacing of the full cloud there.
     planes : (Q, 4) float64 array
         The neighbourhoods' planes (unit normal, offset d: n . x + d = 0).
+
+    Only surface-like neighbourhoods count (residual variance below SURFACE_RATIO times
+    the smaller in-plane variance); when fewer than MIN_SURFACE_SHARE of them are, the
+    points sample no surface (a random blob) and every array is empty.
     """
     k = min(NOISE_NEIGHBORS, len(sub))
     dist, nb = cKDTree(sub).query(sub[:NOISE_QUERIES], k=k)
@@ -249,7 +260,10 @@ def _neighbourhoods(sub: NDArray[np.float64], fraction: float
     # pi r_k^2 = (k - 1/2) spacing_sub^2 of the surface, on a grid as on a random sample;
     # the full cloud is 1 / fraction times denser.
     nn = dist[:, -1] * np.sqrt(math.pi * fraction / (k - 0.5))
-    ok = cos >= MIN_INCIDENCE_COS
+    surface = w[:, 0] < SURFACE_RATIO * w[:, 1]
+    if np.count_nonzero(surface) < MIN_SURFACE_SHARE * len(w):
+        return (np.zeros(0),) * 3 + (np.zeros((0, 4)),)   # not a sampled surface
+    ok = surface & (cos >= MIN_INCIDENCE_COS)
     normal = v[ok, :, 0]
     planes = np.column_stack([normal, -np.einsum("qi,qi->q", normal, centre[ok])])
     return resid[ok] / cos[ok] / MEDIAN_CHI_FACTOR, z[ok], nn[ok], planes
