@@ -243,9 +243,11 @@ def _neighbourhoods(sub: NDArray[np.float64], fraction: float
     planes : (Q, 4) float64 array
         The neighbourhoods' planes (unit normal, offset d: n . x + d = 0).
 
-    Only surface-like neighbourhoods count (residual variance below SURFACE_RATIO times
-    the smaller in-plane variance); when fewer than MIN_SURFACE_SHARE of them are, the
-    points sample no surface (a random blob) and every array is empty.
+    When fewer than MIN_SURFACE_SHARE of the neighbourhoods are surface-like (residual
+    variance below SURFACE_RATIO times the smaller in-plane variance), the points sample
+    no surface (a random blob) and every array is empty. Otherwise all count: the median
+    is robust to the edges and corners among them, and leaving out the noisiest
+    neighbourhoods would bias it low.
     """
     k = min(NOISE_NEIGHBORS, len(sub))
     dist, nb = cKDTree(sub).query(sub[:NOISE_QUERIES], k=k)
@@ -263,7 +265,7 @@ def _neighbourhoods(sub: NDArray[np.float64], fraction: float
     surface = w[:, 0] < SURFACE_RATIO * w[:, 1]
     if np.count_nonzero(surface) < MIN_SURFACE_SHARE * len(w):
         return (np.zeros(0),) * 3 + (np.zeros((0, 4)),)   # not a sampled surface
-    ok = surface & (cos >= MIN_INCIDENCE_COS)
+    ok = cos >= MIN_INCIDENCE_COS
     normal = v[ok, :, 0]
     planes = np.column_stack([normal, -np.einsum("qi,qi->q", normal, centre[ok])])
     return resid[ok] / cos[ok] / MEDIAN_CHI_FACTOR, z[ok], nn[ok], planes
