@@ -18,7 +18,7 @@ from geomodel_ros.core.modeling import model_objects, model_scene
 from geomodel_ros.core.noise import (NoiseEstimate, estimate_noise, is_fragment, object_params,
                                      resolve_params)
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError
-from geomodel_ros.tools.synth import (KINECT_NOISE, NoiseModel, PinholeCamera, Rectangle,
+from geomodel_ros.tools.synth import (KINECT_CLASS_NOISE, NoiseModel, PinholeCamera, Rectangle,
                                       apply_noise, render_scene)
 from geomodel_ros.tools.synth.scenes import room_scene
 
@@ -70,10 +70,10 @@ def test_estimator_recovers_known_sigma_of_depth():
 
 def test_estimator_recovers_sigma_on_a_rendered_desk_scene():
     # The paper's scene 3 with Kinect-class noise: desk and objects at 0.4-0.6 m.
-    scene = render_scene("scene3", noise=KINECT_NOISE, rng=1)
+    scene = render_scene("scene3", noise=KINECT_CLASS_NOISE, rng=1)
     est = estimate_noise(scene.points, rng=0)
     z = est.depth
-    assert est.sigma(z) == pytest.approx(float(KINECT_NOISE.sigma(z)), rel=0.08)
+    assert est.sigma(z) == pytest.approx(float(KINECT_CLASS_NOISE.sigma(z)), rel=0.08)
 
 
 def test_estimator_point_spacing_of_a_camera():
@@ -111,7 +111,7 @@ def test_noise_free_auto_equals_fixed_end_to_end():
 
 
 def test_fixed_returns_the_parameters_given_and_estimates_nothing():
-    scene = render_scene("apart", noise=KINECT_NOISE, rng=2)
+    scene = render_scene("apart", noise=KINECT_CLASS_NOISE, rng=2)
     params = ModelingParams(noise_model="fixed", ransac_threshold=0.0031)
     resolved, est = resolve_params(scene.points, params)
     assert resolved is params and est is None
@@ -187,12 +187,12 @@ def test_noisy_scene_that_failed_with_fixed_defaults_types_correctly():
     # sphere); auto types all eight.
     from geomodel_ros.tools.evaluation import score_objects
 
-    scene = render_scene("scene3", noise=KINECT_NOISE, rng=1)
+    scene = render_scene("scene3", noise=KINECT_CLASS_NOISE, rng=1)
     result = model_objects(scene.points, scene.labels, ModelingParams())
     scores = score_objects(result.objects, scene.objects)
     assert [s.estimated for s in scores if not s.type_correct] == []
     assert result.noise is not None
-    assert result.noise.sigma(0.5) == pytest.approx(float(KINECT_NOISE.sigma(0.5)), rel=0.1)
+    assert result.noise.sigma(0.5) == pytest.approx(float(KINECT_CLASS_NOISE.sigma(0.5)), rel=0.1)
 
 
 def test_room_scene_with_defaults_gives_planes_and_cuboids():
@@ -214,7 +214,7 @@ def test_noise_and_fragments_in_json_output(tmp_path):
     from geomodel_ros.tools.cli import main
     from geomodel_ros.tools.io import write_npy
 
-    scene = render_scene("apart", noise=KINECT_NOISE, rng=1)
+    scene = render_scene("apart", noise=KINECT_CLASS_NOISE, rng=1)
     cloud = tmp_path / "apart.npy"
     write_npy(cloud, scene.points)
     out = tmp_path / "out.json"
@@ -223,7 +223,7 @@ def test_noise_and_fragments_in_json_output(tmp_path):
     assert set(data["noise"]) >= {"a", "b", "spacing_per_m", "samples"}
     assert data["noise"]["samples"] > 0 and isinstance(data["fragments"], int)
     assert data["noise"]["a"] + data["noise"]["b"] * 0.25 == pytest.approx(
-        float(KINECT_NOISE.sigma(0.5)), rel=0.15)
+        float(KINECT_CLASS_NOISE.sigma(0.5)), rel=0.15)
 
 
 def test_max_range_default_allows_room_scale_and_still_drops_garbage():
@@ -235,7 +235,7 @@ def test_max_range_default_allows_room_scale_and_still_drops_garbage():
 
 
 def test_estimate_is_reproducible_and_does_not_touch_the_callers_stream():
-    scene = render_scene("apart", noise=KINECT_NOISE, rng=4)
+    scene = render_scene("apart", noise=KINECT_CLASS_NOISE, rng=4)
     assert nz.frame_noise(scene.points, ModelingParams()) == \
         nz.frame_noise(scene.points, ModelingParams())
     rng = np.random.default_rng(7)

@@ -29,7 +29,7 @@ __all__ = [
     "GROUND_TRUTH_TYPES",
     "NoiseModel",
     "SENSOR_NOISE",
-    "KINECT_NOISE",
+    "KINECT_CLASS_NOISE",
     "Scene",
     "SCENE_NAMES",
     "PAPER_SCENE_NAMES",
@@ -171,7 +171,7 @@ class NoiseModel:
 SENSOR_NOISE = NoiseModel(sigma_at_0_5m=0.001, dropout=0.02, holes=0)
 #: A Kinect-class RGB-D camera: sigma = 1.2 mm + 0.8 mm * z^2 (1.4 mm at 0.5 m, 2.0 mm at
 #: 1 m, 3.0 mm at 1.5 m), 5 % dropout and three holes.
-KINECT_NOISE = NoiseModel(sigma_at_0_5m=0.0002, dropout=0.05, holes=3, sigma_offset=0.0012)
+KINECT_CLASS_NOISE = NoiseModel(sigma_at_0_5m=0.0002, dropout=0.05, holes=3, sigma_offset=0.0012)
 
 
 def apply_noise(

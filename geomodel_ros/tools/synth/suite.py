@@ -4,7 +4,7 @@ A Kinect-like camera (640 x 480, f = 525 px) looks at a 0.4 m desk tilted like t
 (normal (0, -0.766, -0.643)) whose centre lies at distance 0.5, 1.0 or 1.5 m along the
 paper's viewing direction. Two layouts share the desk: ``set_a`` (a box, a standing
 cylinder, a sphere) and ``set_b`` (a lying cylinder, a cone, a torus: irregular, must be
-``unknown``). Each is rendered noise-free, with ``mid`` noise and with :data:`KINECT_NOISE`.
+``unknown``). Each is rendered noise-free, with ``mid`` noise and with :data:`KINECT_CLASS_NOISE`.
 Further shapes (e.g. a frustum once the synthetic shapes have one) join through
 :data:`EXTRA_LAYOUTS`: a name -> function returning ``(shape, u_mm, v_mm, pose)`` items.
 The room scene (:func:`~geomodel_ros.tools.synth.scenes.room_scene`) is the suite's
@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 
 from .camera import PinholeCamera
-from .scenes import (DESK_CENTER, DESK_NORMAL, DESK_SIZE, KINECT_NOISE, NoiseModel, Scene,
+from .scenes import (DESK_CENTER, DESK_NORMAL, DESK_SIZE, KINECT_CLASS_NOISE, NoiseModel, Scene,
                      apply_noise)
 from .shapes import Box, Cone, Cylinder, Rectangle, Shape, Sphere, Torus
 
@@ -35,7 +35,7 @@ SUITE_DISTANCES = (0.5, 1.0, 1.5)
 SUITE_NOISE: dict[str, NoiseModel | None] = {
     "clean": None,
     "mid": NoiseModel(sigma_offset=0.0005, sigma_at_0_5m=0.0001, dropout=0.02),
-    "kinect": KINECT_NOISE,
+    "kinect": KINECT_CLASS_NOISE,
 }
 
 #: Layout item: a shape (posed at the origin, upright: local z along the desk normal, or
