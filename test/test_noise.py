@@ -257,3 +257,29 @@ def test_degenerate_clouds_give_no_estimate():
 def test_replace_keeps_noise_model():
     p = dataclasses.replace(ModelingParams(noise_model="fixed"), voxel_size=0.004)
     assert p.noise_model == "fixed"
+
+
+def test_noise_values_for_diagnostics():
+    from msg_adapters.diagnostics import noise_values
+
+    est = NoiseEstimate(a=0.001, b=0.0005, spacing_per_m=0.002, samples=1234)
+    values = noise_values(est, 3)
+    assert list(values) == ["noise_sigma_a_m", "noise_sigma_b_per_m", "noise_sigma_at_1m_m",
+                            "noise_spacing_per_m", "noise_samples", "fragments"]
+    assert values["noise_sigma_at_1m_m"] == "0.001500"        # a + b * 1^2
+    assert values["noise_samples"] == "1234" and values["fragments"] == "3"
+    assert noise_values(None, 0) == {"fragments": "0"}          # noise_model fixed
+
+
+def test_processed_frame_carries_the_noise_for_diagnostics():
+    from ros_helpers import scene_cloud
+
+    from geomodel_ros.ros.processing import process_cloud
+
+    frame = process_cloud(scene_cloud("tiny_box"), ModelingParams(), segments=False,
+                          reconstruction=False)
+    assert int(frame.diagnostics["noise_samples"]) > 0
+    assert float(frame.diagnostics["noise_sigma_at_1m_m"]) < 1e-5   # a noise-free render
+    fixed = process_cloud(scene_cloud("tiny_box"), ModelingParams(noise_model="fixed"),
+                          segments=False, reconstruction=False)
+    assert fixed.diagnostics == {"fragments": "0"}
