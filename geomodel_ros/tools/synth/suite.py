@@ -2,11 +2,12 @@
 
 A Kinect-like camera (640 x 480, f = 525 px) looks at a 0.4 m desk tilted like the paper's
 (normal (0, -0.766, -0.643)) whose centre lies at distance 0.5, 1.0 or 1.5 m along the
-paper's viewing direction. Two layouts share the desk: ``set_a`` (a box, a standing
-cylinder, a sphere) and ``set_b`` (a lying cylinder, a cone, a torus: irregular, must be
-``unknown``). Each is rendered noise-free, with ``mid`` noise and with :data:`KINECT_CLASS_NOISE`.
-Further shapes (e.g. a frustum once the synthetic shapes have one) join through
-:data:`EXTRA_LAYOUTS`: a name -> function returning ``(shape, u_mm, v_mm, pose)`` items.
+paper's viewing direction. Three layouts share the desk: ``set_a`` (a box, a standing
+cylinder, a sphere), ``set_b`` (a lying cylinder, a cone, a torus: irregular, must be
+``unknown``) and ``set_c`` (frustums: a closed pot standing on its larger circle and an
+open cup standing on its smaller one, rim up). Each is rendered noise-free, with ``mid``
+noise and with :data:`KINECT_CLASS_NOISE`. Further shapes join through
+:data:`EXTRA_LAYOUTS`: a name -> function returning layout items.
 The room scene (:func:`~geomodel_ros.tools.synth.scenes.room_scene`) is the suite's
 room-scale case.
 """
@@ -21,7 +22,7 @@ import numpy as np
 from .camera import PinholeCamera
 from .scenes import (DESK_CENTER, DESK_NORMAL, DESK_SIZE, KINECT_CLASS_NOISE, NoiseModel, Scene,
                      apply_noise)
-from .shapes import Box, Cone, Cylinder, Rectangle, Shape, Sphere, Torus
+from .shapes import Box, Cone, Cylinder, Frustum, Rectangle, Shape, Sphere, Torus
 
 __all__ = ["SUITE_CAMERA", "SUITE_DISTANCES", "SUITE_NOISE", "SUITE_LAYOUTS", "EXTRA_LAYOUTS",
            "SuiteCase", "suite_cases", "render_case"]
@@ -39,8 +40,8 @@ SUITE_NOISE: dict[str, NoiseModel | None] = {
 }
 
 #: Layout item: a shape (posed at the origin, upright: local z along the desk normal, or
-#: lying: local z in the desk plane), its desk coordinates u, v [mm] and "standing" or
-#: "lying" with a yaw [deg].
+#: lying: local z in the desk plane), its desk coordinates u, v [mm] and "standing",
+#: "inverted" (local z against the desk normal) or "lying", with a yaw [deg].
 Item = tuple[Shape, float, float, str, float]
 
 
@@ -56,8 +57,14 @@ def _set_b() -> list[Item]:
             (Torus(0.050, 0.018), 0.0, 100.0, "standing", 0.0)]
 
 
+def _set_c() -> list[Item]:
+    return [(Frustum(0.050, 0.032, 0.080), -80.0, -50.0, "standing", 0.0),
+            (Frustum(0.042, 0.030, 0.095, base_cap=False), 80.0, -50.0, "inverted", 0.0)]
+
+
 #: The suite's layouts.
-SUITE_LAYOUTS: dict[str, Callable[[], list[Item]]] = {"set_a": _set_a, "set_b": _set_b}
+SUITE_LAYOUTS: dict[str, Callable[[], list[Item]]] = {"set_a": _set_a, "set_b": _set_b,
+                                                      "set_c": _set_c}
 #: Layouts added by other modules (e.g. one with a frustum), run like SUITE_LAYOUTS.
 EXTRA_LAYOUTS: dict[str, Callable[[], list[Item]]] = {}
 
@@ -85,6 +92,8 @@ def _place(item: Item, centre: np.ndarray) -> Shape:
         rot = np.stack([x, np.cross(z, x), z], axis=1)
     else:
         rot = frame @ _rot_z(yaw)
+        if how == "inverted":
+            rot = rot @ np.diag([1.0, -1.0, -1.0])
     posed = replace(shape, center=at, rotation=rot)
     lowest = -posed.support(-DESK_NORMAL) - centre @ DESK_NORMAL
     return replace(posed, center=posed.center - lowest * DESK_NORMAL)
