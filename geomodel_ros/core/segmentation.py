@@ -33,6 +33,7 @@ from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
                                      voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.fastmath import rows_finite, take_rows
+from geomodel_ros.core.noise import NoiseEstimate, resolve_params
 from geomodel_ros.core.joins import join_contained_parts, join_occluded_parts, merge_patches
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import fit_plane_svd
@@ -89,12 +90,15 @@ class Segmentation:
         Plane n . x + d = 0 of each support, normal towards the sensor.
     timing : dict[str, float]
         Seconds per stage.
+    noise : NoiseEstimate or None
+        The frame's noise (None with ``noise_model = fixed``).
     """
 
     labels: NDArray[np.int64]
     support_ids: list[int] = field(default_factory=list)
     timing: dict[str, float] = field(default_factory=dict)
     support_planes: dict[int, tuple[NDArray[np.float64], float]] = field(default_factory=dict)
+    noise: NoiseEstimate | None = None
 
     @property
     def object_ids(self) -> NDArray[np.int64]:
@@ -104,7 +108,7 @@ class Segmentation:
 
 def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
                   rng: np.random.Generator | int | None = None,
-                  noise: DepthNoise | None = None) -> Segmentation:
+                  noise: NoiseEstimate | None = None) -> Segmentation:
     """Segment a scene cloud into support planes and objects.
 
     Parameters
@@ -116,13 +120,14 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
         ``seg_*`` parameters are used.
     rng : Generator, seed or None
         Randomness for the plane RANSAC; defaults to ``params.seed``.
-    noise : DepthNoise, optional
-        The sensor's depth noise (e.g. the frame's estimate): the step between two
-        surfaces grows with the noise of the working points (:func:`working_noise`), and
-        a point next to a patch border takes its normal from its own patch only where
-        its neighbourhood lies off its plane by more than that noise (a crease). Without
-        it the step is ``STEP_SHARE * seg_plane_threshold`` everywhere and every such
-        point takes its normal from its own patch.
+    noise : NoiseEstimate, optional
+        The frame's noise when known; with ``noise_model = auto`` the ``seg_*`` tolerances
+        follow it (:func:`geomodel_ros.core.noise.resolve_params`), and so do the step
+        between two surfaces (at least the noise of the working points,
+        :func:`working_noise`) and the normals at patch borders (from the point's own
+        patch only where its neighbourhood lies off its plane by more than that noise: a
+        crease). With ``noise_model = fixed`` the step is ``STEP_SHARE *
+        seg_plane_threshold`` everywhere and every such point takes its own patch's normal.
 
     Returns
     -------
@@ -132,18 +137,19 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     params = params if params is not None else ModelingParams()
     pts = as_points(points, allow_organized=True)
     pts = without_far_points(pts, params)
+    params, noise = resolve_params(pts, params, noise=noise)
     rng = np.random.default_rng(params.seed if rng is None else rng)
     labels = np.full(len(pts), -1, dtype=np.int64)
     finite = np.flatnonzero(rows_finite(pts))
     timing: dict[str, float] = {}
     if len(finite) < MIN_INPUT_POINTS:
         timing["segmentation_s"] = time.perf_counter() - t0
-        return Segmentation(labels, [], timing)
+        return Segmentation(labels, [], timing, noise=noise)
     p = take_rows(pts, finite)
     wp, inverse, counts = voxelize(p, params.seg_voxel_size)
     if len(wp) < MIN_WORKING_POINTS:
         timing["segmentation_s"] = time.perf_counter() - t0
-        return Segmentation(labels, [], timing)
+        return Segmentation(labels, [], timing, noise=noise)
     wn, _, nbrs, sqdist = estimate_normals(wp, params.normal_neighbors, return_sqdist=True)
     t1 = time.perf_counter()
     timing["seg_normals_s"] = t1 - t0
@@ -154,7 +160,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     planes = _claim_contact_rims(p, finite, labels, len(supports), params, rng)
     timing["seg_objects_s"] = time.perf_counter() - t2
     timing["segmentation_s"] = time.perf_counter() - t0
-    return Segmentation(labels, list(range(len(supports))), timing, planes)
+    return Segmentation(labels, list(range(len(supports))), timing, planes, noise)
 
 
 def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: NDArray[np.int64],

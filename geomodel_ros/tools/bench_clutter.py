@@ -4,9 +4,7 @@
 (:mod:`geomodel_ros.tools.synth.clutter`), noise-free and with Kinect-class noise,
 segments them and prints the share of objects segmented with IoU >= 0.8, under- and
 over-segmented (:func:`geomodel_ros.tools.evaluation.segmentation_scores`), in all and per
-object kind, and the segmentation time. ``--known-noise`` gives the segmentation the
-generator's depth noise (:class:`RenderedNoise`), as a frame's noise estimate would.
-``--osd`` adds the osd_learn figure
+object kind, and the segmentation time. ``--osd`` adds the osd_learn figure
 (:func:`geomodel_ros.tools.benchmark.osd_benchmark`, segmentation only).
 """
 
@@ -27,10 +25,8 @@ from geomodel_ros.core.segmentation import segment_scene
 from geomodel_ros.tools.evaluation import segmentation_scores
 from geomodel_ros.tools.paths import CONFIG_DIR
 from geomodel_ros.tools.synth.clutter import KINECT_NOISE, render_clutter
-from geomodel_ros.tools.synth.scenes import NoiseModel
 
-__all__ = ["RenderedNoise", "clutter_rows", "clutter_lines", "main", "MIN_SCORED_POINTS",
-           "GOOD_IOU"]
+__all__ = ["clutter_rows", "clutter_lines", "main", "MIN_SCORED_POINTS", "GOOD_IOU"]
 
 #: Objects with fewer visible points are not scored: slivers at the image border or
 #: behind other objects (200 points are about 1 cm^2 at 1 m, close to the segmentation's
@@ -40,32 +36,8 @@ MIN_SCORED_POINTS = 200
 GOOD_IOU = 0.8
 
 
-class RenderedNoise:
-    """The depth noise of a rendering, for the segmentation.
-
-    A :class:`~geomodel_ros.core.segmentation.DepthNoise` made from a
-    :class:`~geomodel_ros.tools.synth.scenes.NoiseModel`.
-
-    Parameters
-    ----------
-    model : NoiseModel
-        Its sigma grows with the square of the range: ``sigma_at_0_5m * (z / 0.5)^2``.
-    """
-
-    def __init__(self, model: NoiseModel) -> None:
-        self.b = model.sigma_at_0_5m / 0.25
-
-    def sigma(self, z: np.ndarray) -> np.ndarray:
-        """Return the noise sigma [m] at ranges ``z`` [m]."""
-        return self.b * np.square(z)
-
-
-def clutter_rows(seeds: Sequence[int], noisy: bool, params: ModelingParams,
-                 known_noise: bool = False) -> list[dict]:
+def clutter_rows(seeds: Sequence[int], noisy: bool, params: ModelingParams) -> list[dict]:
     """Segment the clutter scenes ``seeds``; one row per scored object.
-
-    With ``known_noise`` the segmentation gets the depth noise of the rendering
-    (:class:`RenderedNoise`; none for the noise-free scenes).
 
     Each row holds ``seed``, ``id``, ``kind``, ``points``, ``iou``, ``under``, ``over`` and
     the scene's ``segmentation_s``.
@@ -73,9 +45,8 @@ def clutter_rows(seeds: Sequence[int], noisy: bool, params: ModelingParams,
     rows = []
     for seed in seeds:
         scene = render_clutter(seed, KINECT_NOISE if noisy else None)
-        noise = RenderedNoise(KINECT_NOISE) if noisy and known_noise else None
         t0 = time.perf_counter()
-        seg = segment_scene(scene.organized, params, noise=noise)
+        seg = segment_scene(scene.organized, params)
         seconds = time.perf_counter() - t0
         gt = scene.label_image.ravel()
         counts = np.bincount(gt[gt >= 0], minlength=len(scene.kinds))
@@ -136,8 +107,6 @@ def main(argv: list[str] | None = None) -> int:
                         help="parameter YAML for the clutter scenes (default: defaults)")
     parser.add_argument("--osd", action="store_true",
                         help="also osd_learn (config/kinect.yaml, as `geomodel bench`)")
-    parser.add_argument("--known-noise", action="store_true",
-                        help="give the segmentation the rendering's depth noise")
     parser.add_argument("--json", type=Path, default=None, help="write the rows here")
     parser.add_argument("--failures", action="store_true", help="list objects with IoU < 0.8")
     args = parser.parse_args(argv)
@@ -146,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     report = {}
     for noisy in {"both": (False, True), "clean": (False,), "kinect": (True,)}[args.noise]:
         label = "kinect-noise" if noisy else "noise-free"
-        rows = report[label] = clutter_rows(seeds, noisy, params, args.known_noise)
+        rows = report[label] = clutter_rows(seeds, noisy, params)
         print("\n".join(clutter_lines(rows, f"clutter {label}")))
         if args.failures:
             for r in rows:
