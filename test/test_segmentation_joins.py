@@ -499,3 +499,17 @@ def test_patch_normals_keep_the_whole_neighbourhood_on_one_noisy_surface():
 
     assert np.median(err(gated)) < np.median(err(one_sided))
     assert np.mean(np.all(gated == raw, axis=1)) > 0.5  # most keep the whole neighbourhood
+
+
+def test_a_link_takes_the_smaller_step_of_its_two_ends():
+    from geomodel_ros.core.segmentation import _step_free
+
+    # Parallel faces 3 mm apart: a dense point (step 1 mm) and a sparse, noisy one (step
+    # 10 mm). The sparse end's noise does not hide the step from the dense end.
+    points = np.array([[0.0, 0.0, 0.0], [0.005, 0.0, 0.003]])
+    normals = np.array([UP, UP])
+    no_step = _step_free(points, normals, np.array([0, 1]), np.array([1, 0]),
+                         np.array([0.001, 0.01]))[2]
+    assert not no_step.any()
+    # Both ends noisy (10 mm): 3 mm is within their noise.
+    assert _step_free(points, normals, np.array([0]), np.array([1]), np.full(2, 0.01))[2][0]
