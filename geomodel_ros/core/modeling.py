@@ -275,10 +275,10 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
         raise InputError(f"organized_shape {organized_shape} does not match {len(pts)} points")
     rng = np.random.default_rng(params.seed if rng is None else rng)
     if len(pts) <= params.max_points:
-        return _segment_and_model(pts, params, rng)
+        return _segment_and_model(pts, params, rng, organized_shape)
     usable = in_range(pts, params.max_range)
     if np.count_nonzero(usable) <= params.max_points:
-        return _segment_and_model(pts, params, rng)
+        return _segment_and_model(pts, params, rng, organized_shape)
     t0 = time.perf_counter()
     ds = downsample(pts, np.flatnonzero(usable), params)
     del usable
@@ -292,11 +292,12 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
 
 
 def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
-                       rng: np.random.Generator) -> tuple[NDArray[np.int64], ModelingResult]:
+                       rng: np.random.Generator, organized_shape: tuple[int, int] | None = None
+                       ) -> tuple[NDArray[np.int64], ModelingResult]:
     """Segment ``pts`` (N, 3) [m] and model every segment (the body of :func:`model_scene`)."""
     from geomodel_ros.core.segmentation import segment_scene
 
-    seg = segment_scene(pts, params, rng=rng)
+    seg = segment_scene(pts, params, rng=rng, organized_shape=organized_shape)
     # The segmentation labels only finite rows within max_range: no further checks.
     t0 = time.perf_counter()
     result = _model_rows(pts, np.flatnonzero(seg.labels >= 0), seg.labels, None, params, rng,

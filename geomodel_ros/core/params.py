@@ -189,6 +189,12 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Clusters with fewer input points are noise (label -1)."),
     ParamSpec("seed", 0, "count", 0, 2**31 - 1,
               "Seed of the random generator used by RANSAC (results are reproducible)."),
+    ParamSpec("organized_fast_path", False, "", None, None,
+              "Segment organized clouds (an image of H x W points) on the image grid: working "
+              "points from pixel blocks, neighbours from a fixed pixel stencil, no voxel grid "
+              "nor nearest-neighbour search (about twice as fast; on real Kinect frames it "
+              "still under-segments more than the voxel path, see BENCHMARKS.md); false: every "
+              "cloud takes the voxel path."),
 )
 
 _SPECS: dict[str, ParamSpec] = {p.name: p for p in PARAMETERS}
@@ -260,6 +266,7 @@ class ModelingParams:
     seg_join_contained: bool = True
     seg_min_cluster_points: int = 150
     seed: int = 0
+    organized_fast_path: bool = False
 
     def __new__(cls, *args: Any, **kwargs: Any) -> ModelingParams:
         """Reject positional arguments and unknown names with a :class:`ParameterError`."""
