@@ -13,7 +13,9 @@ Marker layout of one frame (``primitives_to_markers``):
   ``TRIANGLE_LIST`` mesh for cones and frustums (side and caps, vertices in metres in the
   object's frame) and a small ``SPHERE`` at the centroid of ``unknown`` objects;
 * one ``TEXT_VIEW_FACING`` label per object in namespace ``"labels"`` (same id), e.g.
-  ``"cylinder r=50.0 h=60.0 mm"``, placed just above the object.
+  ``"cylinder r=50.0 h=60.0* mm, confidence 0.93"`` (type, sizes, ``*`` after a size
+  completed down to the support, the confidence when estimated), placed just above the
+  object.
 
 Units: metres and radians in, metres in the markers, millimetres only in label text.
 """
@@ -190,14 +192,24 @@ def _valid_dimensions(p: Primitive) -> bool:
     return all(math.isfinite(v) and v > 0.0 for v in values)
 
 
+def _confidence_text(p: Primitive) -> str:
+    """``", confidence 0.93"`` when the primitive has an estimated confidence, else ``""``."""
+    conf = getattr(p, "confidence", None)
+    value = None if conf is None else float(conf.value)
+    return "" if value is None or not math.isfinite(value) else f", confidence {value:.2f}"
+
+
 def _label_text(p: Primitive, valid: bool) -> str:
+    """Type, sizes in mm (``*``: completed down to the support) and confidence."""
     if p.type == "unknown":
-        return "unknown"
+        return "unknown" + _confidence_text(p)
     if not valid:
-        return f"{p.type} (invalid size)"
+        return f"{p.type} (invalid size)" + _confidence_text(p)
+    completed = set(getattr(p, "completed", ()))
     sizes = " ".join(f"{name[0]}={1000.0 * float(p.dimensions[name]):.1f}"
+                     + ("*" if name in completed else "")
                      for name in DIMENSION_NAMES[p.type])
-    return f"{p.type} {sizes} mm"
+    return f"{p.type} {sizes} mm" + _confidence_text(p)
 
 
 def _half_extent_along(p: Primitive, rotation: NDArray[np.float64], up: NDArray[np.float64],

@@ -23,8 +23,11 @@ The conventions are those documented in ``geomodel_msgs/msg/Primitive.msg`` (Mov
 Orientation: the unit quaternion of the core's rotation (nearest proper rotation, ``w >= 0``,
 :func:`msg_adapters.markers.rotation_to_quaternion`).
 
-``confidence`` is NaN: the core does not estimate a confidence of type and size yet (no
-per-object probability exists; the rmse and point count are published as they are).
+``confidence`` is the core's per-object confidence in [0, 1]
+(:mod:`geomodel_ros.core.confidence`; 0 for UNKNOWN), NaN for a primitive whose confidence
+was not estimated (built outside the modeling). ``dimension_completed`` says, in the order
+of ``dimension_names``, which sizes were completed down to a support plane because the
+object's lower part was hidden (the others were observed).
 """
 
 from __future__ import annotations
@@ -57,7 +60,7 @@ TYPE_CODES: dict[str, int] = {
 }
 _TYPE_NAMES: dict[int, str] = {v: k for k, v in TYPE_CODES.items()}
 
-#: Published ``confidence`` while the core estimates none (NaN = "not estimated").
+#: Published ``confidence`` of a primitive without one (NaN = "not estimated").
 CONFIDENCE_NOT_ESTIMATED: float = math.nan
 
 #: ``uint32`` fields (``id``, ``point_count``) hold values modulo 2**32.
@@ -107,8 +110,10 @@ def _primitive_msg(p: Primitive) -> PrimitiveMsg:
     type_name = str(getattr(p.type, "value", p.type))
     center = np.asarray(p.center, dtype=np.float64).reshape(3)
     rotation = np.asarray(p.rotation, dtype=np.float64).reshape(3, 3)
+    conf = getattr(p, "confidence", None)
     msg = PrimitiveMsg(id=int(p.id) % _UINT32, point_count=int(p.point_count) % _UINT32,
-                       rmse=float(p.rmse), confidence=CONFIDENCE_NOT_ESTIMATED,
+                       rmse=float(p.rmse),
+                       confidence=CONFIDENCE_NOT_ESTIMATED if conf is None else float(conf.value),
                        reason=str(p.reason), pose=_pose(center, rotation))
     if type_name not in TYPE_CODES or not _has_sizes(p, type_name):
         msg.type = PrimitiveMsg.UNKNOWN
@@ -118,6 +123,8 @@ def _primitive_msg(p: Primitive) -> PrimitiveMsg:
     msg.shape = _shape(type_name, p.dimensions)
     msg.dimensions = [float(p.dimensions[k]) for k in names]
     msg.dimension_names = list(names)
+    completed = set(getattr(p, "completed", ()))
+    msg.dimension_completed = [k in completed for k in names]
     if type_name == "plane":
         msg.plane = _plane_of(rotation[:, 2], center, is_d=False)
     return msg
@@ -174,9 +181,10 @@ def _dimensions_of(m: PrimitiveMsg) -> dict[str, float]:
 def objects_to_primitives(msg: PrimitiveArray) -> list[Primitive]:
     """Read the core primitives back from a ``PrimitiveArray`` (the inverse, for tools).
 
-    Centre, rotation (from the quaternion), dimensions (by ``dimension_names``), id,
-    point count, rmse and reason are restored; faces are not carried (empty).  Spheres and
-    UNKNOWN objects get the identity rotation of the core.
+    Centre, rotation (from the quaternion), dimensions (by ``dimension_names``), the
+    completed dimensions, id, point count, rmse and reason are restored; faces and the
+    confidence's terms are not carried (empty, None).  Spheres and UNKNOWN objects get the
+    identity rotation of the core.
     """
     out = []
     for m in msg.primitives:
@@ -186,6 +194,9 @@ def objects_to_primitives(msg: PrimitiveArray) -> list[Primitive]:
         rotation = _quaternion_to_rotation(m.pose.orientation)
         if type_name in ("sphere", "unknown"):
             rotation = np.eye(3)
+        completed = tuple(str(k) for k, done in zip(m.dimension_names, m.dimension_completed)
+                          if done)
         out.append(Primitive(int(m.id), type_name, center, rotation, _dimensions_of(m),
-                             int(m.point_count), float(m.rmse), reason=str(m.reason)))
+                             int(m.point_count), float(m.rmse), reason=str(m.reason),
+                             completed=completed))
     return out

@@ -32,7 +32,7 @@ OBJECTS_TYPE = "geomodel_msgs/msg/PrimitiveArray"
 #: NumPy dtype of each rosidl primitive type that rosbags stores in numpy arrays.
 _DTYPES = {"double": np.float64, "float": np.float32, "int8": np.int8, "uint8": np.uint8,
            "octet": np.uint8, "int16": np.int16, "uint16": np.uint16, "int32": np.int32,
-           "uint32": np.uint32, "int64": np.int64, "uint64": np.uint64}
+           "uint32": np.uint32, "int64": np.int64, "uint64": np.uint64, "boolean": np.bool_}
 #: ``sequence<T>``, ``sequence<T, N>`` (bounded) or ``T[N]`` (array) -> ``T``.
 _ELEMENT = re.compile(r"^sequence<([^,>]+)(?:, *\d+)?>$|^([^\[]+)\[\d+\]$")
 

@@ -79,8 +79,9 @@ def test_model_writes_json_and_ply(scene_files, capsys):
     assert {"modeling_s", "load_s", "reconstruction_s", "total_s"} <= set(result["timing"])
     assert [(o["id"], o["type"]) for o in result["objects"]] == [(0, "plane"), (1, "cuboid")]
     for o in result["objects"]:
-        assert set(o) == {"id", "type", "center", "rotation", "dimensions", "point_count",
-                          "rmse", "faces", "reason"}
+        assert set(o) == {"id", "type", "center", "rotation", "dimensions", "completed",
+                          "point_count", "rmse", "confidence", "confidence_terms", "faces",
+                          "reason"}
         assert o["type"] in PRIMITIVE_TYPES
         assert len(o["center"]) == 3
         rot = np.array(o["rotation"])

@@ -57,7 +57,8 @@ PRIMITIVE_FIELDS = {
     "id": "uint32", "type": "uint8", "shape": "shape_msgs/SolidPrimitive",
     "pose": "geometry_msgs/Pose", "plane": "shape_msgs/Plane",
     "dimensions": "sequence<double>", "dimension_names": "sequence<string>",
-    "rmse": "float", "point_count": "uint32", "confidence": "float", "reason": "string",
+    "dimension_completed": "sequence<boolean>", "rmse": "float", "point_count": "uint32",
+    "confidence": "float", "reason": "string",
 }
 SUPPORT_FIELDS = {"id": "uint32", "plane": "shape_msgs/Plane",
                   "supported_ids": "sequence<uint32>"}
@@ -72,7 +73,7 @@ def _primitive(pid, kind, shape_type, shape_dims, position, orientation, dims, *
              Primitive.CUBOID: ["length", "width", "height"],
              Primitive.CYLINDER: ["radius", "height"], Primitive.CONE: ["radius", "height"],
              Primitive.SPHERE: ["radius"],
-             Primitive.FRUSTUM: ["bottom_radius", "top_radius", "height"],
+             Primitive.FRUSTUM: ["radius", "top_radius", "height"],
              Primitive.UNKNOWN: []}[kind]
     return Primitive(
         id=pid, type=kind, shape=SolidPrimitive(type=shape_type, dimensions=shape_dims),
@@ -264,7 +265,7 @@ def test_primitive_array_crosses_processes_unchanged(delivered):
     assert list(cone.shape.dimensions) == [0.1, 0.04]
     cup = next(p for p in got.primitives if p.type == Primitive.FRUSTUM)
     assert dict(zip(cup.dimension_names, cup.dimensions)) == {
-        "bottom_radius": 0.045, "top_radius": 0.035, "height": 0.095}
+        "radius": 0.045, "top_radius": 0.035, "height": 0.095}
     assert list(got.support_surfaces[0].supported_ids) == [7, 8, 9, 12, 13]
     assert "µ" in cup.reason
     assert deserialize_message(raw[0], PrimitiveArray) == sent

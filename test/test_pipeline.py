@@ -41,8 +41,11 @@ def _check_schema(d: dict) -> None:
     assert set(d) == {"objects", "timing"}
     assert all(isinstance(v, float) and v >= 0 for v in d["timing"].values())
     for o in d["objects"]:
-        assert set(o) == {"id", "type", "center", "rotation", "dimensions", "point_count",
-                          "rmse", "faces", "reason"}
+        assert set(o) == {"id", "type", "center", "rotation", "dimensions", "completed",
+                          "point_count", "rmse", "confidence", "confidence_terms", "faces",
+                          "reason"}
+        assert set(o["completed"]) <= set(o["dimensions"])
+        assert 0.0 <= o["confidence"] <= 1.0
         assert isinstance(o["id"], int)
         assert o["type"] in PRIMITIVE_TYPES
         assert len(o["center"]) == 3 and all(isinstance(v, float) for v in o["center"])

@@ -184,7 +184,7 @@ def test_ros2_run_modeler(installed, tmp_path):
         desk = shapes["plane"]
         assert 1000 * np.array([desk.scale.x, desk.scale.y]) == pytest.approx([400, 400], abs=10)
         texts = [m.text for m in got.markers if m.ns == "labels"]
-        assert any(t.startswith("cuboid l=") and t.endswith(" mm") for t in texts), texts
+        assert any(t.startswith("cuboid l=") and " mm, confidence " in t for t in texts), texts
 
         assert rec.header.frame_id == "camera_optical"
         assert (rec.header.stamp.sec, rec.header.stamp.nanosec) == STAMP

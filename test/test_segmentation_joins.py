@@ -322,3 +322,73 @@ def test_round_footprint_rejects_what_is_no_container_wall(case):
                         np.column_stack([np.zeros_like(t), t])])
         n_xy = np.vstack([np.tile([0.0, -1.0], (100, 1)), np.tile([-1.0, 0.0], (100, 1))])
     assert _round_footprint(xy, n_xy) is None
+
+
+# ---------------------------------------------------------------------------------------
+# Steps and creases between patches (segmentation._step_free, _cut_steps, _patch_normals)
+# ---------------------------------------------------------------------------------------
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("p_j, n_j, convex, step", [
+    # Same plane: on each other's tangent plane.
+    ((0.005, 0.0, 0.0), (0.0, 0.0, 1.0), 0.0, False),
+    # Parallel faces 3 mm apart in height: one end 3 mm above the other's plane.
+    ((0.005, 0.0, 0.003), (0.0, 0.0, 1.0), 0.0, True),
+    # Convex edge (top face and a side facing +x): each end 5 mm below the other's plane.
+    ((0.005, 0.0, -0.005), (1.0, 0.0, 0.0), 0.01, False),
+    # Concave crease (floor and a wall facing -x): each end 5 mm above the other's plane.
+    ((0.005, 0.0, 0.005), (-1.0, 0.0, 0.0), -0.01, True),
+])
+def test_step_free_tells_a_step_from_a_plane_and_an_edge(p_j, n_j, convex, step):
+    from geomodel_ros.core.segmentation import _step_free
+
+    points = np.array([[0.0, 0.0, 0.0], p_j])
+    normals = np.array([UP, n_j])
+    below_i, below_j, no_step = _step_free(points, normals, np.array([0]), np.array([1]),
+                                           0.001)
+    assert below_i[0] + below_j[0] == pytest.approx(convex, abs=1e-12)
+    assert bool(no_step[0]) is not step
+
+
+def _grid(x0: float, x1: float, z: float, spacing: float = 0.004) -> np.ndarray:
+    x, y = np.meshgrid(np.arange(x0, x1, spacing), np.arange(0.0, 0.06, spacing))
+    return np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
+
+
+@pytest.mark.parametrize("height, pieces", [(0.0, 1), (0.003, 2)])
+def test_a_patch_is_cut_along_a_step_and_a_plane_is_not(height, pieces):
+    from geomodel_ros.core.faces import estimate_normals
+    from geomodel_ros.core.segmentation import _cut_steps
+
+    # Two flat strips side by side, the second `height` higher, taken as one patch (as
+    # the angle-only patch growing does: their normals are equal).
+    points = np.vstack([_grid(-0.06, 0.0, 0.0), _grid(0.0, 0.06, height)])
+    _, _, nbrs, sqdist = estimate_normals(points, 16, return_sqdist=True)
+    normals = np.tile(UP, (len(points), 1))
+    out = _cut_steps(points, normals, nbrs, sqdist, np.zeros(len(points), dtype=np.int64),
+                     0.01, 0.001)
+    assert len(np.unique(out)) == pieces
+    if pieces == 2:  # cut exactly along the step
+        assert len(np.unique(out[points[:, 0] < 0])) == 1
+        assert len(np.unique(out[points[:, 0] >= 0])) == 1
+
+
+def test_patch_normals_keep_each_face_apart_at_a_crease():
+    from geomodel_ros.core.faces import estimate_normals
+    from geomodel_ros.core.segmentation import _patch_normals
+
+    # A floor (z = 0, x < 0) meeting a wall (x = 0, z > 0) that faces -x, seen from
+    # (-1, 0, 1): the two faces are the two patches.
+    floor = _grid(-0.06, -0.002, 0.0)
+    wall = _grid(-0.06, -0.002, 0.0)[:, [2, 1, 0]] * np.array([1.0, 1.0, -1.0])
+    points = np.vstack([floor, wall]) - np.array([-1.0, 0.0, 1.0])  # sensor at the origin
+    patches = np.r_[np.zeros(len(floor)), np.ones(len(wall))].astype(np.int64)
+    raw, _, nbrs, _ = estimate_normals(points, 16, return_sqdist=True)
+    refined = _patch_normals(points, raw, nbrs, patches)
+    exact = np.where(patches[:, None] == 0, UP, np.array([-1.0, 0.0, 0.0]))
+    err = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", refined, exact), -1, 1)))
+    raw_err = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", raw, exact), -1, 1)))
+    assert raw_err.max() > 10.0  # the raw normals blend the faces along the crease
+    assert err.max() < 1e-6

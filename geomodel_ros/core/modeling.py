@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, with_confidence
 from geomodel_ros.core.errors import InputError, as_points
 from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane, build_faces
@@ -28,6 +29,7 @@ from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategi
 from geomodel_ros.core.input import downsample, in_range, working_params
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, ModelingResult, Primitive, PrimitiveType
+from geomodel_ros.core.view import SceneView
 
 __all__ = ["model_objects", "model_object", "model_scene", "estimate_spacing", "InputError"]
 
@@ -63,7 +65,7 @@ def _unknown(oid: int, points: NDArray[np.float64], reason: str,
              faces: tuple[FaceSummary, ...] = ()) -> Primitive:
     """Return an ``unknown`` object at the centroid of its ``points`` (n, 3)."""
     return Primitive(oid, PrimitiveType.UNKNOWN, centroid(points), np.eye(3), {}, len(points),
-                     0.0, faces, reason)
+                     0.0, faces, reason, confidence=UNKNOWN_CONFIDENCE)
 
 
 def _degenerate(points: NDArray[np.float64], params: ModelingParams) -> str | None:
@@ -82,7 +84,7 @@ def _degenerate(points: NDArray[np.float64], params: ModelingParams) -> str | No
 def model_object(points: NDArray[np.float64], object_id: int, params: ModelingParams,
                  rng: np.random.Generator, spacing: float,
                  face_labels: NDArray[np.int64] | None = None,
-                 supports: tuple[Plane, ...] = ()) -> Primitive:
+                 supports: tuple[Plane, ...] = (), view: SceneView | None = None) -> Primitive:
     """Model one segmented object.
 
     Parameters
@@ -97,6 +99,11 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
         Known faces; when absent faces are found by region growing.
     supports : tuple of (normal (3,), d) planes n . x + d = 0
         Support surfaces the object may rest on (they close its hidden bottom end).
+    view : SceneView, optional
+        The scene's returns, sensor at the origin: with it, an end hidden from the sensor
+        is completed down to the support beyond it (``Primitive.completed``).
+
+    The result's ``confidence`` is measured with ``ransac_threshold`` as the noise scale.
     """
     why = _degenerate(points, params)
     if why:
@@ -104,9 +111,11 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
     wc, faces, adjacency = build_faces(points, params, face_labels)
     if len(wc.points) < MIN_WORKING_POINTS or not faces:
         return _unknown(object_id, points, "too few distinct points after voxelization")
-    cloud = ObjectCloud(object_id, points, wc, faces, adjacency, spacing, params, rng, supports)
+    cloud = ObjectCloud(object_id, points, wc, faces, adjacency, spacing, params, rng, supports,
+                        view)
     prim, summaries, reasons = run_strategies(Situation(cloud, decide(cloud)))
     if prim is not None:
+        prim = with_confidence(prim, points, params.ransac_threshold)
         return dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons))
     return _unknown(object_id, points, "; ".join(reasons), summaries)
 
@@ -154,7 +163,8 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
                   bounds: tuple[NDArray[np.int64], NDArray[np.int64]],
                   flab: NDArray[np.int64] | None, params: ModelingParams,
                   rng: np.random.Generator,
-                  supports: dict[int, Plane] | None) -> list[Primitive]:
+                  supports: dict[int, Plane] | None,
+                  view: SceneView | None = None) -> list[Primitive]:
     """Model each group ``order[starts[k]:ends[k]]`` as object ``ids[k]``, in parallel."""
     starts, ends = bounds
     # One independent generator per object: results do not depend on the order in
@@ -169,7 +179,7 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
         oid = int(ids[k])
         planes = tuple(v for key, v in (supports or {}).items() if key != oid)
         return model_object(opts, oid, params, orng, estimate_spacing(opts, orng),
-                            None if flab is None else flab[sel], planes)
+                            None if flab is None else flab[sel], planes, view)
 
     workers = min(len(ids), os.cpu_count() or 1)
     if workers <= 1:
@@ -232,7 +242,11 @@ def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArr
     objects: list[Primitive] = []
     if idx_all.size:
         order, ids, starts, ends = _group_by_label(idx_all, lab[idx_all])
-        objects = _model_groups(pts, order, ids, (starts, ends), flab, params, rng, supports)
+        # Hidden ends are completed only where the sensor sits at the origin.
+        view = SceneView(pts, lab, params.max_range) if supports and \
+            params.reproject_along_rays else None
+        objects = _model_groups(pts, order, ids, (starts, ends), flab, params, rng, supports,
+                                view)
     return ModelingResult(objects, {"modeling_s": time.perf_counter() - t0})
 
 

@@ -8,8 +8,8 @@ from enum import Enum
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["PrimitiveType", "PRIMITIVE_TYPES", "DIMENSION_NAMES", "FaceSummary", "Primitive",
-           "ModelingResult"]
+__all__ = ["PrimitiveType", "PRIMITIVE_TYPES", "DIMENSION_NAMES", "FaceSummary", "Confidence",
+           "Primitive", "ModelingResult"]
 
 
 class PrimitiveType(str, Enum):
@@ -84,6 +84,40 @@ class FaceSummary:
 
 
 @dataclass(frozen=True)
+class Confidence:
+    """How far a modeled object's type and size can be trusted, and why.
+
+    ``value = inlier_ratio * 1 / (1 + rmse_ratio**2) * min(1, coverage / 0.5)``, the last
+    factor for round shapes only (:mod:`geomodel_ros.core.confidence`); 0 for ``unknown``.
+
+    Attributes
+    ----------
+    value : float
+        The confidence in [0, 1].
+    inlier_ratio : float
+        Share of the object's points within the noise scale of the fitted surface, [0, 1].
+    rmse_ratio : float or None
+        RMS distance to the fitted surface of the object's points near it (within three
+        noise scales) divided by the noise scale [1]; None when nothing was fitted.
+    coverage : float or None
+        Cylinder, cone: share of the full circle round the axis that the side's points
+        span; sphere: share of the sphere's directions (solid angle) they cover; in
+        [0, 1], at most about 0.5 from one viewpoint. None for other types.
+    """
+
+    value: float = 0.0
+    inlier_ratio: float = 0.0
+    rmse_ratio: float | None = None
+    coverage: float | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready terms (the value itself is the object's ``confidence``)."""
+        return {"inlier_ratio": float(self.inlier_ratio),
+                "rmse_ratio": None if self.rmse_ratio is None else float(self.rmse_ratio),
+                "coverage": None if self.coverage is None else float(self.coverage)}
+
+
+@dataclass(frozen=True)
 class Primitive:
     """A modeled object.
 
@@ -114,6 +148,12 @@ class Primitive:
         The object's faces.
     reason : str
         Why the type was chosen or rejected (human readable).
+    completed : tuple[str, ...]
+        Names of the dimensions that were completed down to a support plane because the
+        object's lower part was hidden (the others were observed).
+    confidence : Confidence or None
+        The modeling's confidence in type and size; None when not estimated (primitives
+        built outside the modeling, e.g. read back from messages).
     """
 
     id: int
@@ -125,6 +165,8 @@ class Primitive:
     rmse: float
     faces: tuple[FaceSummary, ...] = ()
     reason: str = ""
+    completed: tuple[str, ...] = ()
+    confidence: Confidence | None = None
 
     def __post_init__(self) -> None:
         """Hold a known type name as its :class:`PrimitiveType`."""
@@ -133,15 +175,24 @@ class Primitive:
             object.__setattr__(self, "type", _TYPE_BY_NAME[self.type])
 
     def to_dict(self) -> dict:
-        """JSON-ready dictionary (the CLI's output schema)."""
+        """JSON-ready dictionary (the CLI's output schema).
+
+        ``completed`` lists the dimensions completed down to a support (the others were
+        observed); ``confidence`` is the value in [0, 1] (null when not estimated) and
+        ``confidence_terms`` its terms (:meth:`Confidence.to_dict`).
+        """
+        conf = self.confidence
         return {
             "id": int(self.id),
             "type": str(self.type),
             "center": [float(v) for v in self.center],
             "rotation": [[float(v) for v in row] for row in self.rotation],
             "dimensions": {k: float(v) for k, v in self.dimensions.items()},
+            "completed": list(self.completed),
             "point_count": int(self.point_count),
             "rmse": float(self.rmse),
+            "confidence": None if conf is None else float(conf.value),
+            "confidence_terms": None if conf is None else conf.to_dict(),
             "faces": [f.to_dict() for f in self.faces],
             "reason": self.reason,
         }

@@ -16,6 +16,7 @@ from geomodel_ros.core.model_graph import FaceInfo
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary
 from geomodel_ros.core.surface_type import face_feature
+from geomodel_ros.core.view import SceneView
 
 __all__ = ["Plane", "ObjectFace", "ObjectCloud", "build_faces", "as_planar"]
 
@@ -68,6 +69,8 @@ class ObjectCloud:
     params : ModelingParams
     rng : numpy Generator (the object's own stream)
     supports : tuple of Plane, support planes the object may rest on
+    view : SceneView or None, the scene's returns (sensor at the origin) for completing
+        hidden ends; None when unknown
     center : (3,) float64 [m], centroid of ``points``
     """
 
@@ -80,6 +83,7 @@ class ObjectCloud:
     params: ModelingParams
     rng: np.random.Generator
     supports: tuple[Plane, ...] = ()
+    view: SceneView | None = None
     center: NDArray[np.float64] = field(init=False)
 
     def __post_init__(self) -> None:

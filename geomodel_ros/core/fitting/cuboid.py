@@ -8,11 +8,12 @@ from numpy.typing import NDArray
 from geomodel_ros.core import obb
 from geomodel_ros.core.fastmath import take_rows
 from geomodel_ros.core.fitting.cloud import ObjectCloud
+from geomodel_ros.core.fitting.completion import complete_box
 from geomodel_ros.core.fitting.measure import nearest_surface, rms, without_strays
 from geomodel_ros.core.fitting.plane import RAY_SHIFT_FACTOR, plane_from_face
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted
 from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR, check_coverage, check_inlier_ratio
-from geomodel_ros.core.primitives import Primitive, PrimitiveType
+from geomodel_ros.core.primitives import DIMENSION_NAMES, Primitive, PrimitiveType
 from geomodel_ros.core.ransac import PlaneModel, refine
 
 __all__ = ["fit_cuboid"]
@@ -98,7 +99,9 @@ def fit_cuboid(task: FitTask) -> FitOutcome:
 
     Sliver faces (axis -1) fit no axis; their points join the nearest real face. Every
     point goes to its nearest face plane (edge points may sit in the wrong face); points
-    far from every face (flying pixels, strays) take no part in the sizing.
+    far from every face (flying pixels, strays) take no part in the sizing. An end hidden
+    from the sensor above a support plane is completed down to it
+    (:func:`~geomodel_ros.core.fitting.completion.complete_box`).
     """
     cloud, axis_of_face = task.cloud, task.axis_of_face
     keep = [i for i, a in enumerate(axis_of_face) if a >= 0]
@@ -115,8 +118,11 @@ def fit_cuboid(task: FitTask) -> FitOutcome:
     if bad:
         return bad
     lo, hi = _box_extent(cloud, planes, assign, rot, nearest)
+    lo, hi, completed = complete_box(cloud, rot, lo, hi)
     ext = hi - lo
+    names = DIMENSION_NAMES[CUBOID]
     prim = Primitive(cloud.oid, CUBOID, rot @ ((lo + hi) / 2), rot,
-                     {"length": float(ext[0]), "width": float(ext[1]), "height": float(ext[2])},
-                     len(cloud.points), rms(nearest_dist))
+                     {name: float(e) for name, e in zip(names, ext)},
+                     len(cloud.points), rms(nearest_dist),
+                     completed=tuple(names[a] for a in sorted(completed)))
     return Fitted(prim, "cuboid verified")

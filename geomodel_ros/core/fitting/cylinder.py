@@ -9,6 +9,7 @@ from numpy.typing import NDArray
 
 from geomodel_ros.core import obb
 from geomodel_ros.core.fitting.axial import axial_extent, verified_side
+from geomodel_ros.core.fitting.completion import complete_axial
 from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
 from geomodel_ros.core.fitting.measure import bulk_extent
 from geomodel_ros.core.fitting.orient import axis_toward_sensor
@@ -70,8 +71,10 @@ def fit_cylinder(task: FitTask) -> FitOutcome:
         return bad
     if hi - lo <= 0:
         return Rejected(CYLINDER, "cylinder has no height")
+    # After the bulk check: a completed height is longer than the points' bulk.
+    lo, hi, completed = complete_axial(cloud, model.point, axis, model.radius, lo, hi)
     axis, lo, hi = axis_toward_sensor(axis, model.point, lo, hi)
     prim = Primitive(cloud.oid, CYLINDER, model.point + axis * (lo + hi) / 2, frame_with_z(axis),
                      {"radius": float(model.radius), "height": float(hi - lo)},
-                     len(cloud.points), side.rmse)
+                     len(cloud.points), side.rmse, completed=("height",) if completed else ())
     return Fitted(prim, "cylinder verified")

@@ -1,6 +1,7 @@
 """Synthetic depth-camera data with exact ground truth.
 
-Analytic shapes, the ray-casting pinhole camera and the paper's desk scenes.
+Analytic shapes, the ray-casting pinhole camera, the paper's desk scenes and seeded
+cluttered tabletop scenes (:mod:`geomodel_ros.tools.synth.clutter`).
 
 ROS-free (numpy only).  Typical use::
 
@@ -10,6 +11,7 @@ ROS-free (numpy only).  Typical use::
 """
 
 from .camera import DEFAULT_CHUNK_SIZE, PinholeCamera
+from .clutter import KINECT_CAMERA, KINECT_NOISE, OpenFrustum, render_clutter, render_layout
 from .scenes import (
     DESK_CENTER,
     DESK_NORMAL,
@@ -57,4 +59,9 @@ __all__ = [
     "scene_geometry",
     "render_scene",
     "apply_noise",
+    "OpenFrustum",
+    "KINECT_CAMERA",
+    "KINECT_NOISE",
+    "render_clutter",
+    "render_layout",
 ]

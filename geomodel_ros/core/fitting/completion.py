@@ -1,0 +1,323 @@
+"""Support-aware sizes: an object's hidden lower part extends down to the support it rests on.
+
+A camera looking down at a box on a desk sees its top and sides down to the desk, unless
+something nearer hides the lower part (another object, the desk's edge). Then the box's
+points stop above the desk and its height comes out short. When a support plane (desk,
+shelf, floor) lies beyond an open end of an object along an axis perpendicular to it, the
+end is *completed* down to the plane if the evidence says the part in between is hidden
+and not empty:
+
+* the sensor cannot have seen the gap: of the rays to the sides of the hypothesised
+  extension that face the sensor, at least MIN_KNOWN_SHARE have a return (the object's
+  own points in front of a side do not count: an object hides the space behind itself,
+  which is no evidence), and at most MAX_THROUGH_SHARE of those lie behind the sides (a
+  floating object shows the support or the background through the gap);
+* nothing else holds the object up short of the plane: no surface of other points at the
+  object's observed end under or right beside its footprint (within the contact
+  tolerance: a ledge, such as the top of a box it stands on);
+* the hypothesised extension is empty: no other points inside it.
+
+Ends within the contact tolerance of a plane are closed by it as before
+(:meth:`~geomodel_ros.core.fitting.cloud.ObjectCloud.support_ends`) and count as
+observed. Without a :class:`~geomodel_ros.core.view.SceneView` (no scene, or the cloud is
+not in the sensor's frame) nothing is completed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from geomodel_ros.core.fitting.cloud import SUPPORT_END_FACTOR, ObjectCloud
+from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR
+from geomodel_ros.core.geometry import frame_with_z
+
+__all__ = ["Section", "RectangleSection", "CircleSection", "Extension", "plane_beyond",
+           "hidden_extension", "complete_box", "complete_axial"]
+
+#: Angular cell of the ray look-up, in median point spacings of the object (at its
+#: range): a surface facing the sensor leaves about four returns per cell, so no cell on
+#: it is empty.
+CELL_SPACINGS = 2.0
+#: Probe rays: this many steps across the gap along the axis, this many across each flat
+#: side of a box, this many round a cylinder (enough that a few stray returns cannot
+#: decide; the test costs a few milliseconds per candidate object).
+PROBE_STEPS = 8
+PROBE_ACROSS = 8
+PROBE_ANGLES = 32
+#: The gap is judged hidden when at most this share of the probe rays with a return see
+#: through the hypothesised sides (rays that graze a side at the silhouette may pass an
+#: occluder's edge) ...
+MAX_THROUGH_SHARE = 0.2
+#: ... and at least this share of the probe rays have a return (holes and dropouts
+#: decide nothing).
+MIN_KNOWN_SHARE = 0.5
+#: Fewest other returns on a ledge or inside the extension that count as a surface (a few
+#: flying pixels do not).
+MIN_OTHER_RETURNS = 20
+
+
+class Section(Protocol):
+    """Cross-section of an object perpendicular to its axis, in (s1, s2) coordinates [m]."""
+
+    def outline(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Points (k, 2) on the outline and their outward unit normals (k, 2)."""
+
+    def contains(self, s: NDArray[np.float64], margin: float) -> NDArray[np.bool_]:
+        """Whether the points ``s`` (m, 2) lie inside by more than ``margin`` [m]."""
+
+    def outside(self, s: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Distance [m] (m,) of ``s`` (m, 2) [m] outside the section (0 inside)."""
+
+    def centre(self) -> NDArray[np.float64]:
+        """Centre (2,) [m] of the section."""
+
+
+@dataclass(frozen=True)
+class RectangleSection:
+    """A box's cross-section: [lo1, hi1] x [lo2, hi2] [m]."""
+
+    lo: NDArray[np.float64]
+    hi: NDArray[np.float64]
+
+    def outline(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Sample each of the four sides at PROBE_ACROSS points; normals outwards."""
+        f = (np.arange(PROBE_ACROSS) + 0.5) / PROBE_ACROSS
+        pts, normals = [], []
+        for k in range(2):
+            j = 1 - k
+            along = self.lo[j] + f * (self.hi[j] - self.lo[j])
+            for side, sign in ((self.lo[k], -1.0), (self.hi[k], 1.0)):
+                p = np.empty((PROBE_ACROSS, 2))
+                p[:, k], p[:, j] = side, along
+                n = np.zeros((PROBE_ACROSS, 2))
+                n[:, k] = sign
+                pts.append(p)
+                normals.append(n)
+        return np.concatenate(pts), np.concatenate(normals)
+
+    def contains(self, s: NDArray[np.float64], margin: float) -> NDArray[np.bool_]:
+        """Inside the rectangle shrunk by ``margin`` on every side."""
+        return np.all((s > self.lo + margin) & (s < self.hi - margin), axis=1)
+
+    def outside(self, s: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Distance outside the rectangle."""
+        return np.linalg.norm(np.maximum(np.maximum(self.lo - s, s - self.hi), 0.0), axis=1)
+
+    def centre(self) -> NDArray[np.float64]:
+        """Centre of the rectangle."""
+        return (self.lo + self.hi) / 2
+
+
+@dataclass(frozen=True)
+class CircleSection:
+    """A cylinder's cross-section: a circle of ``radius`` [m] round (0, 0)."""
+
+    radius: float
+
+    def outline(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Sample the circle at PROBE_ANGLES points."""
+        a = np.arange(PROBE_ANGLES) * (2.0 * math.pi / PROBE_ANGLES)
+        n = np.column_stack([np.cos(a), np.sin(a)])
+        return self.radius * n, n
+
+    def contains(self, s: NDArray[np.float64], margin: float) -> NDArray[np.bool_]:
+        """Inside the circle shrunk by ``margin``."""
+        return np.linalg.norm(s, axis=1) < self.radius - margin
+
+    def outside(self, s: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Distance outside the circle."""
+        return np.maximum(np.linalg.norm(s, axis=1) - self.radius, 0.0)
+
+    def centre(self) -> NDArray[np.float64]:
+        """Return the axis: (0, 0)."""
+        return np.zeros(2)
+
+
+@dataclass(frozen=True)
+class Extension:
+    """The part an object would gain between its observed end and a support plane.
+
+    Attributes
+    ----------
+    frame : (3, 3) float64
+        Columns s1, s2 (the section's axes) and the object's axis.
+    origin : (3,) float64 [m]
+        Point at which local coordinates are zero.
+    section : Section
+    t_end, t_plane : float [m]
+        Axial coordinates of the observed end and of the support plane on the axis.
+    """
+
+    frame: NDArray[np.float64]
+    origin: NDArray[np.float64]
+    section: Section
+    t_end: float
+    t_plane: float
+
+    def local(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Local coordinates (m, 3) (s1, s2, t) of the points ``x`` (m, 3) [m]."""
+        return (x - self.origin) @ self.frame
+
+    def diameter(self) -> float:
+        """Largest width [m] of the section (its outline's extent)."""
+        s, _ = self.section.outline()
+        return float(np.linalg.norm(s.max(axis=0) - s.min(axis=0)))
+
+    def end_centre(self) -> NDArray[np.float64]:
+        """Centre (3,) [m] of the section at the observed end."""
+        c = self.section.centre()
+        return self.origin + c[0] * self.frame[:, 0] + c[1] * self.frame[:, 1] + \
+            self.t_end * self.frame[:, 2]
+
+    def probes(self) -> NDArray[np.float64]:
+        """Points (k, 3) [m] on the extension's sides that face the sensor (at the origin)."""
+        s, n = self.section.outline()
+        f = (np.arange(PROBE_STEPS) + 0.5) / PROBE_STEPS
+        t = self.t_end + f * (self.t_plane - self.t_end)
+        u, v, w = self.frame[:, 0], self.frame[:, 1], self.frame[:, 2]
+        on_side = self.origin + s[:, :1] * u + s[:, 1:] * v
+        normals = n[:, :1] * u + n[:, 1:] * v
+        pts = on_side[:, None, :] + t[None, :, None] * w
+        facing = np.einsum("kj,kij->ki", normals, pts) < 0.0
+        return pts[facing]
+
+
+def plane_beyond(cloud: ObjectCloud, axis: NDArray[np.float64], origin: NDArray[np.float64],
+                 ref: NDArray[np.float64], lo: float, hi: float) -> tuple[int, float] | None:
+    """Find the nearest support plane beyond an end of [lo, hi] along ``axis`` (3,).
+
+    Coordinates are ``(x - origin) . axis`` [m]; the plane is crossed on the axis line
+    through ``ref`` (3,). Only planes perpendicular to the axis (within
+    ``angle_tolerance``), with ``ref`` on their sensor side, beyond the contact tolerance
+    (SUPPORT_END_FACTOR ``seg_plane_threshold``) of an end count. Returns (0 for the low
+    end or 1 for the high end, the plane's coordinate), or None.
+    """
+    params = cloud.params
+    tol = SUPPORT_END_FACTOR * params.seg_plane_threshold
+    best: tuple[float, int, float] | None = None
+    for n, d in cloud.supports:
+        c, above = float(n @ axis), float(n @ ref) + d
+        if abs(c) < math.cos(params.angle_tolerance) or above <= 0.0:
+            continue
+        t = float((ref - origin) @ axis) - above / c
+        gap = lo - t if t < lo else t - hi
+        if gap > tol and (best is None or gap < best[0]):
+            best = (gap, 0 if t < lo else 1, t)
+    return None if best is None else best[1:]
+
+
+def hidden_extension(cloud: ObjectCloud, ext: Extension) -> bool:
+    """Return True when the evidence says ``ext`` is a hidden part of the object.
+
+    See the module docstring: rays to its sensor-facing sides blocked (not seen
+    through), no ledge of other returns at the observed end, nothing else inside it.
+    """
+    view = cloud.view
+    probes = ext.probes()
+    if view is None or len(probes) == 0:
+        return False
+    rng = float(np.linalg.norm(cloud.center))
+    cell = CELL_SPACINGS * cloud.spacing / max(rng, np.finfo(float).tiny)
+    contact = SUPPORT_END_FACTOR * cloud.params.seg_plane_threshold
+    # The look-up also covers the outline at the observed end, grown by the contact
+    # tolerance (where a ledge would be), and returns the points in the range band of
+    # the extension (for the ledge and occupancy tests).
+    ring = ext.end_centre() + _outline_world(ext, contact)
+    r_probes = np.linalg.norm(probes, axis=1)
+    band = (float(r_probes.min()) - contact, float(r_probes.max()) + ext.diameter() + contact)
+    got = view.returns(np.concatenate([probes, ring]), cell, band)
+    nearest, r_t = got.nearest[:len(probes)], got.ranges[:len(probes)]
+    # A return counts as on a side within the sizing's outlier band, plus the depth
+    # spread of one cell on a surface seen at an angle.
+    tol = OUTLIER_FACTOR * cloud.params.ransac_threshold + cell * r_t
+    # The object's own points in front of a probe hide it from itself, which says nothing
+    # about what lies there (the gap behind a box towards a wall).
+    own = (got.nearest_label[:len(probes)] == cloud.oid) & (nearest < r_t - tol)
+    known = np.isfinite(nearest) & ~own
+    through = int(np.count_nonzero(nearest[known] > (r_t + tol)[known]))
+    n_known = int(np.count_nonzero(known))
+    if n_known < MIN_KNOWN_SHARE * len(probes) or through > MAX_THROUGH_SHARE * n_known:
+        return False
+    return not _held_or_filled(cloud, ext, got.points[got.labels != cloud.oid])
+
+
+def _outline_world(ext: Extension, grow: float) -> NDArray[np.float64]:
+    """Return the section's outline (k, 3) [m] grown by ``grow`` [m], from its centre."""
+    s, n = ext.section.outline()
+    s = s - ext.section.centre() + grow * n
+    return s[:, :1] * ext.frame[:, 0] + s[:, 1:] * ext.frame[:, 1]
+
+
+def _held_or_filled(cloud: ObjectCloud, ext: Extension, others: NDArray[np.float64]) -> bool:
+    """Whether other returns (k, 3) form a ledge at the observed end or fill the extension."""
+    tol = SUPPORT_END_FACTOR * cloud.params.seg_plane_threshold
+    q = ext.local(others)
+    t = q[:, 2]
+    at_end = np.abs(t - ext.t_end) <= tol
+    ledge = at_end & (ext.section.outside(q[:, :2]) <= tol)  # under or right beside it
+    lo, hi = sorted((ext.t_end, ext.t_plane))
+    between = (t > lo + tol) & (t < hi - tol)
+    inside = between & ext.section.contains(q[:, :2], tol)
+    return int(np.count_nonzero(ledge)) >= MIN_OTHER_RETURNS or \
+        int(np.count_nonzero(inside)) >= MIN_OTHER_RETURNS
+
+
+def complete_box(cloud: ObjectCloud, rot: NDArray[np.float64], lo: NDArray[np.float64],
+                 hi: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], tuple[int, ...]]:
+    """Extend a box's hidden ends down to the support planes beyond them.
+
+    Parameters
+    ----------
+    rot : (3, 3) float64
+        Box axes (columns); box coordinates are ``x @ rot``.
+    lo, hi : (3,) float64 [m]
+        The box's ends along its axes.
+
+    Returns
+    -------
+    lo, hi : (3,) float64 [m]
+        The ends, completed where the evidence says so.
+    completed : tuple of int
+        The axes whose extent was completed.
+    """
+    lo, hi = lo.copy(), hi.copy()
+    done = []
+    for a in range(3):
+        b, c = (a + 1) % 3, (a + 2) % 3
+        centre = rot @ ((lo + hi) / 2)
+        beyond = plane_beyond(cloud, rot[:, a], np.zeros(3), centre, lo[a], hi[a])
+        if beyond is None:
+            continue
+        end, t_plane = beyond
+        frame = np.column_stack([rot[:, b], rot[:, c], rot[:, a]])
+        section = RectangleSection(np.array([lo[b], lo[c]]), np.array([hi[b], hi[c]]))
+        ends = lo if end == 0 else hi
+        if hidden_extension(cloud, Extension(frame, np.zeros(3), section, float(ends[a]),
+                                             t_plane)):
+            ends[a] = t_plane
+            done.append(a)
+    return lo, hi, tuple(done)
+
+
+def complete_axial(cloud: ObjectCloud, origin: NDArray[np.float64], axis: NDArray[np.float64],
+                   radius: float, lo: float, hi: float) -> tuple[float, float, bool]:
+    """Extend a standing cylinder's hidden end down to the support plane beyond it.
+
+    The side ``origin + t * axis``, ``lo <= t <= hi`` [m], of ``radius`` [m]. A lying
+    cylinder (axis parallel to the support) has no plane beyond its ends and is returned
+    unchanged. Returns the ends and whether one was completed.
+    """
+    beyond = plane_beyond(cloud, axis, origin, origin + axis * (lo + hi) / 2, lo, hi)
+    if beyond is None:
+        return lo, hi, False
+    end, t_plane = beyond
+    ext = Extension(frame_with_z(axis), origin, CircleSection(radius), (lo, hi)[end], t_plane)
+    if not hidden_extension(cloud, ext):
+        return lo, hi, False
+    return (t_plane, hi, True) if end == 0 else (lo, t_plane, True)
