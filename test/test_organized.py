@@ -3,7 +3,7 @@
 Unit level on hand-built organized planes (pixel spacing, block size, stencil, working
 points, links and normals worked out by hand), then the two paths of ``segment_scene`` /
 ``model_scene`` against each other on rendered organized scenes and their unorganized
-copies, and the known gap on a real Kinect frame and a touching scene.
+copies, and on real Kinect frames (one the fast path segments, one it still merges).
 """
 
 from __future__ import annotations
@@ -264,13 +264,26 @@ def test_model_scene_hands_the_shape_to_the_segmentation(monkeypatch):
     assert calls == [shape, shape]
 
 
-@pytest.mark.xfail(strict=True, reason="known gap of the fast path: the box behind the "
-                   "cylinder joins it (the voxel path keeps 4 objects)")
 def test_touching_scene_same_objects_on_both_paths():
+    # Box face to face with a box, cylinder against a box: the concave creases and the
+    # steps keep all three apart on both paths.
     voxel = dataclasses.replace(FAST, organized_fast_path=False)
-    n_v = len(_objects("touching", None, voxel)[2].objects)
-    n_g = len(_objects("touching", None, FAST)[2].objects)
-    assert n_g == n_v
+    types_v = sorted(o.type for o in _objects("touching", None, voxel)[2].objects)
+    types_g = sorted(o.type for o in _objects("touching", None, FAST)[2].objects)
+    assert types_g == types_v == ["cuboid", "cuboid", "cylinder", "plane"]
+
+
+@pytest.mark.xfail(strict=True, reason="known gap of the fast path on real Kinect frames: "
+                   "the two stacked boxes of learn17 come out as one segment (the voxel "
+                   "path keeps them apart)")
+def test_real_kinect_stacked_boxes_apart():
+    path = require(data_dir() / "osd_learn" / "learn17.pcd")
+    points, gt = load_osd(path)
+    params = dataclasses.replace(load_params_file(CONFIG_DIR / "kinect.yaml"),
+                                 organized_fast_path=True)
+    seg = segment_scene(points.reshape(480, 640, 3), params)
+    scores = segmentation_scores(seg.labels, gt, [int(g) for g in np.unique(gt) if g >= 2])
+    assert min(s.iou for s in scores) >= 0.8
 
 
 def test_real_kinect_frame_two_boxes():
