@@ -7,13 +7,13 @@ one-line message and string key/values, as ``/diagnostics`` carries them.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Final
+from typing import Any, Final
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from .header import time_from_ns
 
-__all__ = ["LEVELS", "diagnostics_message", "read_status_values"]
+__all__ = ["LEVELS", "diagnostics_message", "noise_values", "read_status_values"]
 
 #: Level names -> ``DiagnosticStatus`` level bytes.
 LEVELS: Final[Mapping[str, bytes]] = {"ok": DiagnosticStatus.OK,
@@ -50,6 +50,33 @@ def diagnostics_message(name: str, hardware_id: str, level: str, message: str,
     msg = DiagnosticArray(status=[status])
     msg.header.stamp = time_from_ns(stamp_ns)
     return msg
+
+
+def noise_values(noise: Any, fragments: int) -> dict[str, str]:
+    """Key/values of a frame's noise estimate and fragment count for a status report.
+
+    Parameters
+    ----------
+    noise : geomodel_ros.core.noise.NoiseEstimate or None
+        The frame's estimate (None with ``noise_model = fixed``: only the fragments).
+    fragments : int
+        Segments left out of the objects as too small.
+
+    Returns
+    -------
+    dict of str to str
+        ``noise_sigma_a_m``, ``noise_sigma_b_per_m`` (sigma(z) = a + b z^2 [m]),
+        ``noise_sigma_at_1m_m``, ``noise_spacing_per_m``, ``noise_samples`` and
+        ``fragments``, in that order.
+    """
+    values: dict[str, str] = {}
+    if noise is not None:
+        values = {"noise_sigma_a_m": f"{noise.a:.6f}", "noise_sigma_b_per_m": f"{noise.b:.6f}",
+                  "noise_sigma_at_1m_m": f"{noise.sigma(1.0):.6f}",
+                  "noise_spacing_per_m": f"{noise.spacing_per_m:.6f}",
+                  "noise_samples": str(int(noise.samples))}
+    values["fragments"] = str(int(fragments))
+    return values
 
 
 def read_status_values(msg: DiagnosticArray, hardware_suffix: str) -> dict[str, str] | None:

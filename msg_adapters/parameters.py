@@ -28,7 +28,10 @@ def spec_descriptor(spec: ParamSpec) -> ParameterDescriptor:
     rng = "" if spec.low is None and spec.high is None else f" Range [{spec.low}, {spec.high}]."
     d = ParameterDescriptor(name=spec.name, description=f"{spec.description}{unit}{rng}")
     bounded = spec.low is not None or spec.high is not None
-    if spec.type is bool:
+    if spec.type is str:
+        d.type = ParameterType.PARAMETER_STRING
+        d.additional_constraints = f"one of: {', '.join(spec.choices or ())}"
+    elif spec.type is bool:
         d.type = ParameterType.PARAMETER_BOOL
     elif spec.type is int:
         d.type = ParameterType.PARAMETER_INTEGER

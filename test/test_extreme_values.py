@@ -46,7 +46,7 @@ def near_result(scene):
 def _garbage(rng: np.random.Generator, n: int) -> np.ndarray:
     """Rows that must all be dropped: far, huge, overflowing, NaN and inf (n, 3) [m]."""
     far = rng.normal(size=(n, 3))
-    far *= rng.choice([11.0, 1e3, 1e9, 1e200], size=(n, 1)) / np.linalg.norm(far, axis=1,
+    far *= rng.choice([21.0, 1e3, 1e9, 1e200], size=(n, 1)) / np.linalg.norm(far, axis=1,
                                                                             keepdims=True)
     far[0] = [np.nan, 0.1, 0.5]
     far[1] = [np.inf, 0.0, 0.0]
@@ -82,7 +82,7 @@ def test_cli_on_a_cloud_of_1e9_coordinates_exits_0_and_says_the_points_were_igno
     assert code == 0
     assert "Traceback" not in err
     assert err.splitlines() == [
-        "geomodel: warning: 2000 of 2000 points are farther than max_range = 10 m from the "
+        "geomodel: warning: 2000 of 2000 points are farther than max_range = 20 m from the "
         "origin and were ignored"]
     assert out.startswith("0 objects (no objects)")
     assert json.loads(out_json.read_text())["objects"] == []
@@ -92,7 +92,8 @@ def test_cli_reports_a_grid_too_large_as_one_error_line(tmp_path, capsys):
     pts = np.random.default_rng(1).uniform(-5e4, 5e4, size=(500, 3))   # all within 1e5 m
     np.save(tmp_path / "cloud.npy", pts)
     code = main(["model", str(tmp_path / "cloud.npy"), "--json", str(tmp_path / "o.json"),
-                 "--set", "max_range=1e5", "--set", "seg_voxel_size=0.0005"])
+                 "--set", "max_range=1e5", "--set", "seg_voxel_size=0.0005",
+                 "--set", "noise_model=fixed"])
     _, err = capsys.readouterr()
     assert code == 2
     assert "Traceback" not in err
@@ -209,13 +210,14 @@ def test_largest_max_range_models_the_scene_like_the_default(scene, near_result)
 
 def test_huge_range_with_tiny_voxels_raises_input_error_naming_the_parameters():
     pts = np.random.default_rng(5).uniform(-5e4, 5e4, size=(3000, 3))
-    # 1e5 m / 5e-4 m = 2e8 cells per axis, 8e24 in the box: more than int64 holds.
-    params = ModelingParams(max_range=1e5, seg_voxel_size=0.0005)
+    # 1e5 m / 5e-4 m = 2e8 cells per axis, 8e24 in the box: more than int64 holds. (With
+    # noise_model auto the voxels would follow the sparse sampling of such a cloud.)
+    params = ModelingParams(max_range=1e5, seg_voxel_size=0.0005, noise_model="fixed")
     with pytest.raises(InputError, match="max_range.*seg_voxel_size"):
         model_scene(pts, params)
     with pytest.raises(InputError, match="voxel_size"):
         model_objects(pts, np.zeros(len(pts), dtype=np.int64),
-                      ModelingParams(max_range=1e5, voxel_size=0.0002))
+                      ModelingParams(max_range=1e5, voxel_size=0.0002, noise_model="fixed"))
 
 
 def test_voxelize_checks_the_grid_in_floats_before_integer_arithmetic():
@@ -361,7 +363,7 @@ def test_node_models_a_frame_without_its_far_points(make_node, scene, near_resul
 def test_node_skips_a_frame_too_large_for_the_voxel_grid_with_a_warning(make_node, capfd):
     from ros_helpers import wait_until
 
-    h = make_node(max_range=1e5, seg_voxel_size=0.0005)
+    h = make_node(max_range=1e5, seg_voxel_size=0.0005, noise_model="fixed")
     pts = np.random.default_rng(9).uniform(-5e4, 5e4, size=(3000, 3))
     h.publish_and_wait_received(_cloud(pts, sec=1))
     wait_until(lambda: h.node.stats().failed == 1, "the frame to be counted as failed")

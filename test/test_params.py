@@ -73,6 +73,10 @@ def test_every_numeric_parameter_has_a_range_unit_and_description():
         if spec.type is bool:
             assert spec.low is None and spec.high is None
             continue
+        if spec.type is str:
+            # A choice: no range or unit; its default is one of its choices.
+            assert spec.low is None and spec.high is None and spec.default in spec.choices
+            continue
         assert spec.unit, spec.name
         assert spec.low is not None and spec.high is not None, spec.name
         assert spec.low <= spec.default <= spec.high, spec.name

@@ -38,7 +38,8 @@ def _gt(scene, oid):
 
 
 def _check_schema(d: dict) -> None:
-    assert set(d) == {"objects", "timing"}
+    assert set(d) == {"objects", "noise", "fragments", "timing"}
+    assert d["noise"] is None or all(math.isfinite(v) for v in d["noise"].values())
     assert all(isinstance(v, float) and v >= 0 for v in d["timing"].values())
     for o in d["objects"]:
         assert set(o) == {"id", "type", "center", "rotation", "dimensions", "completed",

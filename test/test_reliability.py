@@ -529,6 +529,8 @@ def test_reconstruction_of_a_large_plane_is_bounded():
 def _bad_values(spec):
     if spec.type is bool:
         return [1, 0, "true", None, 1.0]
+    if spec.type is str:
+        return ["fast", "", "AUTO", None, 1.0, True, [spec.default]]
     values: list = ["fast", None, [1], True, {"a": 1}]
     if spec.low is not None:
         values.append(spec.low - (1 if spec.type is int else max(abs(spec.low) * 0.5, 1e-3)))
@@ -594,7 +596,8 @@ def _range_end_sets():
     specs = {q.name: q for q in PARAMETERS}
     defaults = {q.name: q.default for q in PARAMETERS}
     for spec in PARAMETERS:
-        ends = (False, True) if spec.type is bool else (spec.low, spec.high)
+        ends = (False, True) if spec.type is bool else \
+            spec.choices if spec.type is str else (spec.low, spec.high)
         for end in ends:
             values = {spec.name: end}
             for a, b in _violated({**defaults, **values}):
@@ -635,6 +638,8 @@ def test_every_parameter_at_its_range_ends_models_or_is_rejected_with_the_reason
 def _in_range(spec):
     if spec.type is bool:
         return st.booleans()
+    if spec.type is str:
+        return st.sampled_from(spec.choices)
     if spec.type is int:
         low = max(spec.low, MAX_POINTS_SAFE_MIN) if spec.name == "max_points" else spec.low
         return st.integers(int(low), int(spec.high))

@@ -387,7 +387,8 @@ def _range_end_sets():
     """Both ends of every parameter; a partner a rule needs goes to its own far end."""
     defaults = {q.name: q.default for q in PARAMETERS}
     for spec in PARAMETERS:
-        for end in (False, True) if spec.type is bool else (spec.low, spec.high):
+        for end in (False, True) if spec.type is bool else \
+                spec.choices if spec.type is str else (spec.low, spec.high):
             values = {spec.name: end}
             for a, b in _violated({**defaults, **values}):
                 partner = b if spec.name == a else a
@@ -452,6 +453,8 @@ def test_every_parameter_at_its_range_ends_through_the_node(param_node, values):
 def _in_range(spec):
     if spec.type is bool:
         return st.booleans()
+    if spec.type is str:
+        return st.sampled_from(spec.choices)
     if spec.type is int:
         return st.integers(int(spec.low), int(spec.high))
     return st.floats(spec.low, spec.high, allow_nan=False)

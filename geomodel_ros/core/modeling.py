@@ -27,6 +27,7 @@ from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane, build_faces
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategies
 from geomodel_ros.core.input import downsample, in_range, working_params
+from geomodel_ros.core.noise import NoiseEstimate, frame_noise, is_fragment, object_params
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, ModelingResult, Primitive, PrimitiveType
 from geomodel_ros.core.view import SceneView
@@ -46,6 +47,11 @@ MIN_WORKING_POINTS = 6
 #: from the nearest neighbours of SPACING_QUERIES of them.
 SPACING_SAMPLE = 2000
 SPACING_QUERIES = 500
+#: An object's range (for its noise-dependent tolerances) is the median over about this
+#: many of its points.
+OBJECT_RANGE_SAMPLE = 1000
+#: A uniform distribution of length L has standard deviation L / sqrt(12).
+UNIFORM_SPAN = math.sqrt(12.0)
 #: Labels up to this are grouped by counting and a 16-bit radix sort.
 MAX_INT16_LABEL = int(np.iinfo(np.int16).max)
 
@@ -159,13 +165,32 @@ def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
     return float(np.median(d[:, 1]) * math.sqrt(len(sub) / n))
 
 
+def object_range(points: NDArray[np.float64]) -> tuple[float, float]:
+    """Range and extent [m] of an object's ``points`` (n, 3), from at most ~1000 of them.
+
+    The range is the median distance from the sensor; the extent is the length across of a
+    uniform segment with the spread of the middle principal axis (2 sqrt(3) std).
+    """
+    sub = every_kth(points, OBJECT_RANGE_SAMPLE)
+    if len(sub) < MIN_MODEL_POINTS:
+        return 0.0, math.inf
+    q = sub - centroid(sub)
+    mid = float(np.linalg.eigvalsh(q.T @ q / len(sub))[1])
+    return float(np.median(np.sqrt(np.einsum("ij,ij->i", sub, sub)))), \
+        UNIFORM_SPAN * math.sqrt(max(mid, 0.0))
+
+
 def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArray[np.int64],
                   bounds: tuple[NDArray[np.int64], NDArray[np.int64]],
                   flab: NDArray[np.int64] | None, params: ModelingParams,
-                  rng: np.random.Generator,
-                  supports: dict[int, Plane] | None,
-                  view: SceneView | None = None) -> list[Primitive]:
-    """Model each group ``order[starts[k]:ends[k]]`` as object ``ids[k]``, in parallel."""
+                  rng: np.random.Generator, supports: dict[int, Plane] | None,
+                  view: SceneView | None = None,
+                  noise: NoiseEstimate | None = None) -> list[Primitive]:
+    """Model each group ``order[starts[k]:ends[k]]`` as object ``ids[k]``, in parallel.
+
+    With a ``noise`` estimate each object gets its tolerances at its own range
+    (:func:`geomodel_ros.core.noise.object_params`).
+    """
     starts, ends = bounds
     # One independent generator per object: results do not depend on the order in
     # which the worker threads finish (numpy and scipy release the GIL in the heavy
@@ -178,7 +203,8 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
         orng = streams[k]
         oid = int(ids[k])
         planes = tuple(v for key, v in (supports or {}).items() if key != oid)
-        return model_object(opts, oid, params, orng, estimate_spacing(opts, orng),
+        oparams = params if noise is None else object_params(params, noise, *object_range(opts))
+        return model_object(opts, oid, oparams, orng, estimate_spacing(opts, orng),
                             None if flab is None else flab[sel], planes, view)
 
     workers = min(len(ids), os.cpu_count() or 1)
@@ -194,7 +220,8 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
 def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | None = None, *,
                   face_labels: NDArray | None = None,
                   rng: np.random.Generator | int | None = None,
-                  supports: dict[int, Plane] | None = None) -> ModelingResult:
+                  supports: dict[int, Plane] | None = None,
+                  noise: NoiseEstimate | None = None) -> ModelingResult:
     """Model every labelled object of a scene.
 
     Parameters
@@ -211,10 +238,13 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
         Randomness for RANSAC; defaults to ``params.seed``.
     supports : dict id -> (normal (3,), d), optional
         Support planes found by the segmentation; other objects may rest on them.
+    noise : NoiseEstimate, optional
+        The frame's noise (e.g. ``Segmentation.noise``); with ``noise_model = auto`` and
+        none given it is estimated from ``points``.
 
     Returns
     -------
-    ModelingResult with objects ordered by id and timings [s].
+    ModelingResult with objects ordered by id, timings [s] and the noise estimate.
 
     Raises
     ------
@@ -229,12 +259,15 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
     flab = None if face_labels is None else _check_labels(face_labels, len(pts), "face_labels")
     rng = np.random.default_rng(params.seed if rng is None else rng)
     idx_all = np.flatnonzero(in_range(pts, params.max_range) & (lab >= 0))
-    return _model_rows(pts, idx_all, lab, flab, params, rng, supports, t0)
+    if params.noise_model == "auto" and noise is None:
+        noise = frame_noise(pts, params)
+    return _model_rows(pts, idx_all, lab, flab, params, rng, supports, t0, noise)
 
 
 def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArray[np.int64],
                 flab: NDArray[np.int64] | None, params: ModelingParams, rng: np.random.Generator,
-                supports: dict[int, Plane] | None, t0: float) -> ModelingResult:
+                supports: dict[int, Plane] | None, t0: float,
+                noise: NoiseEstimate | None = None) -> ModelingResult:
     """Model the objects of the rows ``idx_all`` (usable, labelled) of ``pts`` (N, 3) [m].
 
     The body of :func:`model_objects` after its checks; ``t0`` is its start time [s].
@@ -246,8 +279,8 @@ def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArr
         view = SceneView(pts, lab, params.max_range) if supports and \
             params.reproject_along_rays else None
         objects = _model_groups(pts, order, ids, (starts, ends), flab, params, rng, supports,
-                                view)
-    return ModelingResult(objects, {"modeling_s": time.perf_counter() - t0})
+                                view, noise)
+    return ModelingResult(objects, {"modeling_s": time.perf_counter() - t0}, noise=noise)
 
 
 def model_scene(points: NDArray, params: ModelingParams | None = None, *,
@@ -288,16 +321,20 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
     if organized_shape is not None and organized_shape[0] * organized_shape[1] != len(pts):
         raise InputError(f"organized_shape {organized_shape} does not match {len(pts)} points")
     rng = np.random.default_rng(params.seed if rng is None else rng)
+    t0 = time.perf_counter()
+    noise = frame_noise(pts, params) if params.noise_model == "auto" else None
+    t_noise = time.perf_counter() - t0
     if len(pts) <= params.max_points:
-        return _segment_and_model(pts, params, rng, organized_shape)
+        return _segment_and_model(pts, params, rng, noise, t_noise, organized_shape)
     usable = in_range(pts, params.max_range)
     if np.count_nonzero(usable) <= params.max_points:
-        return _segment_and_model(pts, params, rng, organized_shape)
+        return _segment_and_model(pts, params, rng, noise, t_noise, organized_shape)
     t0 = time.perf_counter()
     ds = downsample(pts, np.flatnonzero(usable), params)
     del usable
     t_down = time.perf_counter() - t0
-    wlabels, result = _segment_and_model(ds.points, working_params(params, ds.voxel_size), rng)
+    wlabels, result = _segment_and_model(ds.points, working_params(params, ds.voxel_size), rng,
+                                         noise, t_noise)
     labels = np.full(len(pts), -1, dtype=np.int64)
     labels[ds.rows] = wlabels[ds.inverse]
     result.timing["downsample_s"] = t_down
@@ -306,17 +343,47 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
 
 
 def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
-                       rng: np.random.Generator, organized_shape: tuple[int, int] | None = None
+                       rng: np.random.Generator, noise: NoiseEstimate | None, t_noise: float,
+                       organized_shape: tuple[int, int] | None = None
                        ) -> tuple[NDArray[np.int64], ModelingResult]:
-    """Segment ``pts`` (N, 3) [m] and model every segment (the body of :func:`model_scene`)."""
+    """Segment ``pts`` (N, 3) [m] and model every segment (the body of :func:`model_scene`).
+
+    ``noise`` is the frame's estimate (None with ``noise_model = fixed``), which took
+    ``t_noise`` [s]; fragments are taken out of the objects (:func:`_drop_fragments`).
+    ``organized_shape`` (H, W) is handed to the segmentation.
+    """
     from geomodel_ros.core.segmentation import segment_scene
 
-    seg = segment_scene(pts, params, rng=rng, organized_shape=organized_shape)
+    seg = segment_scene(pts, params, rng=rng, noise=noise, organized_shape=organized_shape)
     # The segmentation labels only finite rows within max_range: no further checks.
     t0 = time.perf_counter()
     result = _model_rows(pts, np.flatnonzero(seg.labels >= 0), seg.labels, None, params, rng,
-                         seg.support_planes, t0)
+                         seg.support_planes, t0, noise)
+    labels = _drop_fragments(seg.labels, result, params)
     result.timing.update(seg.timing)
-    result.timing["total_s"] = result.timing["modeling_s"] + seg.timing["segmentation_s"]
+    result.timing["noise_s"] = t_noise
+    result.timing["total_s"] = result.timing["modeling_s"] + seg.timing["segmentation_s"] \
+        + t_noise
     result.supports = dict(seg.support_planes)
-    return seg.labels, result
+    return labels, result
+
+
+def _drop_fragments(labels: NDArray[np.int64], result: ModelingResult,
+                    params: ModelingParams) -> NDArray[np.int64]:
+    """Take the fragments (:func:`geomodel_ros.core.noise.is_fragment`) out of ``result``.
+
+    Their points get label -1 (noise) in the returned copy of ``labels`` (N,) when there is
+    one; ``result.fragments`` counts them. Supports are never fragments.
+    """
+    cut = [o for o in result.objects if o.type == PrimitiveType.UNKNOWN
+           and o.id not in result.supports and
+           is_fragment(o.point_count, float(np.linalg.norm(o.center)), result.noise,
+                       params)]
+    if not cut:
+        return labels
+    gone = np.array([o.id for o in cut], dtype=np.int64)
+    result.objects = [o for o in result.objects if o.id not in set(gone.tolist())]
+    result.fragments = len(cut)
+    labels = labels.copy()
+    labels[np.isin(labels, gone)] = -1
+    return labels

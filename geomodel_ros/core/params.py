@@ -43,21 +43,29 @@ class ParamSpec:
         Inclusive allowed range for numbers (``None``: unbounded).
     description : str
         One-sentence meaning, shown by ``ros2 param describe``.
+    choices : tuple[str, ...] | None
+        The allowed values of a string parameter (``None`` for numbers and bools).
     """
 
     name: str
-    default: int | float | bool
+    default: int | float | bool | str
     unit: str
     low: float | None
     high: float | None
     description: str
+    choices: tuple[str, ...] | None = None
 
     @property
     def type(self) -> type:
         return type(self.default)
 
-    def check(self, value: Any) -> int | float | bool:
+    def check(self, value: Any) -> int | float | bool | str:
         """Return ``value`` converted to this parameter's type, or raise ParameterError."""
+        if self.type is str:
+            if not isinstance(value, str) or value not in (self.choices or ()):
+                raise ParameterError(f"parameter '{self.name}' must be one of "
+                                     f"{', '.join(self.choices or ())}, got {value!r}")
+            return value
         if self.type is bool:
             if not isinstance(value, bool):
                 raise ParameterError(f"parameter '{self.name}' must be a bool, got {value!r}")
@@ -90,10 +98,11 @@ class ParamSpec:
 
 PARAMETERS: tuple[ParamSpec, ...] = (
     # --- input ----------------------------------------------------------------------------
-    ParamSpec("max_range", 10.0, "m", 0.1, 1e5,
+    ParamSpec("max_range", 20.0, "m", 0.1, 1e5,
               "Points farther than this from the sensor origin (the cloud frame's origin) are "
               "dropped like invalid points (label -1) before any voxel arithmetic; the default "
-              "suits depth cameras, map-frame or room-scale clouds need a larger value."),
+              "suits depth cameras and room scans up to 15 m and more, map-frame clouds need a "
+              "larger value."),
     ParamSpec("max_points", 1000000, "count", 1000, 100000000,
               "Scene clouds with more valid points are first averaged on the smallest voxel "
               "grid (seg_voxel_size grown geometrically) that leaves at most this many; every "
@@ -189,6 +198,15 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Clusters with fewer input points are noise (label -1)."),
     ParamSpec("seed", 0, "count", 0, 2**31 - 1,
               "Seed of the random generator used by RANSAC (results are reproducible)."),
+    # --- noise model ----------------------------------------------------------------------
+    ParamSpec("noise_model", "auto", "", None, None,
+              "auto: estimate the depth noise and point spacing of every frame and raise the "
+              "noise-dependent tolerances (noise_amplitude, ransac_threshold, voxel_size, "
+              "seg_voxel_size, seg_plane_threshold, reconstruction_spacing) above the values "
+              "given where the estimate needs it, per object at its depth, and leave small "
+              "unknown fragments out of the objects; fixed: use every value exactly as given.",
+              choices=("auto", "fixed")),
+    # --- organized clouds -----------------------------------------------------------------
     ParamSpec("organized_fast_path", False, "", None, None,
               "Segment organized clouds (an image of H x W points) on the image grid: working "
               "points from pixel blocks, neighbours from a fixed pixel stencil, no voxel grid "
@@ -214,7 +232,7 @@ class ModelingParams:
     """
 
     # --- input ----------------------------------------------------------------------------
-    max_range: float = 10.0
+    max_range: float = 20.0
     max_points: int = 1000000
 
     # --- working resolution and faces -----------------------------------------------------
@@ -266,6 +284,11 @@ class ModelingParams:
     seg_join_contained: bool = True
     seg_min_cluster_points: int = 150
     seed: int = 0
+
+    # --- noise model ----------------------------------------------------------------------
+    noise_model: str = "auto"
+
+    # --- organized clouds -----------------------------------------------------------------
     organized_fast_path: bool = False
 
     def __new__(cls, *args: Any, **kwargs: Any) -> ModelingParams:

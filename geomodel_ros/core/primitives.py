@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -204,13 +205,21 @@ class ModelingResult:
 
     ``supports`` maps the id of each support plane the segmentation found (desk, floor,
     wall) to its plane ``(normal (3,), d [m])``, ``n . x + d = 0`` with the normal towards
-    the sensor; empty when the objects were modeled from given labels.
+    the sensor; empty when the objects were modeled from given labels. ``noise`` is the
+    frame's :class:`~geomodel_ros.core.noise.NoiseEstimate` (None with ``noise_model =
+    fixed``); ``fragments`` counts the segments left out of ``objects`` as too small to be
+    an object (their points are labelled -1).
     """
 
     objects: list[Primitive]
     timing: dict[str, float]
     supports: dict[int, tuple[NDArray[np.float64], float]] = field(default_factory=dict)
+    noise: Any = None
+    fragments: int = 0
 
     def to_dict(self) -> dict:
+        """JSON-ready dictionary (the CLI's output schema)."""
         return {"objects": [o.to_dict() for o in self.objects],
+                "noise": None if self.noise is None else self.noise.to_dict(),
+                "fragments": int(self.fragments),
                 "timing": {k: float(v) for k, v in self.timing.items()}}

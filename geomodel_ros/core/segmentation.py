@@ -32,6 +32,7 @@ from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
                                      voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.fastmath import rows_finite, take_rows
+from geomodel_ros.core.noise import NoiseEstimate, resolve_params
 from geomodel_ros.core.joins import join_contained_parts, join_occluded_parts, merge_patches
 from geomodel_ros.core.organized import GridCloud, grid_cloud
 from geomodel_ros.core.params import ModelingParams
@@ -73,12 +74,15 @@ class Segmentation:
         Plane n . x + d = 0 of each support, normal towards the sensor.
     timing : dict[str, float]
         Seconds per stage.
+    noise : NoiseEstimate or None
+        The frame's noise (None with ``noise_model = fixed``).
     """
 
     labels: NDArray[np.int64]
     support_ids: list[int] = field(default_factory=list)
     timing: dict[str, float] = field(default_factory=dict)
     support_planes: dict[int, tuple[NDArray[np.float64], float]] = field(default_factory=dict)
+    noise: NoiseEstimate | None = None
 
     @property
     def object_ids(self) -> NDArray[np.int64]:
@@ -88,6 +92,7 @@ class Segmentation:
 
 def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
                   rng: np.random.Generator | int | None = None,
+                  noise: NoiseEstimate | None = None,
                   organized_shape: tuple[int, int] | None = None) -> Segmentation:
     """Segment a scene cloud into support planes and objects.
 
@@ -100,6 +105,9 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
         ``seg_*`` parameters are used.
     rng : Generator, seed or None
         Randomness for the plane RANSAC; defaults to ``params.seed``.
+    noise : NoiseEstimate, optional
+        The frame's noise when known; with ``noise_model = auto`` the ``seg_*`` tolerances
+        follow it (:func:`geomodel_ros.core.noise.resolve_params`).
     organized_shape : (H, W), optional
         Image shape of (N, 3) ``points`` that are the row-major pixels of an organized
         cloud ((H, W, 3) ``points`` give it themselves). With ``organized_fast_path`` the
@@ -122,13 +130,14 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     if shape is not None and shape[0] * shape[1] != len(pts):
         raise InputError(f"organized_shape {tuple(shape)} does not match {len(pts)} points")
     pts = without_far_points(pts, params)
+    params, noise = resolve_params(pts, params, noise=noise)
     rng = np.random.default_rng(params.seed if rng is None else rng)
     labels = np.full(len(pts), -1, dtype=np.int64)
     finite = np.flatnonzero(rows_finite(pts))
     timing: dict[str, float] = {}
     if len(finite) < MIN_INPUT_POINTS:
         timing["segmentation_s"] = time.perf_counter() - t0
-        return Segmentation(labels, [], timing)
+        return Segmentation(labels, [], timing, noise=noise)
     p = take_rows(pts, finite)
     grid = grid_cloud(pts, shape, finite, params) \
         if shape is not None and params.organized_fast_path else None
@@ -136,7 +145,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
         (grid.points, grid.inverse, grid.counts)
     if len(wp) < MIN_WORKING_POINTS:
         timing["segmentation_s"] = time.perf_counter() - t0
-        return Segmentation(labels, [], timing)
+        return Segmentation(labels, [], timing, noise=noise)
     wn, _, nbrs, sqdist = estimate_normals(wp, params.normal_neighbors, return_sqdist=True) \
         if grid is None else (grid.normals, grid.variation, grid.neighbors, grid.sqdist)
     t1 = time.perf_counter()
@@ -148,7 +157,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     planes = _claim_contact_rims(p, finite, labels, len(supports), params, rng)
     timing["seg_objects_s"] = time.perf_counter() - t2
     timing["segmentation_s"] = time.perf_counter() - t0
-    return Segmentation(labels, list(range(len(supports))), timing, planes)
+    return Segmentation(labels, list(range(len(supports))), timing, planes, noise)
 
 
 def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: NDArray[np.int64],

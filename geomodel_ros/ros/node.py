@@ -666,6 +666,7 @@ class ModelerNode(Node):
             self._stats.processed += 1
             self._stats.last_latency_s = latency
             self._stats.last_timing = timing
+            self._frame_values = frame.diagnostics
             self._stats.last_stamp_ns = stamp_ns(msg)
             self._processed_at.append(time.monotonic())
         stages = ", ".join(f"{k[:-2]} {1000 * v:.1f}" for k, v in {**timing, **core_timing}.items())
@@ -751,6 +752,7 @@ class ModelerNode(Node):
             "last_processing_s": f"{s.last_timing.get('total_s', math.nan):.4f}",
             "result_age_s": "nan" if age is None else f"{age:.4f}",
             "mode": "continuous" if self._options.continuous else "on demand",
+            **getattr(self, "_frame_values", {}),
         }
         # stamped with the time of this report
         self._pub_diagnostics.publish(diagnostics_message(

@@ -31,6 +31,7 @@ from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.core.reconstruction import reconstruct
 from geomodel_ros.core.tracking import Tracker, TrackerConfig
 
+from msg_adapters.diagnostics import noise_values
 from msg_adapters.interfaces import MarkerArray, PointCloud2
 from msg_adapters.markers import (primitives_to_markers, reconstruction_cloud, segments_cloud,
                                   tracked_markers)
@@ -129,6 +130,9 @@ class FrameResult:
         The objects as published (with tracking: stable ids, smoothed when configured).
     deleted_ids : tuple[int, ...]
         Ids the tracker retired in this frame (empty without tracking).
+    diagnostics : dict[str, str]
+        The frame's noise estimate and fragment count as ``/diagnostics`` key/values
+        (:func:`msg_adapters.diagnostics.noise_values`).
     """
 
     markers: MarkerArray
@@ -141,6 +145,7 @@ class FrameResult:
     objects: PrimitiveArray | None = None
     tracked: list[Primitive] = field(default_factory=list)
     deleted_ids: tuple[int, ...] = ()
+    diagnostics: dict[str, str] = field(default_factory=dict)
 
 
 def _model(points: np.ndarray, organized: tuple[int, int] | None, n_valid: int,
@@ -228,7 +233,8 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     return FrameResult(markers=markers, segments=segments_msg, reconstruction=recon_msg,
                        result=result, labels=labels.astype(np.int64, copy=False),
                        valid_points=n_valid, timing=timing, objects=objects_msg,
-                       tracked=list(shown), deleted_ids=deleted)
+                       tracked=list(shown), deleted_ids=deleted,
+                       diagnostics=noise_values(result.noise, result.fragments))
 
 
 class _Laps:

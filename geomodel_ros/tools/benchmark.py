@@ -139,7 +139,8 @@ def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(OS
         row = {"scene": k, "objects": len(objects), "segmentation_s": t1 - t0,
                "scores": [(s.gt_id, s.iou, s.under, s.over, s.parts_iou) for s in scores]}
         if model:
-            result = model_objects(points, seg.labels, params, supports=seg.support_planes)
+            result = model_objects(points, seg.labels, params, supports=seg.support_planes,
+                                   noise=seg.noise)
             row["total_s"] = time.perf_counter() - t0
             row["types"] = {o.id: o.type for o in result.objects}
             row["dimensions"] = {o.id: dict(o.dimensions) for o in result.objects}

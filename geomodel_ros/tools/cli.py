@@ -18,7 +18,6 @@ import numpy as np
 
 from geomodel_ros.core.colors import id_colors
 from geomodel_ros.core.fastmath import retain_freed_memory
-from geomodel_ros.tools.paths import CONFIG_DIR
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError, load_params_file
 
 __all__ = ["main"]
@@ -37,6 +36,10 @@ class CliError(Exception):
 # helpers
 # ---------------------------------------------------------------------------------------
 
+#: Names of the parameters whose values are strings (``--set noise_model=fixed``).
+_STRING_PARAMS = frozenset(p.name for p in PARAMETERS if p.type is str)
+
+
 def _params(args: argparse.Namespace) -> ModelingParams:
     params = load_params_file(args.params) if getattr(args, "params", None) else ModelingParams()
     overrides = {}
@@ -47,7 +50,9 @@ def _params(args: argparse.Namespace) -> ModelingParams:
         try:
             value = json.loads(raw.lower() if raw.lower() in ("true", "false") else raw)
         except json.JSONDecodeError:
-            raise CliError(f"--set {name}: {raw!r} is not a number or true/false") from None
+            if name.strip() not in _STRING_PARAMS:
+                raise CliError(f"--set {name}: {raw!r} is not a number or true/false") from None
+            value = raw  # a string parameter's value (its spec checks the choices)
         overrides[name.strip()] = value
     return ModelingParams.from_mapping(overrides, base=params) if overrides else params
 
@@ -250,8 +255,11 @@ def cmd_model(args: argparse.Namespace) -> int:
     for o in result.objects:
         counts[o.type] = counts.get(o.type, 0) + 1
     summary = ", ".join(f"{v} {k}" for k, v in sorted(counts.items())) or "no objects"
-    print(f"{len(result.objects)} objects ({summary}) in {out['timing']['total_s']:.2f} s "
-          f"-> {args.json}")
+    noise = "" if result.noise is None else \
+        f"; noise sigma {1000 * result.noise.sigma(1.0):.2f} mm at 1 m"
+    frag = f", {result.fragments} fragments left out" if result.fragments else ""
+    print(f"{len(result.objects)} objects ({summary}{frag}) in {out['timing']['total_s']:.2f} s"
+          f"{noise} -> {args.json}")
     return 0
 
 
@@ -265,9 +273,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from geomodel_ros.tools import benchmark as bm
     from geomodel_ros.tools.synth import SENSOR_NOISE
 
+    # One parameter set for every run (noise_model = auto adapts to each frame's noise);
+    # --noisy-params overrides it for the noisy runs.
     clean = _params(args)
-    noisy = load_params_file(CONFIG_DIR / "sensor_noise.yaml") if args.noisy_params is None \
-        else load_params_file(args.noisy_params)
+    noisy = clean if args.noisy_params is None else load_params_file(args.noisy_params)
     report: dict = {}
     if args.part in ("modeling", "all"):
         report["modeling"] = bm.run_benchmark(args.scenes, args.repeats, noisy, clean,
@@ -295,17 +304,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
                       f"{r['types']:>3}/{r['objects']:<2} {np.median(e):>11.3f} /{np.max(e):>9.3f} "
                       f"{r['segmentation_s']:>7.3f} {r['total_s']:>8.3f}")
         report["synthetic_segmentation"] = rows
-        kinect = load_params_file(CONFIG_DIR / "kinect.yaml")
-        osd = bm.osd_benchmark(kinect)
+        osd = bm.osd_benchmark(clean)
         report["osd"] = osd
-        print("\nReal Kinect scenes, osd_learn (config/kinect.yaml; objects = labels >= 20):")
+        print("\nReal Kinect scenes, osd_learn (objects = labels >= 20):")
         print("\n".join(bm.osd_lines(osd)))
         if any("object_types" in r for r in osd):
             print("\nModeled type of each labelled object's best-matching segment:")
             print("\n".join(bm.osd_type_lines(osd)))
-        mug = bm.mug_benchmark(kinect)
+        mug = bm.mug_benchmark(clean)
         report["mug"] = mug
-        print("\nPCL mug scene (config/kinect.yaml):", json.dumps(mug))
+        print("\nPCL mug scene:", json.dumps(mug))
     print(f"\npeak RSS {bm.peak_rss_mb():.0f} MiB")
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=2, default=float))
@@ -415,8 +423,8 @@ def _add_bench(sub) -> None:
     p.add_argument("--scenes", nargs="+", default=["scene1", "scene2", "scene3"])
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--noisy-params", help="parameters for the noisy runs "
-                   "(default config/sensor_noise.yaml)")
+    p.add_argument("--noisy-params", help="parameters file for the noisy runs (default: the "
+                   "same parameters as the noise-free runs, i.e. the defaults with --set)")
     p.add_argument("--part", choices=("modeling", "segmentation", "all"), default="all")
     p.add_argument("--json", help="write the full report here")
     _add_params(p)
