@@ -325,10 +325,10 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
     noise = frame_noise(pts, params) if params.noise_model == "auto" else None
     t_noise = time.perf_counter() - t0
     if len(pts) <= params.max_points:
-        return _segment_and_model(pts, params, rng, noise, t_noise)
+        return _segment_and_model(pts, params, rng, noise, t_noise, organized_shape)
     usable = in_range(pts, params.max_range)
     if np.count_nonzero(usable) <= params.max_points:
-        return _segment_and_model(pts, params, rng, noise, t_noise)
+        return _segment_and_model(pts, params, rng, noise, t_noise, organized_shape)
     t0 = time.perf_counter()
     ds = downsample(pts, np.flatnonzero(usable), params)
     del usable
@@ -343,16 +343,18 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
 
 
 def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
-                       rng: np.random.Generator, noise: NoiseEstimate | None, t_noise: float
+                       rng: np.random.Generator, noise: NoiseEstimate | None, t_noise: float,
+                       organized_shape: tuple[int, int] | None = None
                        ) -> tuple[NDArray[np.int64], ModelingResult]:
     """Segment ``pts`` (N, 3) [m] and model every segment (the body of :func:`model_scene`).
 
     ``noise`` is the frame's estimate (None with ``noise_model = fixed``), which took
     ``t_noise`` [s]; fragments are taken out of the objects (:func:`_drop_fragments`).
+    ``organized_shape`` (H, W) is handed to the segmentation.
     """
     from geomodel_ros.core.segmentation import segment_scene
 
-    seg = segment_scene(pts, params, rng=rng, noise=noise)
+    seg = segment_scene(pts, params, rng=rng, noise=noise, organized_shape=organized_shape)
     # The segmentation labels only finite rows within max_range: no further checks.
     t0 = time.perf_counter()
     result = _model_rows(pts, np.flatnonzero(seg.labels >= 0), seg.labels, None, params, rng,

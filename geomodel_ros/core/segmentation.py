@@ -25,7 +25,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from geomodel_ros.core.errors import as_points
+from geomodel_ros.core.errors import InputError, as_points
 from scipy.sparse.csgraph import connected_components
 
 from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
@@ -35,6 +35,7 @@ from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.fastmath import rows_finite, take_rows
 from geomodel_ros.core.noise import NoiseEstimate, resolve_params
 from geomodel_ros.core.joins import join_contained_parts, join_occluded_parts, merge_patches
+from geomodel_ros.core.organized import GridCloud, grid_cloud
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import fit_plane_svd
 from geomodel_ros.core.support import REFIT_MAX_POINTS, support_plane_equation, support_planes
@@ -108,7 +109,8 @@ class Segmentation:
 
 def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
                   rng: np.random.Generator | int | None = None,
-                  noise: NoiseEstimate | None = None) -> Segmentation:
+                  noise: NoiseEstimate | None = None,
+                  organized_shape: tuple[int, int] | None = None) -> Segmentation:
     """Segment a scene cloud into support planes and objects.
 
     Parameters
@@ -128,14 +130,27 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
         patch only where its neighbourhood lies off its plane by more than that noise: a
         crease). With ``noise_model = fixed`` the step is ``STEP_SHARE *
         seg_plane_threshold`` everywhere and every such point takes its own patch's normal.
+    organized_shape : (H, W), optional
+        Image shape of (N, 3) ``points`` that are the row-major pixels of an organized
+        cloud ((H, W, 3) ``points`` give it themselves). With ``organized_fast_path`` the
+        working cloud, its neighbours and normals then come from the image grid
+        (:mod:`geomodel_ros.core.organized`) instead of a voxel grid and kNN searches.
 
     Returns
     -------
     Segmentation with labels aligned with the input rows (row-major for organized input).
+
+    Raises
+    ------
+    InputError
+        For malformed points, or an ``organized_shape`` whose H * W is not N.
     """
     t0 = time.perf_counter()
     params = params if params is not None else ModelingParams()
+    shape = organized_shape if np.ndim(points) != 3 else np.shape(points)[:2]
     pts = as_points(points, allow_organized=True)
+    if shape is not None and shape[0] * shape[1] != len(pts):
+        raise InputError(f"organized_shape {tuple(shape)} does not match {len(pts)} points")
     pts = without_far_points(pts, params)
     params, noise = resolve_params(pts, params, noise=noise)
     rng = np.random.default_rng(params.seed if rng is None else rng)
@@ -146,17 +161,21 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
         timing["segmentation_s"] = time.perf_counter() - t0
         return Segmentation(labels, [], timing, noise=noise)
     p = take_rows(pts, finite)
-    wp, inverse, counts = voxelize(p, params.seg_voxel_size)
+    grid = grid_cloud(pts, shape, finite, params) \
+        if shape is not None and params.organized_fast_path else None
+    wp, inverse, counts = voxelize(p, params.seg_voxel_size) if grid is None else \
+        (grid.points, grid.inverse, grid.counts)
     if len(wp) < MIN_WORKING_POINTS:
         timing["segmentation_s"] = time.perf_counter() - t0
         return Segmentation(labels, [], timing, noise=noise)
-    wn, _, nbrs, sqdist = estimate_normals(wp, params.normal_neighbors, return_sqdist=True)
+    wn, _, nbrs, sqdist = estimate_normals(wp, params.normal_neighbors, return_sqdist=True) \
+        if grid is None else (grid.normals, grid.variation, grid.neighbors, grid.sqdist)
     t1 = time.perf_counter()
     timing["seg_normals_s"] = t1 - t0
     supports = support_planes(wp, wn, nbrs, sqdist, params, rng)
     t2 = time.perf_counter()
     timing["seg_supports_s"] = t2 - t1
-    labels[finite] = _working_labels(wp, wn, counts, supports, params, noise)[inverse]
+    labels[finite] = _working_labels(wp, wn, counts, supports, params, grid, noise)[inverse]
     planes = _claim_contact_rims(p, finite, labels, len(supports), params, rng)
     timing["seg_objects_s"] = time.perf_counter() - t2
     timing["segmentation_s"] = time.perf_counter() - t0
@@ -165,7 +184,8 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
 
 def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: NDArray[np.int64],
                     supports: list[NDArray[np.int64]], params: ModelingParams,
-                    noise: DepthNoise | None = None) -> NDArray[np.int64]:
+                    grid: GridCloud | None = None, noise: DepthNoise | None = None
+                    ) -> NDArray[np.int64]:
     """Label of every working point: supports 0 .. S-1, objects S, S+1, ... by size, -1 noise.
 
     Parameters
@@ -177,6 +197,8 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     supports : list of int64 arrays
         Working-point indices of each support plane.
     params : ModelingParams
+    grid : GridCloud, optional
+        The organized working cloud ``wp`` comes from (its neighbours are reused).
     noise : DepthNoise, optional
         Depth noise of the working points (:func:`working_noise`).
 
@@ -187,7 +209,7 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     wlabel = np.full(len(wp), -1, dtype=np.int64)
     for sid, sel in enumerate(supports):
         wlabel[sel] = sid
-    comp, comp_ok = _object_segments(wp, counts, wlabel < 0, params, noise)
+    comp, comp_ok = _object_segments(wp, counts, wlabel < 0, params, grid, noise)
     if params.seg_max_occlusion_gap > 0:
         comp = join_occluded_parts(wp, wn, comp, comp_ok, params)
     if params.seg_join_contained and supports:
@@ -198,11 +220,13 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
 
 def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
                      free: NDArray[np.bool_], params: ModelingParams,
-                     noise: DepthNoise | None = None
+                     grid: GridCloud | None = None, noise: DepthNoise | None = None
                      ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
     """Convex objects among the ``free`` (M,) working points (not in a support).
 
-    ``noise`` is the depth noise (:func:`working_noise`).
+    With the organized ``grid`` of ``wp`` the free points' normals come from its neighbour
+    lists (:meth:`GridCloud.restricted`) instead of a kNN search among them. ``noise`` is
+    the depth noise (:func:`working_noise`).
 
     Returns
     -------
@@ -216,7 +240,8 @@ def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
     comp = np.full(len(wp), -1, dtype=np.int64)
     if len(rest_idx) >= MIN_WORKING_POINTS:
         # Normals recomputed without the supports, so they do not blend into the desk.
-        comp[rest_idx] = _convex_objects(wp[rest_idx], counts[rest_idx], params, noise)
+        comp[rest_idx] = _convex_objects(wp[rest_idx], counts[rest_idx], params, noise,
+                                         None if grid is None else grid.restricted(rest_idx))
     rest = comp >= 0
     size = np.bincount(comp[rest], weights=counts[rest], minlength=int(comp.max()) + 1)
     comp_ok = rest.copy()
@@ -288,8 +313,8 @@ def working_noise(points: NDArray[np.float64], counts: NDArray[np.int64],
 
 
 def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
-                    params: ModelingParams, noise: DepthNoise | None = None
-                    ) -> NDArray[np.int64]:
+                    params: ModelingParams, noise: DepthNoise | None = None,
+                    neighbourhood: tuple[NDArray, ...] | None = None) -> NDArray[np.int64]:
     """Object label of every point of a support-free working cloud (local convexity).
 
     Parameters
@@ -301,6 +326,9 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     params : ModelingParams
     noise : DepthNoise, optional
         Depth noise of the working points (:func:`working_noise`).
+    neighbourhood : (normals, variation, neighbors, sqdist), optional
+        The points' normals, surface variation and neighbour lists when known (organized
+        path); by default they are estimated over the ``normal_neighbors`` nearest points.
 
     Returns
     -------
@@ -314,8 +342,8 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     :func:`geomodel_ros.core.joins.merge_patches`).
     """
     m = len(points)
-    normals, variation, nbrs, sqdist = estimate_normals(points, params.normal_neighbors,
-                                                        return_sqdist=True)
+    normals, variation, nbrs, sqdist = neighbourhood if neighbourhood is not None else \
+        estimate_normals(points, params.normal_neighbors, return_sqdist=True)
     cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
                          np.arange(m), sqdist)
     max_edge = params.seg_max_edge_factor * params.seg_voxel_size

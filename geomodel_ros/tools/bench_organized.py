@@ -1,0 +1,129 @@
+"""Organized fast path against the voxel path: accuracy, time per frame, top costs.
+
+Both paths of :func:`~geomodel_ros.core.segmentation.segment_scene` (parameter
+``organized_fast_path``) on the same frames in the same run:
+
+* ``--part osd``: the osd_learn benchmark (45 real Kinect frames, config/kinect.yaml) of
+  ``geomodel bench`` for each path: IoU >= 0.8 share, under/over-segmentation, and the type
+  table of the best segments;
+* ``--part time``: warm ``model_scene`` (segmentation + modeling) per frame, the two paths
+  alternated, median of ``--repeats`` runs, on osd_learn frames (640 x 480) and the paper's
+  scene3 (1104 x 624, 368k points);
+* ``--part profile``: cProfile of warm ``model_scene`` with the fast path on one osd_learn
+  frame, the functions with the largest own time.
+
+``python -m geomodel_ros.tools.bench_organized [--part osd|time|profile|all]``. Figures go to
+BENCHMARKS.md; nothing here is a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import dataclasses
+import io
+import pstats
+import statistics
+import time
+
+from geomodel_ros.core.modeling import model_scene
+from geomodel_ros.core.params import ModelingParams, load_params_file
+from geomodel_ros.tools.benchmark import osd_benchmark, osd_lines, osd_type_lines
+from geomodel_ros.tools.io import load_osd
+from geomodel_ros.tools.paths import CONFIG_DIR, data_dir
+
+__all__ = ["main"]
+
+#: osd_learn frames timed by default: one or two of each scene group.
+TIMED_FRAMES = (0, 10, 20, 30, 40)
+#: The two paths, by the value of ``organized_fast_path``.
+PATHS = (("voxel", False), ("organized", True))
+
+
+def _kinect(fast: bool) -> ModelingParams:
+    return dataclasses.replace(load_params_file(CONFIG_DIR / "kinect.yaml"),
+                               organized_fast_path=fast)
+
+
+def _osd() -> None:
+    for name, fast in PATHS:
+        rows = osd_benchmark(_kinect(fast))
+        print(f"\nosd_learn, {name} path (config/kinect.yaml):")
+        print("\n".join(osd_lines(rows)))
+        print("\n".join(osd_type_lines(rows)))
+
+
+def _frames() -> list[tuple[str, object, tuple[int, int], bool]]:
+    """(name, points (N, 3), shape, use Kinect parameters) of every timed frame."""
+    from geomodel_ros.tools.synth import render_scene
+
+    out = []
+    for k in TIMED_FRAMES:
+        points, _ = load_osd(data_dir() / "osd_learn" / f"learn{k}.pcd")
+        out.append((f"learn{k}", points, (480, 640), True))
+    scene = render_scene("scene3")
+    out.append(("scene3", scene.organized.reshape(-1, 3), scene.organized.shape[:2], False))
+    return out
+
+
+def _time(repeats: int) -> None:
+    print(f"{'frame':<8} {'path':<10} {'total ms':>9} {'segment ms':>11} {'model ms':>9} "
+          f"{'objects':>8}")
+    ratios = []
+    for name, points, shape, kinect in _frames():
+        medians = {}
+        params = {fast: _kinect(fast) if kinect else ModelingParams(organized_fast_path=fast)
+                  for _, fast in PATHS}
+        runs: dict[bool, list[dict]] = {fast: [] for _, fast in PATHS}
+        for fast in params:
+            model_scene(points, params[fast], organized_shape=shape)   # warm-up
+        for _ in range(repeats):
+            for _, fast in PATHS:     # alternated, so that both see the same machine load
+                t0 = time.perf_counter()
+                _, result = model_scene(points, params[fast], organized_shape=shape)
+                timing = dict(result.timing, wall_s=time.perf_counter() - t0,
+                              objects=len(result.objects))
+                runs[fast].append(timing)
+        for label, fast in PATHS:
+            r = runs[fast]
+            medians[fast] = statistics.median(t["wall_s"] for t in r)
+            print(f"{name:<8} {label:<10} {1000 * medians[fast]:>9.0f} "
+                  f"{1000 * statistics.median(t['segmentation_s'] for t in r):>11.0f} "
+                  f"{1000 * statistics.median(t['modeling_s'] for t in r):>9.0f} "
+                  f"{r[-1]['objects']:>8}")
+        ratios.append(medians[False] / medians[True])
+        print(f"{name:<8} voxel / organized time: {ratios[-1]:.2f}")
+
+
+def _profile(frame: int, top: int) -> None:
+    points, _ = load_osd(data_dir() / "osd_learn" / f"learn{frame}.pcd")
+    params = _kinect(True)
+    model_scene(points, params, organized_shape=(480, 640))
+    prof = cProfile.Profile()
+    prof.enable()
+    model_scene(points, params, organized_shape=(480, 640))
+    prof.disable()
+    out = io.StringIO()
+    pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(top)
+    print(out.getvalue())
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the parts asked for; print the figures."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--part", choices=("osd", "time", "profile", "all"), default="all")
+    ap.add_argument("--repeats", type=int, default=7, help="timed runs per frame and path")
+    ap.add_argument("--frame", type=int, default=20, help="osd_learn frame to profile")
+    ap.add_argument("--top", type=int, default=25, help="functions listed by the profile")
+    args = ap.parse_args(argv)
+    if args.part in ("osd", "all"):
+        _osd()
+    if args.part in ("time", "all"):
+        _time(args.repeats)
+    if args.part in ("profile", "all"):
+        _profile(args.frame, args.top)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
