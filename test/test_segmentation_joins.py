@@ -394,24 +394,6 @@ def test_patch_normals_keep_each_face_apart_at_a_crease():
     assert err.max() < 1e-6
 
 
-def test_a_patch_is_cut_only_along_steps_not_where_it_is_unlinked():
-    from geomodel_ros.core.faces import estimate_normals
-    from geomodel_ros.core.segmentation import _cut_steps
-
-    # One flat strip and a speck of 3 points 3 cm beyond its end, at the same height,
-    # given to the strip's patch (as split_faces gives edge points and small faces to the
-    # nearest face): no link reaches the speck (links are at most 1 cm), but no step
-    # separates it either, so it stays in the patch.
-    strip = _grid(-0.06, 0.0, 0.0)
-    speck = np.array([[0.03, 0.0, 0.0], [0.034, 0.0, 0.0], [0.03, 0.004, 0.0]])
-    points = np.vstack([strip, speck])
-    _, _, nbrs, sqdist = estimate_normals(points, 16, return_sqdist=True)
-    normals = np.tile(UP, (len(points), 1))
-    out = _cut_steps(points, normals, nbrs, sqdist, np.zeros(len(points), dtype=np.int64),
-                     0.01, np.full(len(points), 0.001))
-    assert len(np.unique(out)) == 1
-
-
 class _QuadraticNoise:
     """Depth noise sigma = b z^2 [m] (a DepthNoise)."""
 
