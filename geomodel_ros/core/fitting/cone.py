@@ -33,16 +33,40 @@ def cone_hypothesis_ok(model: ConeModel, params: ModelingParams,
             and axis_within(model.axis, prior, params.angle_tolerance))
 
 
-def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None
+def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None,
+                   kind: PrimitiveType
                    ) -> tuple[list, NDArray[np.int64], NDArray[np.float64]] | Rejected:
     """Caps, each point's surface and the side's points, once axis, coverage, arc, angle pass."""
-    checked = verified_side(task, side, prior, CONE, side.model.apex)
+    checked = verified_side(task, side, prior, kind, side.model.apex)
     if isinstance(checked, Rejected):
         return checked
     if side.model.half_angle < task.cloud.params.min_cone_half_angle:
-        return Rejected(CONE, f"cone half-angle {math.degrees(side.model.half_angle):.1f} deg too "
-                              "small")
+        return Rejected(kind, f"{kind} half-angle {math.degrees(side.model.half_angle):.1f} deg "
+                              "too small")
     return checked
+
+
+def fit_cone_side(task: FitTask, kind: PrimitiveType
+                  ) -> tuple[CurvedFit, float, float] | FitOutcome:
+    """Fit and verify the conical side of ``task.cloud`` for a cone or a frustum (``kind``).
+
+    The axis follows ``task.axis_prior`` or else the main planar face's normal, if any.
+    Returns the side's fit and its extent ``lo``, ``hi`` [m] along the axis from the apex
+    (caps and supports closing the ends, :func:`~.axial.axial_extent`), or the rejection.
+    """
+    cloud = task.cloud
+    prior = axis_prior(task)
+    side = fit_curved(cloud, kind, ConeModel,
+                      partial(cone_hypothesis_ok, params=cloud.params, prior=prior),
+                      with_caps=True)
+    if not isinstance(side, CurvedFit):
+        return side
+    checked = _verified_side(task, side, prior, kind)
+    if isinstance(checked, Rejected):
+        return checked
+    caps, nearest, side_points = checked
+    lo, hi = axial_extent(cloud, side_points, caps, nearest, side.model.apex, side.model.axis)
+    return side, lo, hi
 
 
 def _sized(task: FitTask, model: ConeModel, lo: float, hi: float) -> float | Rejected:
@@ -67,24 +91,16 @@ def fit_cone(task: FitTask) -> FitOutcome:
     The axis follows ``task.axis_prior`` or else the main planar face's normal, if any.
     Returns a cone whose z points from the base to the apex, or the rejection.
     """
-    cloud = task.cloud
-    prior = axis_prior(task)
-    side = fit_curved(cloud, CONE, ConeModel,
-                      partial(cone_hypothesis_ok, params=cloud.params, prior=prior),
-                      with_caps=True)
-    if not isinstance(side, CurvedFit):
-        return side
-    checked = _verified_side(task, side, prior)
-    if isinstance(checked, Rejected):
-        return checked
-    caps, nearest, side_points = checked
+    fitted = fit_cone_side(task, CONE)
+    if not isinstance(fitted, tuple):
+        return fitted
+    side, lo, hi = fitted
     model = side.model
-    lo, hi = axial_extent(cloud, side_points, caps, nearest, model.apex, model.axis)
     radius = _sized(task, model, lo, hi)
     if isinstance(radius, Rejected):
         return radius
     height = hi if hi > 0 else 0.0
-    prim = Primitive(cloud.oid, CONE, model.apex + model.axis * height / 2,
+    prim = Primitive(task.cloud.oid, CONE, model.apex + model.axis * height / 2,
                      frame_with_z(-model.axis), {"radius": float(radius), "height": float(height)},
-                     len(cloud.points), side.rmse)
+                     len(task.cloud.points), side.rmse)
     return Fitted(prim, "cone verified")

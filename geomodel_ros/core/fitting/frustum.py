@@ -16,15 +16,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from functools import partial
 
-import numpy as np
-from numpy.typing import NDArray
 
-from geomodel_ros.core.fitting.axial import axial_extent, verified_side
 from geomodel_ros.core.fitting.cloud import ObjectCloud
-from geomodel_ros.core.fitting.cone import cone_hypothesis_ok
-from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
+from geomodel_ros.core.fitting.cone import fit_cone_side
 from geomodel_ros.core.fitting.measure import bulk_extent, bulk_reach
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
 from geomodel_ros.core.fitting.verify import (CONE_APEX_REACH, check_bulk_length,
@@ -85,18 +80,6 @@ def _own_stream(cloud: ObjectCloud) -> ObjectCloud:
     return dataclasses.replace(cloud, rng=child)
 
 
-def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None
-                   ) -> tuple[list, NDArray[np.int64], NDArray[np.float64]] | Rejected:
-    """Caps, each point's surface and the side's points, once axis, coverage, arc, angle pass."""
-    checked = verified_side(task, side, prior, FRUSTUM, side.model.apex)
-    if isinstance(checked, Rejected):
-        return checked
-    if side.model.half_angle < task.cloud.params.min_cone_half_angle:
-        return Rejected(FRUSTUM, f"frustum half-angle {math.degrees(side.model.half_angle):.1f} "
-                                 "deg too small")
-    return checked
-
-
 def _sized(task: FitTask, model: ConeModel, lo: float, hi: float) -> dict[str, float] | Rejected:
     """Sizes [m] of the frustum whose points run from ``lo`` to ``hi`` from the apex, checked."""
     points = task.cloud.points
@@ -120,18 +103,11 @@ def fit_frustum(task: FitTask) -> FitOutcome:
     """
     cloud = _own_stream(task.cloud)
     task = dataclasses.replace(task, cloud=cloud)
-    prior = axis_prior(task)
-    side = fit_curved(cloud, FRUSTUM, ConeModel,
-                      partial(cone_hypothesis_ok, params=cloud.params, prior=prior),
-                      with_caps=True)
-    if not isinstance(side, CurvedFit):
-        return side
-    checked = _verified_side(task, side, prior)
-    if isinstance(checked, Rejected):
-        return checked
-    caps, nearest, side_points = checked
+    fitted = fit_cone_side(task, FRUSTUM)
+    if not isinstance(fitted, tuple):
+        return fitted
+    side, lo, hi = fitted
     model = side.model
-    lo, hi = axial_extent(cloud, side_points, caps, nearest, model.apex, model.axis)
     dims = _sized(task, model, lo, hi)
     if isinstance(dims, Rejected):
         return dims
