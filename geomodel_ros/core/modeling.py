@@ -15,6 +15,7 @@ import math
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,13 +24,15 @@ from scipy.spatial import cKDTree
 from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, with_confidence
 from geomodel_ros.core.errors import InputError, as_points
 from geomodel_ros.core.fastmath import centroid, take_rows
-from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane, build_faces
+from geomodel_ros.core.fitting.cloud import SUPPORT_END_FACTOR, ObjectCloud, Plane, build_faces
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategies
 from geomodel_ros.core.input import downsample, in_range, working_params
-from geomodel_ros.core.noise import NoiseEstimate, frame_noise, is_fragment, object_params
+from geomodel_ros.core.noise import (NoiseEstimate, frame_noise, is_fragment, object_params,
+                                     support_band)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, ModelingResult, Primitive, PrimitiveType
+from geomodel_ros.core.resting import resting_objects
 from geomodel_ros.core.view import SceneView
 
 __all__ = ["model_objects", "model_object", "model_scene", "estimate_spacing", "InputError"]
@@ -365,7 +368,22 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     result.timing["total_s"] = result.timing["modeling_s"] + seg.timing["segmentation_s"] \
         + t_noise
     result.supports = dict(seg.support_planes)
+    result.supported = resting_objects(result.objects, result.supports,
+                                       partial(_contact_tolerance, params=params, noise=noise))
     return labels, result
+
+
+def _contact_tolerance(o: Primitive, params: ModelingParams, noise: NoiseEstimate | None
+                       ) -> float:
+    """Contact tolerance [m] of object ``o`` with a support: SUPPORT_END_FACTOR support bands.
+
+    The band is ``seg_plane_threshold``, or with a noise estimate at least the support band
+    the estimate sets (:func:`geomodel_ros.core.noise.support_band`) at the object's range.
+    """
+    band = params.seg_plane_threshold
+    if noise is not None:
+        band = max(band, support_band(noise, float(np.linalg.norm(o.center))))
+    return SUPPORT_END_FACTOR * band
 
 
 def _drop_fragments(labels: NDArray[np.int64], result: ModelingResult,

@@ -208,7 +208,8 @@ class ModelingResult:
     the sensor; empty when the objects were modeled from given labels. ``noise`` is the
     frame's :class:`~geomodel_ros.core.noise.NoiseEstimate` (None with ``noise_model =
     fixed``); ``fragments`` counts the segments left out of ``objects`` as too small to be
-    an object (their points are labelled -1).
+    an object (their points are labelled -1); ``supported`` maps each support's id to the
+    ids of the objects resting on it (:mod:`geomodel_ros.core.resting`).
     """
 
     objects: list[Primitive]
@@ -216,6 +217,7 @@ class ModelingResult:
     supports: dict[int, tuple[NDArray[np.float64], float]] = field(default_factory=dict)
     noise: Any = None
     fragments: int = 0
+    supported: dict[int, list[int]] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (the CLI's output schema)."""

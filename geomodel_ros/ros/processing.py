@@ -221,8 +221,7 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     else:
         shown, markers, deleted = tracking.step(objects, header)
     lap("markers_s")
-    objects_msg = primitives_to_objects(shown, header,
-                                        supports=_supports_by_id(result, objects, shown))
+    objects_msg = primitives_to_objects(shown, header, **_supports_by_id(result, objects, shown))
     lap("objects_s")
     segments_msg = segments_cloud(points, labels, header, organized_shape=organized) \
         if segments else None
@@ -258,9 +257,15 @@ def _model_or_nothing(points: NDArray[np.float64], organized: tuple[int, int] | 
     return np.full(len(points), -1, dtype=np.int64), ModelingResult(objects=[], timing={})
 
 
-def _supports_by_id(result: ModelingResult, objects: list, shown: list
-                    ) -> dict[int, tuple[NDArray[np.float64], float]]:
-    """Support planes re-keyed from segment labels to the published (tracked) ids."""
+def _supports_by_id(result: ModelingResult, objects: list, shown: list) -> dict:
+    """Re-key support planes and the objects resting on them to the published ids.
+
+    Returns ``supports`` and ``supported`` of ``primitives_to_objects``, keyed by the
+    published (tracked) ids instead of the segment labels.
+    """
     published_id = {p.id: q.id for p, q in zip(objects, shown)}
-    return {published_id[k]: v for k, v in getattr(result, "supports", {}).items()
-            if k in published_id}
+    supports = {published_id[k]: v for k, v in getattr(result, "supports", {}).items()
+                if k in published_id}
+    supported = {published_id[k]: [published_id[i] for i in ids if i in published_id]
+                 for k, ids in getattr(result, "supported", {}).items() if k in published_id}
+    return {"supports": supports, "supported": supported}
