@@ -746,7 +746,7 @@ def xyz_to_cloud(
     point_step = dtype.itemsize
     data, is_dense = _fill(flat, extras, dtype)
 
-    return PointCloud2(
+    msg = PointCloud2(
         header=_copy_header(header),
         height=height,
         width=width,
@@ -754,6 +754,9 @@ def xyz_to_cloud(
         is_bigendian=False,
         point_step=point_step,
         row_step=point_step * width,
-        data=data,
         is_dense=is_dense,
     )
+    # Assigned after construction: the constructor copies a ``data`` argument into a new
+    # array.array, the property takes an array.array('B') as it is.
+    msg.data = data
+    return msg

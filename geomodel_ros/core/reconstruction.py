@@ -39,6 +39,14 @@ def _grid(a: float, b: float, spacing: float) -> NDArray[np.float64]:
     return np.stack([u.ravel(), v.ravel()], axis=1)
 
 
+def _at_height(uv: NDArray[np.float64], z: float) -> NDArray[np.float64]:
+    """(n, 3) points ``(u, v, z)`` for the (n, 2) ``uv`` [m] at height ``z`` [m]."""
+    out = np.empty((len(uv), 3))
+    out[:, :2] = uv
+    out[:, 2] = z
+    return out
+
+
 def _disc(radius: float, spacing: float) -> NDArray[np.float64]:
     """(n, 2) grid points inside a disc of ``radius`` [m] and samples on its rim."""
     g = _grid(2 * radius, 2 * radius, spacing)
@@ -91,10 +99,10 @@ def _round(kind: PrimitiveType, dims: dict[str, float], spacing: float) -> NDArr
         thin = np.random.default_rng(CONE_THINNING_SEED).random(len(side))
         side = side[thin <= np.maximum(share, 1.0 / nt)]
     base = _disc(r, spacing)
-    caps = [np.c_[base, np.full(len(base), -h / 2)]]
+    caps = [_at_height(base, -h / 2)]
     if top > 0:
         lid = _disc(top, spacing)
-        caps.append(np.c_[lid, np.full(len(lid), h / 2)])
+        caps.append(_at_height(lid, h / 2))
     return np.vstack([side] + caps)
 
 
@@ -102,8 +110,7 @@ def _local_surface(kind: PrimitiveType, dims: dict[str, float], spacing: float
                    ) -> NDArray[np.float64]:
     """Sample a primitive's surface in its own frame (centre at the origin): (n, 3)."""
     if kind == PrimitiveType.PLANE:
-        g = _grid(dims["length"], dims["width"], spacing)
-        return np.c_[g, np.zeros(len(g))]
+        return _at_height(_grid(dims["length"], dims["width"], spacing), 0.0)
     if kind == PrimitiveType.CUBOID:
         return _box(dims, spacing)
     if kind in (PrimitiveType.CYLINDER, PrimitiveType.CONE, PrimitiveType.FRUSTUM):
@@ -139,15 +146,66 @@ def surface_area(primitive: Primitive) -> float:
     return 0.0
 
 
+def _to_world(local: NDArray[np.float64], rotation: NDArray[np.float64],
+              center: NDArray[np.float64], out: NDArray[np.float64]) -> None:
+    """Write ``local @ rotation.T + center`` into ``out``, column by column.
+
+    Elementwise products instead of a matrix product: an (n, 3) x (3, 3) product goes
+    through multithreaded BLAS, whose threads spin and wait for a core on a loaded machine
+    (measured: 4 ms idle, 100+ ms under load for 300k samples); this takes the idle time
+    whatever the load.
+
+    Parameters
+    ----------
+    local : (n, 3) float64 array [m]
+        Samples in the primitive's own frame.
+    rotation : (3, 3) float64 array
+        Columns are the primitive's axes in the world frame.
+    center : (3,) float64 array [m]
+    out : (n, 3) float64 array
+        Receives the samples in the world frame.
+    """
+    rot = np.asarray(rotation, dtype=np.float64)
+    ctr = np.asarray(center, dtype=np.float64).reshape(3)
+    used = [j for j in range(3) if np.any(local[:, j])]  # a plane's local z is all 0
+    term = np.empty(len(local))
+    for k in range(3):
+        dst = out[:, k]
+        dst.fill(ctr[k])
+        for j in used:
+            dst += np.multiply(local[:, j], rot[k, j], out=term)
+
+
 def sample_primitive(primitive: Primitive, spacing: float) -> NDArray[np.float64]:
     """Points on the surface of ``primitive`` at about ``spacing`` [m] apart, (n, 3) [m].
 
     ``unknown`` objects have no surface and give an empty array.
     """
+    local = _local_samples(primitive, spacing)
+    out = np.empty_like(local)
+    _to_world(local, primitive.rotation, primitive.center, out)
+    return out
+
+
+def _local_samples(primitive: Primitive, spacing: float) -> NDArray[np.float64]:
+    """Sample ``primitive`` in its own frame: (n, 3) [m]; empty for ``unknown``."""
     if primitive.type == "unknown":
         return np.zeros((0, 3))
-    local = _local_surface(primitive.type, primitive.dimensions, spacing)
-    return local @ primitive.rotation.T + primitive.center
+    return _local_surface(primitive.type, primitive.dimensions, spacing)
+
+
+def _budgeted_samples(prim: Primitive, spacing: float, max_points: int
+                      ) -> NDArray[np.float64]:
+    """Sample ``prim`` locally at ``spacing`` or coarser, at most ``max_points``: (n, 3)."""
+    # Coarsen the spacing before sampling so that no object exceeds the budget (a 20 m
+    # wall at 2 mm would otherwise need 10^8 samples).
+    area = surface_area(prim)
+    s = max(spacing, math.sqrt(area / max_points)) if area > 0 else spacing
+    local = _local_samples(prim, s)
+    while len(local) > max_points:
+        s *= SPACING_GROWTH
+        local = _local_samples(prim, s)
+    return local
 
 
 def reconstruct(primitives: list[Primitive], spacing: float,
@@ -160,18 +218,13 @@ def reconstruct(primitives: list[Primitive], spacing: float,
     points : (n, 3) float64 [m]
     ids : (n,) int32, the object id of every sample
     """
-    pts, ids = [], []
-    for prim in primitives:
-        # Coarsen the spacing before sampling so that no object exceeds the budget (a
-        # 20 m wall at 2 mm would otherwise need 10^8 samples).
-        area = surface_area(prim)
-        s = max(spacing, math.sqrt(area / max_points_per_object)) if area > 0 else spacing
-        local = sample_primitive(prim, s)
-        while len(local) > max_points_per_object:
-            s *= SPACING_GROWTH
-            local = sample_primitive(prim, s)
-        pts.append(local)
-        ids.append(np.full(len(local), prim.id, dtype=np.int32))
-    if not pts:
-        return np.zeros((0, 3)), np.zeros(0, dtype=np.int32)
-    return np.vstack(pts), np.concatenate(ids)
+    locals_ = [_budgeted_samples(p, spacing, max_points_per_object) for p in primitives]
+    counts = [len(local) for local in locals_]
+    points = np.empty((sum(counts), 3))
+    ids = np.empty(len(points), dtype=np.int32)
+    start = 0
+    for prim, local, n in zip(primitives, locals_, counts):
+        _to_world(local, prim.rotation, prim.center, points[start:start + n])
+        ids[start:start + n] = prim.id
+        start += n
+    return points, ids

@@ -209,7 +209,7 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     # Every row, NaNs included: labels stay aligned with the input's points (and pixels,
     # for an organized cloud).
     points, organized, header = to_scene(msg)
-    n_valid = int(np.count_nonzero(np.isfinite(points).all(axis=1)))
+    n_valid = _count_finite(points)
     lap("convert_s")
     labels, result = _model_or_nothing(points, organized, n_valid, params, model_scene)
     timing.update({f"core_{k}": float(v) for k, v in result.timing.items()})
@@ -234,6 +234,15 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
                        valid_points=n_valid, timing=timing, objects=objects_msg,
                        tracked=list(shown), deleted_ids=deleted,
                        diagnostics=noise_values(result.noise, result.fragments))
+
+
+def _count_finite(points: NDArray[np.floating]) -> int:
+    """Count the rows of ``points`` (N, 3) whose x, y and z are all finite."""
+    # Per column: a reduction along the short axis of an (N, 3) array is ~10x slower.
+    finite = np.isfinite(points[:, 0])
+    finite &= np.isfinite(points[:, 1])
+    finite &= np.isfinite(points[:, 2])
+    return int(np.count_nonzero(finite))
 
 
 class _Laps:

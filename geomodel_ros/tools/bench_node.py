@@ -1,7 +1,9 @@
 """Benchmark of the ``modeler`` node: its own overhead and end-to-end latency.
 
-Run as ``python -m geomodel_ros.tools.bench_node [--scene scene3] [--frames 20]
-[--input points depth]``.
+Run as ``python -m geomodel_ros.tools.bench_node [--scene scene3 | --osd 20] [--frames 20]
+[--input points depth]``; ``--osd N`` takes the real Kinect frame ``osd_learn/learnN``
+(640 x 480; its depth image through the database's pinhole intrinsics, which reproduce its
+cloud) instead of a rendered scene.
 
 1. **Node overhead** (conversion in, markers and clouds out, publish) per frame: the node
    is given a stand-in for the scene modeling that returns a precomputed result of the real
@@ -52,8 +54,13 @@ from geomodel_ros.core.modeling import model_scene  # noqa: E402
 from geomodel_ros.ros.node import ModelerNode  # noqa: E402
 from geomodel_ros.ros.processing import SceneModeler  # noqa: E402
 from geomodel_ros.core.params import ModelingParams  # noqa: E402
+from geomodel_ros.tools.io import load_osd  # noqa: E402
+from geomodel_ros.tools.paths import data_dir  # noqa: E402
 from geomodel_ros.tools.synth import SCENE_NAMES, render_scene  # noqa: E402
 
+#: Intrinsics [px] of the osd_learn frames: x / z and y / z of every pixel follow this
+#: pinhole model to 2e-7 (least squares over learn20), so its depth image gives the cloud.
+OSD_CAMERA = CameraModel(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
 _QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 _STAGES = (("convert_s", "convert in (message -> numpy)"),
            ("model_s", "core (model_scene)"),
@@ -170,6 +177,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m geomodel_ros.tools.bench_node",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", default="scene3", choices=SCENE_NAMES)
+    parser.add_argument("--osd", type=int, default=None, metavar="N",
+                        help="use the real Kinect frame osd_learn/learnN instead of --scene")
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--tracking", choices=("on", "off"), default="on",
                         help="the node's tracking parameter (stable ids, per-id markers)")
@@ -181,13 +190,14 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--frames must be >= 1")
     retain_freed_memory()  # as the node's main does
 
-    scene = render_scene(args.scene)
+    name, organized, camera = _scene(args.scene, args.osd)
     header = make_header("camera_optical", 1 * NS_PER_S)
-    inputs = {"points": (xyz_to_cloud(scene.organized, header), None),
-              "depth": (depth_image(scene.organized[..., 2], header, encoding="16UC1"),
-                        camera_info(CameraModel(**scene.intrinsics), header))}
-    h, w = scene.organized.shape[:2]
-    print(f"scene {args.scene}: {h} x {w} organized, {len(scene.points)} valid points; "
+    inputs = {"points": (xyz_to_cloud(organized, header), None),
+              "depth": (depth_image(organized[..., 2], header, encoding="16UC1"),
+                        camera_info(camera, header))}
+    h, w = organized.shape[:2]
+    valid = int(np.count_nonzero(np.isfinite(organized).all(axis=2)))
+    print(f"scene {name}: {h} x {w} organized, {valid} valid points; "
           f"{args.frames} frames; input messages: PointCloud2 "
           f"{cloud_size(inputs['points'][0]).nbytes / 1e6:.1f} MB, 16UC1 depth image "
           f"{len(inputs['depth'][0].data) / 1e6:.2f} MB")
@@ -196,6 +206,16 @@ def main(argv: list[str] | None = None) -> int:
         msg, info = inputs[kind]
         _report(kind, msg, info, args.frames, tracking)
     return 0
+
+
+def _scene(scene: str, osd: int | None) -> tuple[str, np.ndarray, CameraModel]:
+    """Name, (H, W, 3) organized points [m] and camera of the frame to send."""
+    if osd is None:
+        rendered = render_scene(scene)
+        return scene, rendered.organized, CameraModel(**rendered.intrinsics)
+    points, _ = load_osd(data_dir() / "osd_learn" / f"learn{osd}.pcd")
+    return f"osd_learn/learn{osd}", points.reshape(OSD_CAMERA.height, OSD_CAMERA.width, 3), \
+        OSD_CAMERA
 
 
 def _precomputed(msg: PointCloud2 | Image, info: CameraInfo | None) -> SceneModeler:

@@ -3,9 +3,11 @@
 Both paths of :func:`~geomodel_ros.core.segmentation.segment_scene` (parameter
 ``organized_fast_path``) on the same frames in the same run:
 
-* ``--part osd``: the osd_learn benchmark (45 real Kinect frames, config/kinect.yaml) of
-  ``geomodel bench`` for each path: IoU >= 0.8 share, under/over-segmentation, and the type
-  table of the best segments;
+* ``--part osd``: the osd_learn benchmark (45 real Kinect frames, config/kinect.yaml, or
+  the defaults with ``--defaults``) of ``geomodel bench`` for each path: IoU >= 0.8 share,
+  under/over-segmentation, and the type table of the best segments; ``--block B`` (a
+  diagnosis, not a setting) forces the fast path's block edge to B pixels instead of
+  :func:`~geomodel_ros.core.organized.block_size`'s choice, and runs the fast path only;
 * ``--part time``: warm ``model_scene`` (segmentation + modeling) per frame, the two paths
   alternated, median of ``--repeats`` runs, on osd_learn frames (640 x 480) and the paper's
   scene3 (1104 x 624, 368k points);
@@ -26,6 +28,7 @@ import pstats
 import statistics
 import time
 
+from geomodel_ros.core import organized
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams, load_params_file
 from geomodel_ros.tools.benchmark import osd_benchmark, osd_lines, osd_type_lines
@@ -45,10 +48,16 @@ def _kinect(fast: bool) -> ModelingParams:
                                organized_fast_path=fast)
 
 
-def _osd() -> None:
-    for name, fast in PATHS:
-        rows = osd_benchmark(_kinect(fast))
-        print(f"\nosd_learn, {name} path (config/kinect.yaml):")
+def _osd(defaults: bool, block: int | None) -> None:
+    paths = PATHS if block is None else (("organized", True),)
+    if block is not None:
+        organized.block_size = lambda _image, _voxel: block
+    source = "defaults" if defaults else "config/kinect.yaml"
+    for name, fast in paths:
+        params = ModelingParams(organized_fast_path=fast) if defaults else _kinect(fast)
+        rows = osd_benchmark(params)
+        forced = "" if block is None else f", block edge forced to {block} px"
+        print(f"\nosd_learn, {name} path ({source}{forced}):")
         print("\n".join(osd_lines(rows)))
         print("\n".join(osd_type_lines(rows)))
 
@@ -115,9 +124,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=7, help="timed runs per frame and path")
     ap.add_argument("--frame", type=int, default=20, help="osd_learn frame to profile")
     ap.add_argument("--top", type=int, default=25, help="functions listed by the profile")
+    ap.add_argument("--defaults", action="store_true",
+                    help="osd part: the default parameters instead of config/kinect.yaml")
+    ap.add_argument("--block", type=int, default=None,
+                    help="osd part, diagnosis: force the fast path's block edge [px]")
     args = ap.parse_args(argv)
+    if args.block is not None and args.block < 1:
+        ap.error("--block must be >= 1 [px]")
     if args.part in ("osd", "all"):
-        _osd()
+        _osd(args.defaults, args.block)
     if args.part in ("time", "all"):
         _time(args.repeats)
     if args.part in ("profile", "all"):
