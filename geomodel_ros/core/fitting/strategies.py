@@ -3,7 +3,11 @@
 :func:`decide` applies the model graph. :data:`STRATEGIES` is the ordered list of
 attempts :func:`run_strategies` makes until one fits: the model graph's own candidates,
 the curved faces alone (when mixed faces fit no rule), curved faces with flat normals
-taken as planes, and round candidates upright above a support plane.
+taken as planes, round candidates upright above a support plane, and a box from the
+flat cores of curved faces. A round fit also has to beat that box: when curved faces have
+a flat core (a box side with a gable, fold or shrink-wrap ripples over part of it), the
+box is fitted too and the shape with the smaller truncated residual (MSAC cost at the
+noise band) is taken (:func:`prefer_box`).
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from numpy.typing import NDArray
 
 from geomodel_ros.core.fastmath import centroid
 from geomodel_ros.core.fitting.cloud import ObjectCloud, as_planar
+from geomodel_ros.core.confidence import surface_distance
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.model_graph import (FaceInfo, GraphDecision, curvature_candidates,
@@ -29,7 +34,8 @@ from geomodel_ros.core.surface_type import principal_curvatures
 
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
-           "UprightAboveSupport", "flat_faces", "support_below"]
+           "UprightAboveSupport", "FlatCoresAsBox", "flat_faces", "flat_core_faces",
+           "support_below", "truncated_cost", "prefer_box"]
 
 #: Parallel planar faces whose offsets differ by at most this many RANSAC thresholds are
 #: one plane (the band within which a plane's own points scatter).
@@ -42,6 +48,15 @@ MIN_SMOOTH_POINTS = 10
 #: round surface's normals turn with its arc (at least ``min_arc`` for an accepted fit).
 FLAT_FACE_ANGLE = math.radians(20.0)
 FLAT_NORMALS_PERCENTILE = 10.0
+#: A curved face has a flat core when this percentile of its point normals (half of
+#: them) stays within FLAT_FACE_ANGLE of their mean: a box side with a gable, a fold or
+#: shrink-wrap ripples over a minority of it. A round side seen from one viewpoint does
+#: not: its normals turn with the arc (a cylinder's visible half has about a third of
+#: them, sin 20 deg, within 20 deg of the mean).
+FLAT_CORE_PERCENTILE = 50.0
+#: Points on which the truncated residuals of rival shapes are compared (as
+#: CONFIDENCE_SAMPLE: a mean over 2000 samples has a standard error of a few per cent).
+RIVAL_SAMPLE = 2000
 #: Fewest point normals and smallest mean-normal norm for which flatness is judged.
 MIN_FLAT_NORMALS = 3
 MIN_FLAT_MEAN_NORM = 1e-9
@@ -172,8 +187,11 @@ class CurvedFacesAlone:
         return Attempt(situation.cloud, decision, note=f"curved faces alone: {decision.reason}")
 
 
-def _flat(info: FaceInfo) -> bool:
-    """Whether a face's point normals stay within FLAT_FACE_ANGLE of their mean."""
+def _flat(info: FaceInfo, percentile: float = FLAT_NORMALS_PERCENTILE) -> bool:
+    """Whether a face's point normals stay within FLAT_FACE_ANGLE of their mean.
+
+    All but ``percentile`` per cent of them must.
+    """
     n = info.point_normals
     if len(n) < MIN_FLAT_NORMALS:
         return False
@@ -182,7 +200,7 @@ def _flat(info: FaceInfo) -> bool:
     if norm <= MIN_FLAT_MEAN_NORM:
         return False
     cos = np.abs(n @ (mean / norm))
-    return float(np.percentile(cos, FLAT_NORMALS_PERCENTILE)) >= math.cos(FLAT_FACE_ANGLE)
+    return float(np.percentile(cos, percentile)) >= math.cos(FLAT_FACE_ANGLE)
 
 
 def flat_faces(cloud: ObjectCloud) -> list[int]:
@@ -215,6 +233,79 @@ class FlatCurvedFacesAsPlanar:
         note = (f"faces {flat} taken as planar (their normals turn less than "
                 f"{math.degrees(FLAT_FACE_ANGLE):.0f} deg): {decision.reason}")
         return Attempt(dataclasses.replace(cloud, faces=faces), decision, note=note)
+
+
+def flat_core_faces(cloud: ObjectCloud) -> list[int]:
+    """Return the curved faces with a flat core (:data:`FLAT_CORE_PERCENTILE`)."""
+    return [i for i, f in enumerate(cloud.faces)
+            if not f.info.planar and _flat(f.info, FLAT_CORE_PERCENTILE)]
+
+
+class FlatCoresAsBox:
+    """Fit a box to the faces with curved faces' flat cores taken as their planes.
+
+    A box side partly bent (a carton's gable, the ripples of a shrink-wrapped pack)
+    comes out curved; its flat core is the side. The bent part stays in the object as
+    points off the box's faces, which the cuboid unit leaves out of the sizing.
+    """
+
+    name = "flat cores as box"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True when some curved face has a flat core."""
+        return bool(flat_core_faces(situation.cloud))
+
+    def attempt(self, situation: Situation) -> Attempt | None:
+        """Fit the cuboid the graph proposes for the re-described faces, if it does."""
+        cloud, flat = situation.cloud, flat_core_faces(situation.cloud)
+        faces = [as_planar(cloud.wc, f, cloud.params.ransac_threshold) if i in flat else f
+                 for i, f in enumerate(cloud.faces)]
+        decision = graph_decision([f.info for f in faces], cloud.adjacency, None, cloud.params)
+        if PrimitiveType.CUBOID not in decision.candidates:
+            return None
+        decision = dataclasses.replace(decision, candidates=(PrimitiveType.CUBOID,))
+        note = f"flat cores of faces {flat} as planes: {decision.reason}"
+        return Attempt(dataclasses.replace(cloud, faces=faces), decision, note=note)
+
+
+def truncated_cost(p: Primitive, cloud: ObjectCloud) -> float:
+    """MSAC cost of ``p`` on the object's points: mean of min(d, t)^2 / t^2, in [0, 1].
+
+    ``d`` is each point's distance to the fitted surface (every k-th of about
+    :data:`RIVAL_SAMPLE` points), ``t`` the RANSAC threshold (the noise band): points on
+    the surface cost their squared residual, points off it (outliers) one band each.
+    """
+    t = cloud.params.ransac_threshold
+    d = surface_distance(p, np.ascontiguousarray(every_kth(cloud.points, RIVAL_SAMPLE)))
+    if d is None or not len(d) or t <= 0:
+        return 1.0
+    return float(np.mean(np.minimum(d / t, 1.0) ** 2))
+
+
+def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
+               reasons: list[str]) -> tuple[Primitive, tuple[FaceSummary, ...]]:
+    """Return the round fit ``prim`` or the box of the flat cores, whichever costs less.
+
+    The box (:class:`FlatCoresAsBox`) is fitted when some curved face has a flat core;
+    it replaces ``prim`` when its :func:`truncated_cost` is lower. The comparison is
+    added to ``reasons``.
+    """
+    box_strategy = FlatCoresAsBox()
+    if prim.type not in ROUND_TYPES or not box_strategy.applies(situation):
+        return prim, faces
+    attempt = box_strategy.attempt(situation)
+    if attempt is None:
+        return prim, faces
+    box, _ = fit_first(attempt.cloud, attempt.decision)
+    if box is None:
+        return prim, faces
+    c_round, c_box = truncated_cost(prim, situation.cloud), truncated_cost(box, situation.cloud)
+    verdict = "replaces" if c_box < c_round else "does not replace"
+    reasons.append(f"{attempt.note}; cuboid (cost {c_box:.3f}) {verdict} {prim.type} "
+                   f"(cost {c_round:.3f})")
+    if c_box < c_round:
+        return box, tuple(f.summary for f in attempt.cloud.faces)
+    return prim, faces
 
 
 def support_below(cloud: ObjectCloud) -> NDArray[np.float64] | None:
@@ -265,7 +356,8 @@ class UprightAboveSupport:
 
 #: The strategies in the order they are tried.
 STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
-                                    FlatCurvedFacesAsPlanar(), UprightAboveSupport())
+                                    FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
+                                    FlatCoresAsBox())
 
 
 def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES
@@ -273,7 +365,8 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
     """Try ``strategies`` in order until one fits.
 
     Returns the primitive (None if none fits), the face summaries it was fitted with
-    (those of ``situation.cloud`` if none) and every reason on the way.
+    (those of ``situation.cloud`` if none) and every reason on the way. A round fit
+    is checked against the box of the flat cores (:func:`prefer_box`).
     """
     reasons = [situation.decision.reason]
     for strategy in strategies:
@@ -287,5 +380,6 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
         prim, tried = fit_first(attempt.cloud, attempt.decision, attempt.axis_prior)
         reasons.extend(attempt.prefix + r for r in tried)
         if prim is not None:
-            return prim, tuple(f.summary for f in attempt.cloud.faces), reasons
+            faces = tuple(f.summary for f in attempt.cloud.faces)
+            return (*prefer_box(situation, prim, faces, reasons), reasons)
     return None, tuple(f.summary for f in situation.cloud.faces), reasons
