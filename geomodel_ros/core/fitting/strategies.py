@@ -3,11 +3,12 @@
 :func:`decide` applies the model graph. :data:`STRATEGIES` is the ordered list of
 attempts :func:`run_strategies` makes until one fits: the model graph's own candidates,
 the curved faces alone (when mixed faces fit no rule), curved faces with flat normals
-taken as planes, round candidates upright above a support plane, and a box from the
-flat cores of curved faces. A round fit also has to beat that box: when curved faces have
-a flat core (a box side with a gable, fold or shrink-wrap ripples over part of it), the
-box is fitted too and the shape with the smaller truncated residual (MSAC cost at the
-noise band) is taken (:func:`prefer_box`).
+taken as planes, and round candidates upright above a support plane. A round fit also
+has to beat a box: the box of the planar faces and of the flat cores of curved faces (a
+box side with a gable, fold or shrink-wrap ripples over part of it), the other curved
+faces left out as outliers (:func:`box_rival`); the shape with the smaller truncated
+residual over all the object's points (MSAC cost at the noise band) is taken
+(:func:`prefer_box`).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from geomodel_ros.core.surface_type import principal_curvatures
 
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
-           "UprightAboveSupport", "FlatCoresAsBox", "flat_faces", "flat_core_faces",
+           "UprightAboveSupport", "flat_faces", "flat_core_faces", "box_rival",
            "support_below", "truncated_cost", "prefer_box"]
 
 #: Parallel planar faces whose offsets differ by at most this many RANSAC thresholds are
@@ -241,31 +242,32 @@ def flat_core_faces(cloud: ObjectCloud) -> list[int]:
             if not f.info.planar and _flat(f.info, FLAT_CORE_PERCENTILE)]
 
 
-class FlatCoresAsBox:
-    """Fit a box to the faces with curved faces' flat cores taken as their planes.
+def box_rival(cloud: ObjectCloud) -> tuple[ObjectCloud, GraphDecision, str] | None:
+    """Return the box hypothesis of an object with curved faces: its faces and decision.
 
-    A box side partly bent (a carton's gable, the ripples of a shrink-wrapped pack)
-    comes out curved; its flat core is the side. The bent part stays in the object as
-    points off the box's faces, which the cuboid unit leaves out of the sizing.
+    The planar faces and the flat cores of curved faces (:func:`flat_core_faces`, taken
+    as their planes) are the box's candidate sides; the other curved faces (a carton's
+    gable, a handle, a rim) are left out, so their points count as off the box. None
+    when the object has no curved face or the model graph proposes no cuboid for those
+    sides.
     """
-
-    name = "flat cores as box"
-
-    def applies(self, situation: Situation) -> bool:
-        """Return True when some curved face has a flat core."""
-        return bool(flat_core_faces(situation.cloud))
-
-    def attempt(self, situation: Situation) -> Attempt | None:
-        """Fit the cuboid the graph proposes for the re-described faces, if it does."""
-        cloud, flat = situation.cloud, flat_core_faces(situation.cloud)
-        faces = [as_planar(cloud.wc, f, cloud.params.ransac_threshold) if i in flat else f
-                 for i, f in enumerate(cloud.faces)]
-        decision = graph_decision([f.info for f in faces], cloud.adjacency, None, cloud.params)
-        if PrimitiveType.CUBOID not in decision.candidates:
-            return None
-        decision = dataclasses.replace(decision, candidates=(PrimitiveType.CUBOID,))
-        note = f"flat cores of faces {flat} as planes: {decision.reason}"
-        return Attempt(dataclasses.replace(cloud, faces=faces), decision, note=note)
+    flat = flat_core_faces(cloud)
+    curved = [i for i, f in enumerate(cloud.faces) if not f.info.planar]
+    kept = [i for i, f in enumerate(cloud.faces) if f.info.planar or i in flat]
+    if not curved or not kept:
+        return None
+    thr = cloud.params.ransac_threshold
+    faces = [as_planar(cloud.wc, cloud.faces[i], thr) if i in flat else cloud.faces[i]
+             for i in kept]
+    adjacency = cloud.adjacency[np.ix_(kept, kept)]
+    decision = graph_decision([f.info for f in faces], adjacency, None, cloud.params)
+    if PrimitiveType.CUBOID not in decision.candidates:
+        return None
+    decision = dataclasses.replace(decision, candidates=(PrimitiveType.CUBOID,))
+    left_out = sorted(set(curved) - set(flat))
+    note = (f"box of faces {kept} (flat cores of {flat} as planes, {left_out} left out): "
+            f"{decision.reason}")
+    return dataclasses.replace(cloud, faces=faces, adjacency=adjacency), decision, note
 
 
 def truncated_cost(p: Primitive, cloud: ObjectCloud) -> float:
@@ -286,25 +288,23 @@ def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, 
                reasons: list[str]) -> tuple[Primitive, tuple[FaceSummary, ...]]:
     """Return the round fit ``prim`` or the box of the flat cores, whichever costs less.
 
-    The box (:class:`FlatCoresAsBox`) is fitted when some curved face has a flat core;
-    it replaces ``prim`` when its :func:`truncated_cost` is lower. The comparison is
-    added to ``reasons``.
+    The box (:func:`box_rival`) is fitted to the same object; it replaces ``prim``
+    when its :func:`truncated_cost` over all the object's points is lower. The
+    comparison is added to ``reasons``.
     """
-    box_strategy = FlatCoresAsBox()
-    if prim.type not in ROUND_TYPES or not box_strategy.applies(situation):
+    rival = box_rival(situation.cloud) if prim.type in ROUND_TYPES else None
+    if rival is None:
         return prim, faces
-    attempt = box_strategy.attempt(situation)
-    if attempt is None:
-        return prim, faces
-    box, _ = fit_first(attempt.cloud, attempt.decision)
+    box_cloud, decision, note = rival
+    box, _ = fit_first(box_cloud, decision)
     if box is None:
         return prim, faces
     c_round, c_box = truncated_cost(prim, situation.cloud), truncated_cost(box, situation.cloud)
     verdict = "replaces" if c_box < c_round else "does not replace"
-    reasons.append(f"{attempt.note}; cuboid (cost {c_box:.3f}) {verdict} {prim.type} "
+    reasons.append(f"{note}; cuboid (cost {c_box:.3f}) {verdict} {prim.type} "
                    f"(cost {c_round:.3f})")
     if c_box < c_round:
-        return box, tuple(f.summary for f in attempt.cloud.faces)
+        return box, tuple(f.summary for f in box_cloud.faces)
     return prim, faces
 
 
@@ -356,8 +356,7 @@ class UprightAboveSupport:
 
 #: The strategies in the order they are tried.
 STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
-                                    FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
-                                    FlatCoresAsBox())
+                                    FlatCurvedFacesAsPlanar(), UprightAboveSupport())
 
 
 def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES
