@@ -74,6 +74,14 @@ WIRE_HIDDEN_STEP: Final = 0.02
 #: Every this many pixels along a hidden wire one pixel is drawn (dotted line).
 HIDDEN_DOT_PERIOD: Final = 4
 
+#: Splats cover this many times the projected point spacing [px] (closes the gaps of a
+#: zoomed-in view), within [MIN_SPLAT, MAX_SPLAT] px.
+SPLAT_COVER: Final = 1.3
+MIN_SPLAT: Final = 2
+MAX_SPLAT: Final = 9
+#: Points on which the spacing is measured (a median needs no more).
+SPACING_SAMPLE: Final = 2000
+
 RGB = tuple[int, int, int]
 _WHITE: RGB = (255, 255, 255)
 _INK: RGB = (25, 25, 25)
@@ -317,10 +325,28 @@ def _grid_normals(points: NDArray[np.float64], shape: tuple[int, int] | None
 
 
 # ------------------------------------------------------------------------------ views
+def _splat(points: NDArray[np.float64], camera: PinholeCamera) -> int:
+    """Splat size [px] that closes the gaps between neighbouring ``points`` in ``camera``."""
+    from scipy.spatial import cKDTree
+
+    if len(points) < 2:
+        return MIN_SPLAT
+    step = max(1, len(points) // SPACING_SAMPLE)
+    sample = points[::step]
+    spacing = float(np.median(cKDTree(points).query(sample, k=2)[0][:, 1]))
+    z = camera.to_camera_frame(sample)[:, 2]
+    z = z[z > 0]
+    if not len(z):
+        return MIN_SPLAT
+    px = SPLAT_COVER * spacing * camera.fx / float(np.median(z))
+    return int(np.clip(math.ceil(px), MIN_SPLAT, MAX_SPLAT))
+
+
 def _view(points, normals, labels, primitives, camera: PinholeCamera, scale: int
           ) -> NDArray[np.uint8]:
     """One view: coloured points, outlines (dotted where hidden) and labels."""
-    img, depth = render_points(points, id_colors(labels), camera=camera, point_size=2,
+    img, depth = render_points(points, id_colors(labels), camera=camera,
+                               point_size=_splat(points, camera),
                                normals=normals, shading=0.25, return_depth=True)
     colors = id_colors(np.array([p.id for p in primitives], dtype=np.int64))
     for p, c in zip(primitives, colors):

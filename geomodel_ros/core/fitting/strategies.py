@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fastmath import centroid
-from geomodel_ros.core.fitting.cloud import ObjectCloud, as_planar
+from geomodel_ros.core.fitting.cloud import ObjectCloud, ObjectFace, as_planar
 from geomodel_ros.core.confidence import surface_distance
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.units import fit_first
@@ -35,7 +35,8 @@ from geomodel_ros.core.surface_type import principal_curvatures
 
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
-           "UprightAboveSupport", "flat_faces", "flat_core_faces", "box_rival",
+           "UprightAboveSupport", "BoxRival", "flat_faces",
+           "flat_core_faces", "box_rival",
            "support_below", "truncated_cost", "prefer_box"]
 
 #: Parallel planar faces whose offsets differ by at most this many RANSAC thresholds are
@@ -122,6 +123,11 @@ class Situation:
     def mixed_without_rule(self) -> bool:
         """Whether the planar faces fit no rule with the curved ones (no candidate)."""
         return not self.decision.candidates and self.decision.category == "mixed"
+
+    @cached_property
+    def box_rival(self) -> "BoxRival | None":
+        """The object's box hypothesis (:func:`box_rival`), found once."""
+        return box_rival(self.cloud)
 
     @cached_property
     def fit_decision(self) -> GraphDecision:
@@ -242,32 +248,68 @@ def flat_core_faces(cloud: ObjectCloud) -> list[int]:
             if not f.info.planar and _flat(f.info, FLAT_CORE_PERCENTILE)]
 
 
-def box_rival(cloud: ObjectCloud) -> tuple[ObjectCloud, GraphDecision, str] | None:
-    """Return the box hypothesis of an object with curved faces: its faces and decision.
+@dataclass(frozen=True)
+class BoxRival:
+    """A box hypothesis for an object (:func:`box_rival`).
+
+    ``cloud`` holds the box's candidate sides as its faces, ``decision`` proposes the
+    cuboid for them, ``note`` says which faces were used and how.
+    """
+
+    cloud: ObjectCloud
+    decision: GraphDecision
+    note: str
+
+
+def _aligned(faces: list[ObjectFace], adjacency: NDArray[np.bool_], tol: float) -> list[int]:
+    """Return the faces aligned with one set of box axes within ``tol`` [rad].
+
+    The axes are the normals of the largest face and of its largest perpendicular
+    neighbour; all faces when the largest has no such neighbour.
+    """
+    sizes = np.array([f.info.size for f in faces])
+    normals = np.array([f.info.normal for f in faces])
+    main = int(np.argmax(sizes))
+    cos_main = np.abs(normals @ normals[main])
+    perp = np.flatnonzero(adjacency[main] & (cos_main <= math.sin(tol)))
+    if not perp.size:
+        return list(range(len(faces)))
+    second = int(perp[np.argmax(sizes[perp])])
+    third = np.cross(normals[main], normals[second])
+    axes = np.array([normals[main], normals[second], third / np.linalg.norm(third)])
+    return np.flatnonzero(np.abs(normals @ axes.T).max(axis=1) >= math.cos(tol)).tolist()
+
+
+def box_rival(cloud: ObjectCloud) -> BoxRival | None:
+    """Return the box hypothesis of an object whose faces do not all fit a box.
 
     The planar faces and the flat cores of curved faces (:func:`flat_core_faces`, taken
-    as their planes) are the box's candidate sides; the other curved faces (a carton's
-    gable, a handle, a rim) are left out, so their points count as off the box. None
-    when the object has no curved face or the model graph proposes no cuboid for those
-    sides.
+    as their planes) that are aligned with one set of box axes are the box's sides; the
+    other faces (a carton's gable, a handle, a rim) are left out, so their points count
+    as off the box. None when no face is left out or re-described, or when the model
+    graph proposes no cuboid for the sides.
     """
     flat = flat_core_faces(cloud)
-    curved = [i for i, f in enumerate(cloud.faces) if not f.info.planar]
-    kept = [i for i, f in enumerate(cloud.faces) if f.info.planar or i in flat]
-    if not curved or not kept:
+    cand = [i for i, f in enumerate(cloud.faces) if f.info.planar or i in flat]
+    if not cand:
         return None
-    thr = cloud.params.ransac_threshold
-    faces = [as_planar(cloud.wc, cloud.faces[i], thr) if i in flat else cloud.faces[i]
-             for i in kept]
+    params = cloud.params
+    faces = [as_planar(cloud.wc, cloud.faces[i], params.ransac_threshold) if i in flat
+             else cloud.faces[i] for i in cand]
+    sub = _aligned(faces, cloud.adjacency[np.ix_(cand, cand)], params.angle_tolerance)
+    kept = [cand[j] for j in sub]
+    left_out = sorted(set(range(len(cloud.faces))) - set(kept))
+    if not left_out and not flat:
+        return None
+    faces = [faces[j] for j in sub]
     adjacency = cloud.adjacency[np.ix_(kept, kept)]
-    decision = graph_decision([f.info for f in faces], adjacency, None, cloud.params)
+    decision = graph_decision([f.info for f in faces], adjacency, None, params)
     if PrimitiveType.CUBOID not in decision.candidates:
         return None
-    decision = dataclasses.replace(decision, candidates=(PrimitiveType.CUBOID,))
-    left_out = sorted(set(curved) - set(flat))
     note = (f"box of faces {kept} (flat cores of {flat} as planes, {left_out} left out): "
             f"{decision.reason}")
-    return dataclasses.replace(cloud, faces=faces, adjacency=adjacency), decision, note
+    return BoxRival(dataclasses.replace(cloud, faces=faces, adjacency=adjacency),
+                    dataclasses.replace(decision, candidates=(PrimitiveType.CUBOID,)), note)
 
 
 def truncated_cost(p: Primitive, cloud: ObjectCloud) -> float:
@@ -292,11 +334,11 @@ def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, 
     when its :func:`truncated_cost` over all the object's points is lower. The
     comparison is added to ``reasons``.
     """
-    rival = box_rival(situation.cloud) if prim.type in ROUND_TYPES else None
+    rival = situation.box_rival if prim.type in ROUND_TYPES else None
     if rival is None:
         return prim, faces
-    box_cloud, decision, note = rival
-    box, _ = fit_first(box_cloud, decision)
+    box_cloud, note = rival.cloud, rival.note
+    box, _ = fit_first(box_cloud, rival.decision)
     if box is None:
         return prim, faces
     c_round, c_box = truncated_cost(prim, situation.cloud), truncated_cost(box, situation.cloud)
