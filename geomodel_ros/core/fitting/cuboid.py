@@ -20,11 +20,14 @@ __all__ = ["fit_cuboid"]
 
 CUBOID = PrimitiveType.CUBOID
 #: A point whose depth along its viewing ray differs from its face's plane by more than
-#: this many RANSAC thresholds (the noise band of a face sample's depth) is no noisy
-#: sample of that face: a mixed pixel past a silhouette, or a neighbouring surface (a
-#: carton's gable) within the sizing band. Moved onto the plane along a slanted ray it
-#: would land beyond the face's edge; it takes no part in the sizing.
-RAY_DEPTH_FACTOR = 1.0
+#: this many RANSAC thresholds is no noisy sample of that face: a mixed pixel past a
+#: silhouette, or a neighbouring surface (a carton's gable) within the sizing band.
+#: Moved onto the plane along a slanted ray it would land beyond the face's edge; it
+#: takes no part in the sizing. Two bands, not one: a sample's own depth noise (one
+#: band) plus the fitted plane's tilt error, which a ray meeting the face obliquely
+#: lengthens at the face's far end (at one band, a Kinect box's top seen at a grazing
+#: angle under kinect.yaml's fixed threshold lost 6 mm of its height).
+RAY_DEPTH_FACTOR = 2.0
 
 
 def _face_planes(cloud: ObjectCloud, faces: list[int]) -> tuple[list[PlaneModel], float]:
