@@ -17,6 +17,7 @@ import pytest
 
 from data_helpers import DATA, require
 from geomodel_ros.core.fitting.strategies import truncated_cost
+from geomodel_ros.core.obb import ray_offset_to_plane
 from geomodel_ros.core.modeling import model_objects, model_scene
 from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.tools.synth import render_scene
@@ -198,3 +199,19 @@ def test_truncated_cost_by_hand() -> None:
     assert truncated_cost(box, cloud) == pytest.approx(0.625)
     cloud.points = np.array([[0.0, 0.0, 0.0]])  # the centre: half a side from every face
     assert truncated_cost(box, cloud) == pytest.approx(1.0)
+
+
+def test_ray_offset_to_plane_by_hand() -> None:
+    n, d = np.array([0.0, 0.0, 1.0]), -1.0  # the plane z = 1 m
+    pts = np.array([
+        [0.0, 0.0, 1.01],  # on the optical axis, 10 mm behind the plane
+        [0.3, 0.4, 0.9],  # its ray meets the plane at 1/0.9 of its distance (0.5/0.9 m)
+        [1.0, 0.0, 0.1],  # a ray at 84 deg to the normal: too oblique to judge
+        [0.0, 0.0, -1.0],  # the ray points away from the plane
+    ])
+    off = ray_offset_to_plane(pts, n, d)
+    dist = np.linalg.norm(pts[1])
+    assert off[0] == pytest.approx(0.01)
+    assert off[1] == pytest.approx(dist / 0.9 - dist)
+    assert off[2] == 0.0
+    assert off[3] == np.inf

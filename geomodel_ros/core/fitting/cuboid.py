@@ -28,6 +28,9 @@ CUBOID = PrimitiveType.CUBOID
 #: lengthens at the face's far end (at one band, a Kinect box's top seen at a grazing
 #: angle under kinect.yaml's fixed threshold lost 6 mm of its height).
 RAY_DEPTH_FACTOR = 2.0
+#: When more than this share of a face's points fail that test, the rays do not fit the
+#: face (the cloud is not seen from the origin): none of its points are left out.
+MAX_RAY_OUTLIER_SHARE = 0.5
 
 
 def _face_planes(cloud: ObjectCloud, faces: list[int]) -> tuple[list[PlaneModel], float]:
@@ -52,7 +55,8 @@ def _projections(cloud: ObjectCloud, planes: list[PlaneModel], nearest: NDArray[
 
     With ``reproject_along_rays`` each point first moves along its viewing ray onto the
     plane of its ``nearest`` face, and points farther from it along their rays than
-    :data:`RAY_DEPTH_FACTOR` RANSAC thresholds are left out.
+    :data:`RAY_DEPTH_FACTOR` RANSAC thresholds are left out (unless most of the face's
+    are: :data:`MAX_RAY_OUTLIER_SHARE`).
     """
     params = cloud.params
     thr = params.ransac_threshold
@@ -66,8 +70,9 @@ def _projections(cloud: ObjectCloud, planes: list[PlaneModel], nearest: NDArray[
             q[sel] = obb.ray_to_plane(pts, model.normal, model.d, RAY_SHIFT_FACTOR * thr)
             idx = np.flatnonzero(sel)
             off = obb.ray_offset_to_plane(pts, model.normal, model.d) > RAY_DEPTH_FACTOR * thr
-            used[idx[off]] = False
-            sel[idx[off]] = False
+            if np.mean(off) <= MAX_RAY_OUTLIER_SHARE:
+                used[idx[off]] = False
+                sel[idx[off]] = False
         per_face.append(take_rows(q, sel) @ rot)
     return take_rows(q, used) @ rot, per_face
 
