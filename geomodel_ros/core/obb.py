@@ -18,7 +18,8 @@ from scipy.spatial import ConvexHull, QhullError
 
 from geomodel_ros.core.fastmath import row_norms
 
-__all__ = ["ray_to_plane", "ray_scale_to_plane", "ray_to_cylinder", "hull_candidates",
+__all__ = ["ray_to_plane", "ray_scale_to_plane", "ray_offset_to_plane", "ray_to_cylinder",
+           "hull_candidates",
            "min_area_rectangle", "orthonormalize_axes", "interval", "edge_gap"]
 
 #: A ray that meets a plane at a cosine below this (more obliquely than about 78 deg)
@@ -65,6 +66,21 @@ def ray_scale_to_plane(height: NDArray[np.float64], dist: NDArray[np.float64], d
         s = -d / height
     ok = _shift_ok(s, dist, max_shift) & (np.abs(height) >= min_cos * dist)
     return np.where(ok, s, 1.0)
+
+
+def ray_offset_to_plane(points: NDArray[np.float64], normal: NDArray[np.float64], d: float,
+                        min_cos: float = MIN_RAY_COS) -> NDArray[np.float64]:
+    """Distance [m] (n,) along each point's ray from the origin to the plane n . x + d = 0.
+
+    The depth error a point of that plane would have. 0 where the ray meets the plane
+    more obliquely than ``arccos(min_cos)`` (ill-conditioned: judged as on the plane), inf
+    where it never meets it.
+    """
+    height, dist = points @ normal, row_norms(points)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -d / height
+    off = np.where(np.isfinite(s) & (s > 0), np.abs(s - 1.0) * dist, np.inf)
+    return np.where(np.abs(height) >= min_cos * dist, off, 0.0)
 
 
 def ray_to_cylinder(points: NDArray[np.float64], point: NDArray[np.float64],

@@ -19,6 +19,18 @@ from geomodel_ros.core.ransac import PlaneModel, refine
 __all__ = ["fit_cuboid"]
 
 CUBOID = PrimitiveType.CUBOID
+#: A point whose depth along its viewing ray differs from its face's plane by more than
+#: this many RANSAC thresholds is no noisy sample of that face: a mixed pixel past a
+#: silhouette, or a neighbouring surface (a carton's gable) within the sizing band.
+#: Moved onto the plane along a slanted ray it would land beyond the face's edge; it
+#: takes no part in the sizing. Two bands, not one: a sample's own depth noise (one
+#: band) plus the fitted plane's tilt error, which a ray meeting the face obliquely
+#: lengthens at the face's far end (at one band, a Kinect box's top seen at a grazing
+#: angle under kinect.yaml's fixed threshold lost 6 mm of its height).
+RAY_DEPTH_FACTOR = 2.0
+#: When more than this share of a face's points fail that test, the rays do not fit the
+#: face (the cloud is not seen from the origin): none of its points are left out.
+MAX_RAY_OUTLIER_SHARE = 0.5
 
 
 def _face_planes(cloud: ObjectCloud, faces: list[int]) -> tuple[list[PlaneModel], float]:
@@ -42,18 +54,27 @@ def _projections(cloud: ObjectCloud, planes: list[PlaneModel], nearest: NDArray[
     """Box coordinates of the points on the faces, all (n, 3) and per face.
 
     With ``reproject_along_rays`` each point first moves along its viewing ray onto the
-    plane of its ``nearest`` face.
+    plane of its ``nearest`` face, and points farther from it along their rays than
+    :data:`RAY_DEPTH_FACTOR` RANSAC thresholds are left out (unless most of the face's
+    are: :data:`MAX_RAY_OUTLIER_SHARE`).
     """
     params = cloud.params
+    thr = params.ransac_threshold
     q = cloud.points.copy()
+    used = nearest >= 0
     per_face = []
     for fi, model in enumerate(planes):
         sel = nearest == fi
         if params.reproject_along_rays:
-            q[sel] = obb.ray_to_plane(take_rows(cloud.points, sel), model.normal, model.d,
-                                      RAY_SHIFT_FACTOR * params.ransac_threshold)
+            pts = take_rows(cloud.points, sel)
+            q[sel] = obb.ray_to_plane(pts, model.normal, model.d, RAY_SHIFT_FACTOR * thr)
+            idx = np.flatnonzero(sel)
+            off = obb.ray_offset_to_plane(pts, model.normal, model.d) > RAY_DEPTH_FACTOR * thr
+            if np.mean(off) <= MAX_RAY_OUTLIER_SHARE:
+                used[idx[off]] = False
+                sel[idx[off]] = False
         per_face.append(take_rows(q, sel) @ rot)
-    return take_rows(q, nearest >= 0) @ rot, per_face
+    return take_rows(q, used) @ rot, per_face
 
 
 def _axis_interval(cloud: ObjectCloud, values: NDArray[np.float64], axis: NDArray[np.float64],

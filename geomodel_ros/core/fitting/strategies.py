@@ -3,7 +3,12 @@
 :func:`decide` applies the model graph. :data:`STRATEGIES` is the ordered list of
 attempts :func:`run_strategies` makes until one fits: the model graph's own candidates,
 the curved faces alone (when mixed faces fit no rule), curved faces with flat normals
-taken as planes, and round candidates upright above a support plane.
+taken as planes, and round candidates upright above a support plane. A round fit also
+has to beat a box: the box of the planar faces and of the flat cores of curved faces (a
+box side with a gable, fold or shrink-wrap ripples over part of it), the other curved
+faces left out as outliers (:func:`box_rival`); the shape with the smaller truncated
+residual over all the object's points (MSAC cost at the noise band) is taken
+(:func:`prefer_box`).
 """
 
 from __future__ import annotations
@@ -18,7 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fastmath import centroid
-from geomodel_ros.core.fitting.cloud import ObjectCloud, as_planar
+from geomodel_ros.core.fitting.cloud import ObjectCloud, ObjectFace, as_planar
+from geomodel_ros.core.confidence import surface_distance
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.model_graph import (FaceInfo, GraphDecision, curvature_candidates,
@@ -29,7 +35,9 @@ from geomodel_ros.core.surface_type import principal_curvatures
 
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
-           "UprightAboveSupport", "flat_faces", "support_below"]
+           "UprightAboveSupport", "BoxRival", "flat_faces",
+           "flat_core_faces", "box_rival",
+           "support_below", "truncated_cost", "prefer_box"]
 
 #: Parallel planar faces whose offsets differ by at most this many RANSAC thresholds are
 #: one plane (the band within which a plane's own points scatter).
@@ -42,6 +50,15 @@ MIN_SMOOTH_POINTS = 10
 #: round surface's normals turn with its arc (at least ``min_arc`` for an accepted fit).
 FLAT_FACE_ANGLE = math.radians(20.0)
 FLAT_NORMALS_PERCENTILE = 10.0
+#: A curved face has a flat core when this percentile of its point normals (half of
+#: them) stays within FLAT_FACE_ANGLE of their mean: a box side with a gable, a fold or
+#: shrink-wrap ripples over a minority of it. A round side seen from one viewpoint does
+#: not: its normals turn with the arc (a cylinder's visible half has about a third of
+#: them, sin 20 deg, within 20 deg of the mean).
+FLAT_CORE_PERCENTILE = 50.0
+#: Points on which the truncated residuals of rival shapes are compared (as
+#: CONFIDENCE_SAMPLE: a mean over 2000 samples has a standard error of a few per cent).
+RIVAL_SAMPLE = 2000
 #: Fewest point normals and smallest mean-normal norm for which flatness is judged.
 MIN_FLAT_NORMALS = 3
 MIN_FLAT_MEAN_NORM = 1e-9
@@ -108,6 +125,11 @@ class Situation:
         return not self.decision.candidates and self.decision.category == "mixed"
 
     @cached_property
+    def box_rival(self) -> "BoxRival | None":
+        """The object's box hypothesis (:func:`box_rival`), found once."""
+        return box_rival(self.cloud)
+
+    @cached_property
     def fit_decision(self) -> GraphDecision:
         """The decision fits follow: the graph's, or the curved faces' alone if it had no rule."""
         return curved_faces_alone(self.cloud) if self.mixed_without_rule else self.decision
@@ -172,8 +194,11 @@ class CurvedFacesAlone:
         return Attempt(situation.cloud, decision, note=f"curved faces alone: {decision.reason}")
 
 
-def _flat(info: FaceInfo) -> bool:
-    """Whether a face's point normals stay within FLAT_FACE_ANGLE of their mean."""
+def _flat(info: FaceInfo, percentile: float = FLAT_NORMALS_PERCENTILE) -> bool:
+    """Whether a face's point normals stay within FLAT_FACE_ANGLE of their mean.
+
+    All but ``percentile`` per cent of them must.
+    """
     n = info.point_normals
     if len(n) < MIN_FLAT_NORMALS:
         return False
@@ -182,7 +207,7 @@ def _flat(info: FaceInfo) -> bool:
     if norm <= MIN_FLAT_MEAN_NORM:
         return False
     cos = np.abs(n @ (mean / norm))
-    return float(np.percentile(cos, FLAT_NORMALS_PERCENTILE)) >= math.cos(FLAT_FACE_ANGLE)
+    return float(np.percentile(cos, percentile)) >= math.cos(FLAT_FACE_ANGLE)
 
 
 def flat_faces(cloud: ObjectCloud) -> list[int]:
@@ -215,6 +240,114 @@ class FlatCurvedFacesAsPlanar:
         note = (f"faces {flat} taken as planar (their normals turn less than "
                 f"{math.degrees(FLAT_FACE_ANGLE):.0f} deg): {decision.reason}")
         return Attempt(dataclasses.replace(cloud, faces=faces), decision, note=note)
+
+
+def flat_core_faces(cloud: ObjectCloud) -> list[int]:
+    """Return the curved faces with a flat core (:data:`FLAT_CORE_PERCENTILE`)."""
+    return [i for i, f in enumerate(cloud.faces)
+            if not f.info.planar and _flat(f.info, FLAT_CORE_PERCENTILE)]
+
+
+@dataclass(frozen=True)
+class BoxRival:
+    """A box hypothesis for an object (:func:`box_rival`).
+
+    ``cloud`` holds the box's candidate sides as its faces, ``decision`` proposes the
+    cuboid for them, ``note`` says which faces were used and how.
+    """
+
+    cloud: ObjectCloud
+    decision: GraphDecision
+    note: str
+
+
+def _aligned(faces: list[ObjectFace], adjacency: NDArray[np.bool_], tol: float) -> list[int]:
+    """Return the faces aligned with one set of box axes within ``tol`` [rad].
+
+    The axes are the normals of the largest face and of its largest perpendicular
+    neighbour; all faces when the largest has no such neighbour.
+    """
+    sizes = np.array([f.info.size for f in faces])
+    normals = np.array([f.info.normal for f in faces])
+    main = int(np.argmax(sizes))
+    cos_main = np.abs(normals @ normals[main])
+    perp = np.flatnonzero(adjacency[main] & (cos_main <= math.sin(tol)))
+    if not perp.size:
+        return list(range(len(faces)))
+    second = int(perp[np.argmax(sizes[perp])])
+    third = np.cross(normals[main], normals[second])
+    axes = np.array([normals[main], normals[second], third / np.linalg.norm(third)])
+    return np.flatnonzero(np.abs(normals @ axes.T).max(axis=1) >= math.cos(tol)).tolist()
+
+
+def box_rival(cloud: ObjectCloud) -> BoxRival | None:
+    """Return the box hypothesis of an object whose faces do not all fit a box.
+
+    The planar faces and the flat cores of curved faces (:func:`flat_core_faces`, taken
+    as their planes) that are aligned with one set of box axes are the box's sides; the
+    other faces (a carton's gable, a handle, a rim) are left out, so their points count
+    as off the box. None when no face is left out or re-described, or when the model
+    graph proposes no cuboid for the sides.
+    """
+    flat = flat_core_faces(cloud)
+    cand = [i for i, f in enumerate(cloud.faces) if f.info.planar or i in flat]
+    if not cand:
+        return None
+    params = cloud.params
+    faces = [as_planar(cloud.wc, cloud.faces[i], params.ransac_threshold) if i in flat
+             else cloud.faces[i] for i in cand]
+    sub = _aligned(faces, cloud.adjacency[np.ix_(cand, cand)], params.angle_tolerance)
+    kept = [cand[j] for j in sub]
+    left_out = sorted(set(range(len(cloud.faces))) - set(kept))
+    if not left_out and not flat:
+        return None
+    faces = [faces[j] for j in sub]
+    adjacency = cloud.adjacency[np.ix_(kept, kept)]
+    decision = graph_decision([f.info for f in faces], adjacency, None, params)
+    if PrimitiveType.CUBOID not in decision.candidates:
+        return None
+    note = (f"box of faces {kept} (flat cores of {flat} as planes, {left_out} left out): "
+            f"{decision.reason}")
+    return BoxRival(dataclasses.replace(cloud, faces=faces, adjacency=adjacency),
+                    dataclasses.replace(decision, candidates=(PrimitiveType.CUBOID,)), note)
+
+
+def truncated_cost(p: Primitive, cloud: ObjectCloud) -> float:
+    """MSAC cost of ``p`` on the object's points: mean of min(d, t)^2 / t^2, in [0, 1].
+
+    ``d`` is each point's distance to the fitted surface (every k-th of about
+    :data:`RIVAL_SAMPLE` points), ``t`` the RANSAC threshold (the noise band): points on
+    the surface cost their squared residual, points off it (outliers) one band each.
+    """
+    t = cloud.params.ransac_threshold
+    d = surface_distance(p, np.ascontiguousarray(every_kth(cloud.points, RIVAL_SAMPLE)))
+    if d is None or not len(d) or t <= 0:
+        return 1.0
+    return float(np.mean(np.minimum(d / t, 1.0) ** 2))
+
+
+def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
+               reasons: list[str]) -> tuple[Primitive, tuple[FaceSummary, ...]]:
+    """Return the round fit ``prim`` or the box of the flat cores, whichever costs less.
+
+    The box (:func:`box_rival`) is fitted to the same object; it replaces ``prim``
+    when its :func:`truncated_cost` over all the object's points is lower. The
+    comparison is added to ``reasons``.
+    """
+    rival = situation.box_rival if prim.type in ROUND_TYPES else None
+    if rival is None:
+        return prim, faces
+    box_cloud, note = rival.cloud, rival.note
+    box, _ = fit_first(box_cloud, rival.decision)
+    if box is None:
+        return prim, faces
+    c_round, c_box = truncated_cost(prim, situation.cloud), truncated_cost(box, situation.cloud)
+    verdict = "replaces" if c_box < c_round else "does not replace"
+    reasons.append(f"{note}; cuboid (cost {c_box:.3f}) {verdict} {prim.type} "
+                   f"(cost {c_round:.3f})")
+    if c_box < c_round:
+        return box, tuple(f.summary for f in box_cloud.faces)
+    return prim, faces
 
 
 def support_below(cloud: ObjectCloud) -> NDArray[np.float64] | None:
@@ -273,7 +406,8 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
     """Try ``strategies`` in order until one fits.
 
     Returns the primitive (None if none fits), the face summaries it was fitted with
-    (those of ``situation.cloud`` if none) and every reason on the way.
+    (those of ``situation.cloud`` if none) and every reason on the way. A round fit
+    is checked against the box of the flat cores (:func:`prefer_box`).
     """
     reasons = [situation.decision.reason]
     for strategy in strategies:
@@ -287,5 +421,6 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
         prim, tried = fit_first(attempt.cloud, attempt.decision, attempt.axis_prior)
         reasons.extend(attempt.prefix + r for r in tried)
         if prim is not None:
-            return prim, tuple(f.summary for f in attempt.cloud.faces), reasons
+            faces = tuple(f.summary for f in attempt.cloud.faces)
+            return (*prefer_box(situation, prim, faces, reasons), reasons)
     return None, tuple(f.summary for f in situation.cloud.faces), reasons
