@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,7 +16,7 @@ from geomodel_ros.core.fitting.orient import toward_sensor
 from geomodel_ros.core.model_graph import FaceInfo
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary
-from geomodel_ros.core.surface_type import face_feature
+from geomodel_ros.core.surface_type import face_bend, face_feature
 from geomodel_ros.core.view import SceneView
 
 __all__ = ["Plane", "ObjectFace", "ObjectCloud", "build_faces", "as_planar"]
@@ -29,8 +30,16 @@ Plane = tuple[NDArray[np.float64], float]
 SUPPORT_END_FACTOR = 2.0
 #: A face that the surface-type test calls curved is planar after all when a plane fits
 #: its points with an RMS error of at most this share of ``ransac_threshold`` (well
-#: inside the inlier band: noise, not curvature).
+#: inside the inlier band: noise, not curvature) and it shows no bend beyond the noise
+#: (:func:`~geomodel_ros.core.surface_type.face_bend`).
 PLANAR_RMSE_SHARE = 0.5
+#: A face bends (is curved) when its normals turn across it by more than this many
+#: ``angle_tolerance``: with a turn of at most twice the tolerance every local normal lies
+#: within the tolerance of the face's mean normal, which is all the model graph's
+#: parallel / perpendicular relations can resolve (measured: flat desk and box faces under
+#: Kinect-class noise at 0.5-1.5 m turn by at most 12 deg at tolerances of 9-12 deg; the
+#: sides of cylinders, cones, frustums and spheres 60 mm across by 30-95 deg).
+BEND_TURN_TOLERANCES = 2.0
 #: Smallest norm of a curved face's mean normal that is divided by (guards a face whose
 #: normals cancel, which no real face has).
 MIN_MEAN_NORMAL = 1e-12
@@ -138,17 +147,30 @@ class ObjectCloud:
         return curved, planar
 
 
-def _checked_planar(cf_planar: bool, plane_rmse: float, threshold: float) -> bool:
+def _checked_planar(cf_planar: bool, plane_rmse: float, threshold: float,
+                    bent: Callable[[], bool]) -> bool:
     """Verify the CF decision by a plane fit (paper 3.2: a fit that fails rejects the type).
 
     A "planar" face no plane fits within ``threshold`` [m] is curved; a "curved" face a
-    plane fits within PLANAR_RMSE_SHARE of it is planar.
+    plane fits within PLANAR_RMSE_SHARE of it is planar unless ``bent()`` (called only
+    then) finds a bend beyond its noise.
     """
     if cf_planar and plane_rmse > threshold:
         return False
     if not cf_planar and plane_rmse <= threshold * PLANAR_RMSE_SHARE:
-        return True
+        return not bent()
     return cf_planar
+
+
+def _bent(points: NDArray[np.float64], mass: NDArray[np.float64], normal: NDArray[np.float64],
+          params: ModelingParams) -> bool:
+    """Whether a face (working points (m, 3), ``mass`` (m,)) bends beyond its noise.
+
+    Significantly (:func:`~geomodel_ros.core.surface_type.face_bend`) and by more than
+    BEND_TURN_TOLERANCES ``angle_tolerance`` across the face.
+    """
+    bend = face_bend(points, normal, mass)
+    return bend.significant and bend.turn > BEND_TURN_TOLERANCES * params.angle_tolerance
 
 
 def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.int64],
@@ -159,7 +181,9 @@ def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.i
     feat = face_feature(wc.points[widx], params.cf_weights, params.cf_threshold,
                         params.cf_radius_fraction, wc.counts[widx])
     plane, plane_rmse = face_plane(wc.points[widx], wc.normals[widx], params.ransac_threshold)
-    planar = _checked_planar(feat.planar, plane_rmse, params.ransac_threshold)
+    planar = _checked_planar(feat.planar, plane_rmse, params.ransac_threshold,
+                             lambda: _bent(wc.points[widx], wc.counts[widx], plane.normal,
+                                           params))
     center = wc.counts[widx] @ wc.points[widx] / max(int(wc.counts[widx].sum()), 1)
     if planar:
         normal = toward_sensor(plane.normal, center)
