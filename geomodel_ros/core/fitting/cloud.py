@@ -16,7 +16,7 @@ from geomodel_ros.core.fitting.orient import toward_sensor
 from geomodel_ros.core.model_graph import FaceInfo
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary
-from geomodel_ros.core.surface_type import face_bend, face_feature
+from geomodel_ros.core.surface_type import FaceFeature, face_bend, face_feature
 from geomodel_ros.core.view import SceneView
 
 __all__ = ["Plane", "ObjectFace", "ObjectCloud", "build_faces", "as_planar"]
@@ -33,13 +33,7 @@ SUPPORT_END_FACTOR = 2.0
 #: inside the inlier band: noise, not curvature) and it shows no bend beyond the noise
 #: (:func:`~geomodel_ros.core.surface_type.face_bend`).
 PLANAR_RMSE_SHARE = 0.5
-#: A face bends (is curved) when its normals turn across it by more than this many
-#: ``angle_tolerance``: with a turn of at most twice the tolerance every local normal lies
-#: within the tolerance of the face's mean normal, which is all the model graph's
-#: parallel / perpendicular relations can resolve (measured: flat desk and box faces under
-#: Kinect-class noise at 0.5-1.5 m turn by at most 12 deg at tolerances of 9-12 deg; the
-#: sides of cylinders, cones, frustums and spheres 60 mm across by 30-95 deg).
-BEND_TURN_TOLERANCES = 2.0
+
 #: Smallest norm of a curved face's mean normal that is divided by (guards a face whose
 #: normals cancel, which no real face has).
 MIN_MEAN_NORMAL = 1e-12
@@ -163,14 +157,22 @@ def _checked_planar(cf_planar: bool, plane_rmse: float, threshold: float,
 
 
 def _bent(points: NDArray[np.float64], mass: NDArray[np.float64], normal: NDArray[np.float64],
-          params: ModelingParams) -> bool:
+          feat: FaceFeature, params: ModelingParams) -> bool:
     """Whether a face (working points (m, 3), ``mass`` (m,)) bends beyond its noise.
 
-    Significantly (:func:`~geomodel_ros.core.surface_type.face_bend`) and by more than
-    BEND_TURN_TOLERANCES ``angle_tolerance`` across the face.
+    Significantly (:func:`~geomodel_ros.core.surface_type.face_bend`) and with normals
+    turning across it by more than ``min_arc``, the least arc a round side must span to
+    be verified as one (a face that turns less cannot be a round side by itself; measured:
+    flat box faces of real Kinect frames (osd_learn) turn by up to 38 deg, synthetic ones
+    under Kinect-class noise by up to 12 deg, the sides of cylinders, cones, frustums and
+    spheres 60 mm across at 0.5-1.5 m mostly by 45-95 deg), judged like the CF (paper
+    3.1) on its points within the largest CF radius of the face centre (``feat``): a strip
+    of a neighbouring face or a rounded edge along the border does not bend a flat face.
     """
-    bend = face_bend(points, normal, mass)
-    return bend.significant and bend.turn > BEND_TURN_TOLERANCES * params.angle_tolerance
+    q = points - feat.center
+    inner = np.einsum("ij,ij->i", q, q) <= feat.radii[-1] ** 2
+    bend = face_bend(points[inner], normal, mass[inner])
+    return bend.significant and bend.turn > params.min_arc
 
 
 def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.int64],
@@ -183,7 +185,7 @@ def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.i
     plane, plane_rmse = face_plane(wc.points[widx], wc.normals[widx], params.ransac_threshold)
     planar = _checked_planar(feat.planar, plane_rmse, params.ransac_threshold,
                              lambda: _bent(wc.points[widx], wc.counts[widx], plane.normal,
-                                           params))
+                                           feat, params))
     center = wc.counts[widx] @ wc.points[widx] / max(int(wc.counts[widx].sum()), 1)
     if planar:
         normal = toward_sensor(plane.normal, center)
