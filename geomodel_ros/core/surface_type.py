@@ -60,6 +60,10 @@ BEND_EXTENT_PERCENTILES = (2.0, 98.0)
 #: the plane h = d x + e y + f it extends.
 _QUADRIC_TERMS = 6
 _PLANE_TERMS = 3
+#: A face whose heights over its plane stay within this share of its lateral spread is
+#: flat to rounding (an exact plane): the F ratio of two rounding-level residuals says
+#: nothing, and the face is not bent.
+_FLAT_TO_ROUNDING = 1e-9
 
 
 def covariance_features(points: NDArray[np.float64], mass: NDArray[np.float64] | None = None
@@ -237,10 +241,9 @@ def face_bend(points: NDArray[np.float64], normal: NDArray[np.float64],
     _, rss_p = _weighted_lstsq(design[:, _PLANE_TERMS:], h, sw)
     dof = m - _QUADRIC_TERMS
     added = _QUADRIC_TERMS - _PLANE_TERMS
-    if rss_q <= 0.0:
-        f_stat = math.inf if rss_p > 0.0 else 0.0
-    else:
-        f_stat = max(rss_p - rss_q, 0.0) / added / (rss_q / dof)
+    if rss_p <= (_FLAT_TO_ROUNDING * scale) ** 2 * float(w.sum()):
+        return FaceBend(0.0, False, 0.0)
+    f_stat = math.inf if rss_q <= 0.0 else max(rss_p - rss_q, 0.0) / added / (rss_q / dof)
     crit = float(f_distribution.isf(significance, added, dof))
     hess = np.array([[2 * coef[0], coef[1]], [coef[1], 2 * coef[2]]]) / (scale * scale)
     evals, evecs = np.linalg.eigh(hess)

@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.geometry import frame_with_z
+from geomodel_ros.core.noise import MIN_INCIDENCE_COS
 
 __all__ = ["STATS_SAMPLE", "every_kth", "bulk_extent", "bulk_reach", "arc_span",
            "without_strays", "nearest_surface", "rms", "ray_incidence",
@@ -170,13 +171,16 @@ def ray_incidence(distance: Callable[[NDArray[np.float64]], NDArray[np.float64]]
 
 def noise_scatter_ratio(distance: Callable[[NDArray[np.float64]], NDArray[np.float64]],
                         points: NDArray[np.float64], sigma: float) -> float:
-    """Robust scatter of ``points`` about a fitted surface over the scatter noise explains.
+    """Robust scatter of ``points`` about a fitted surface along the rays, over ``sigma``.
 
-    The scatter is 1.4826 times the median absolute distance (robust to the minority of
-    points a model does not describe: a rim, an undetected cap); depth noise of sigma
-    along the rays scatters points off the surface by sigma times the RMS of
-    :func:`ray_incidence`. About 1 for the right model; a wrong model adds its systematic
-    misfit.
+    Depth noise of sigma along the rays moves a point off the surface by sigma times its
+    :func:`ray_incidence`; each distance divided by the incidence is the point's offset
+    along its ray, and 1.4826 times their median absolute value (robust to the minority
+    of points a model does not describe: a rim, an undetected cap) estimates the noise
+    sigma the model leaves. About 1 for the right model; a wrong model adds its
+    systematic misfit. Points seen at more than acos(MIN_INCIDENCE_COS) from the
+    surface's normal (near a silhouette) are left out: the division would magnify their
+    errors.
 
     Parameters
     ----------
@@ -186,12 +190,12 @@ def noise_scatter_ratio(distance: Callable[[NDArray[np.float64]], NDArray[np.flo
 
     Returns
     -------
-    float (0 for no points)
+    float (0 when no point is seen steeply enough)
     """
     sub = every_kth(points, SCATTER_SAMPLE)
-    if not len(sub):
-        return 0.0
-    scatter = MAD_TO_SIGMA * float(np.median(np.abs(distance(sub))))
     cos = ray_incidence(distance, sub)
-    expected = sigma * math.sqrt(max(float(np.mean(cos * cos)), np.finfo(float).tiny))
-    return scatter / expected
+    steep = cos >= MIN_INCIDENCE_COS
+    if not steep.any():
+        return 0.0
+    along = np.abs(distance(sub[steep])) / cos[steep]
+    return MAD_TO_SIGMA * float(np.median(along)) / sigma
