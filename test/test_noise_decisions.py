@@ -10,6 +10,7 @@ by sigma times the incidence.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -186,3 +187,48 @@ def test_far_torus_is_not_a_cone(seed):
     assert truth[3] == "torus"
     assert types[3] == "unknown"
     assert types[2] == "cone"
+
+
+def test_far_sphere_with_a_flat_looking_patch_is_a_sphere():
+    # At 1.5 m (sigma 3 mm) a 40 mm sphere shows a patch that passes as planar (20 % of
+    # its points): the mixed rules (cylinder, cone with that plane as base) fail, and the
+    # whole object taken as curved is a sphere of the right radius.
+    from geomodel_ros.tools.synth.suite import SuiteCase, render_case
+
+    scene = render_case(SuiteCase("set_a", 1.5, "kinect", 1))
+    result = model_objects(scene.points, scene.labels, ModelingParams())
+    sphere = next(o for o in result.objects if o.id == 3)
+    assert scene.objects[3].type == "sphere"
+    assert str(sphere.type) == "sphere", sphere.reason
+    assert "patches of the curved surface" in sphere.reason
+    assert sphere.dimensions["radius"] == pytest.approx(0.040, abs=3 * MM)
+
+
+def test_planar_patches_strategy_needs_a_curved_majority():
+    # A box (planar faces only, or a curved minority) is never re-described as curved.
+    from geomodel_ros.core.fitting.strategies import PlanarPatchesOfCurvedObjects, Situation
+    from geomodel_ros.core.model_graph import GraphDecision
+    from geomodel_ros.tools.synth.suite import SuiteCase, render_case
+
+    scene = render_case(SuiteCase("set_a", 1.0, "kinect", 1))
+    from geomodel_ros.core.fitting.cloud import ObjectCloud, build_faces
+
+    pts = scene.points[scene.labels == 1]
+    params = ModelingParams()
+    wc, faces, adj = build_faces(pts, params, None)
+    cloud = ObjectCloud(1, pts, wc, faces, adj, 0.002, params, np.random.default_rng(0))
+    mixed = GraphDecision("mixed", (), 0, (), "test")
+    sizes = np.array([f.info.size for f in faces])
+    curved = np.array([not f.info.planar for f in faces])
+    assert sizes[curved].sum() < 0.5 * sizes.sum()   # a box: planar faces hold the most
+    assert not PlanarPatchesOfCurvedObjects().applies(Situation(cloud, mixed))
+    # Every face but the largest re-described as curved: the strategy applies exactly
+    # when they hold more than half of the working points.
+    big = int(np.argmax(sizes))
+    bent = [f if i == big else dataclasses.replace(
+        f, info=dataclasses.replace(f.info, planar=False)) for i, f in enumerate(faces)]
+    expect = sizes.sum() - sizes[big] > 0.5 * sizes.sum()
+    assert PlanarPatchesOfCurvedObjects().applies(
+        Situation(dataclasses.replace(cloud, faces=bent), mixed)) == expect
+    assert not PlanarPatchesOfCurvedObjects().applies(
+        Situation(cloud, GraphDecision("planar", (), 0, (), "test")))
