@@ -210,7 +210,7 @@ def test_planar_patches_strategy_needs_a_curved_majority():
     from geomodel_ros.core.model_graph import GraphDecision
     from geomodel_ros.tools.synth.suite import SuiteCase, render_case
 
-    scene = render_case(SuiteCase("set_a", 1.0, "kinect", 1))
+    scene = render_case(SuiteCase("set_a", 1.0, "clean", 1))
     from geomodel_ros.core.fitting.cloud import ObjectCloud, build_faces
 
     pts = scene.points[scene.labels == 1]
