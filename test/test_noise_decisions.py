@@ -232,3 +232,30 @@ def test_planar_patches_strategy_needs_a_curved_majority():
         Situation(dataclasses.replace(cloud, faces=bent), mixed)) == expect
     assert not PlanarPatchesOfCurvedObjects().applies(
         Situation(cloud, GraphDecision("planar", (), 0, (), "test")))
+
+
+def test_bend_test_only_under_measured_independent_noise():
+    from geomodel_ros.core.fitting.cloud import MAX_NOISE_CORRELATION, independent_noise
+
+    auto, fixed = ModelingParams(), ModelingParams(noise_model="fixed")
+    assert MAX_NOISE_CORRELATION == pytest.approx(math.sqrt(2.0))
+    assert independent_noise(auto, 1.05)
+    assert not independent_noise(auto, 1.8)      # real sensors' slow errors (1.6-2.5)
+    assert not independent_noise(fixed, 1.0)     # fixed: the previous decisions exactly
+
+
+def test_far_cylinder_faces_stay_planar_under_correlated_noise():
+    # The same far cylinder with the frame said to carry slow errors twice its local
+    # noise: its flat-looking side faces are not re-tested, so none of them turns curved.
+    from geomodel_ros.core.fitting.cloud import build_faces
+    from geomodel_ros.core.modeling import object_range
+    from geomodel_ros.core.noise import frame_noise, object_params
+    from geomodel_ros.tools.synth.suite import SuiteCase, render_case
+
+    scene = render_case(SuiteCase("set_a", 1.5, "kinect", 2))
+    params = ModelingParams()
+    pts = scene.points[scene.labels == 2]
+    oparams = object_params(params, frame_noise(scene.points, params), *object_range(pts))
+    flat = [f.info.planar for f in build_faces(pts, oparams, None, correlation=2.0)[1]]
+    tested = [f.info.planar for f in build_faces(pts, oparams, None, correlation=1.0)[1]]
+    assert sum(tested) < sum(flat)

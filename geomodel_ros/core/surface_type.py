@@ -198,7 +198,7 @@ def _weighted_lstsq(design: NDArray[np.float64], h: NDArray[np.float64],
 
 def face_bend(points: NDArray[np.float64], normal: NDArray[np.float64],
               mass: NDArray[np.float64] | None = None,
-              significance: float = BEND_SIGNIFICANCE) -> FaceBend:
+              significance: float = BEND_SIGNIFICANCE, correlation: float = 1.0) -> FaceBend:
     """Test whether a face bends beyond its noise: quadric against plane (F-test).
 
     In the frame of the face's plane (``normal``), the heights h of its points over the
@@ -220,6 +220,12 @@ def face_bend(points: NDArray[np.float64], normal: NDArray[np.float64],
         their noise variance, so it is weighted by c.
     significance : float
         Level of the test.
+    correlation : float, >= 1
+        Ratio of the noise a model fitted across a whole surface meets to the local noise
+        (``NoiseEstimate.scale``: slowly varying errors of real sensors). The quadric's
+        residual measures the local noise only; slow errors bend a face as much as
+        ``correlation**2`` times that variance, so F is divided by it (1: independent
+        noise, the F-test as it stands).
 
     Returns
     -------
@@ -243,7 +249,8 @@ def face_bend(points: NDArray[np.float64], normal: NDArray[np.float64],
     added = _QUADRIC_TERMS - _PLANE_TERMS
     if rss_p <= (_FLAT_TO_ROUNDING * scale) ** 2 * float(w.sum()):
         return FaceBend(0.0, False, 0.0)
-    f_stat = math.inf if rss_q <= 0.0 else max(rss_p - rss_q, 0.0) / added / (rss_q / dof)
+    f_stat = math.inf if rss_q <= 0.0 else \
+        max(rss_p - rss_q, 0.0) / added / (rss_q / dof) / max(correlation, 1.0) ** 2
     crit = float(f_distribution.isf(significance, added, dof))
     hess = np.array([[2 * coef[0], coef[1]], [coef[1], 2 * coef[2]]]) / (scale * scale)
     evals, evecs = np.linalg.eigh(hess)

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fastmath import centroid
-from geomodel_ros.core.fitting.cloud import ObjectCloud, ObjectFace, as_planar
+from geomodel_ros.core.fitting.cloud import ObjectCloud, ObjectFace, as_planar, independent_noise
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.model_graph import (FaceInfo, GraphDecision, curvature_candidates,
@@ -287,7 +287,9 @@ class PlanarPatchesOfCurvedObjects:
     rules of a mixed object, which fail. When the curved faces hold most of the object
     (CURVED_MAJORITY), every face is taken as curved and the object's principal
     curvatures propose the candidates, fitted to all of its faces (the fits' own checks,
-    inliers and scatter against the noise, still apply).
+    inliers and scatter against the noise, still apply). Only where the noise is measured
+    and independent (:func:`~.cloud.independent_noise`: slow errors of real sensors make
+    flat patches look round as well; ``fixed`` keeps the previous strategies exactly).
     """
 
     name = "planar patches of a curved object"
@@ -295,7 +297,9 @@ class PlanarPatchesOfCurvedObjects:
     def applies(self, situation: Situation) -> bool:
         """Return True for a mixed object whose curved faces hold most working points."""
         faces = situation.cloud.faces
-        if situation.decision.category != "mixed":
+        cloud = situation.cloud
+        if situation.decision.category != "mixed" or \
+                not independent_noise(cloud.params, cloud.correlation):
             return False
         curved = sum(f.info.size for f in faces if not f.info.planar)
         return curved > CURVED_MAJORITY * sum(f.info.size for f in faces)
