@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from scipy.stats import f as f_distribution
+from scipy.special import fdtri
 
 from geomodel_ros.core.geometry import perpendicular_basis, perpendicular_bases
 
@@ -251,7 +251,7 @@ def face_bend(points: NDArray[np.float64], normal: NDArray[np.float64],
         return FaceBend(0.0, False, 0.0)
     f_stat = math.inf if rss_q <= 0.0 else \
         max(rss_p - rss_q, 0.0) / added / (rss_q / dof) / max(correlation, 1.0) ** 2
-    crit = float(f_distribution.isf(significance, added, dof))
+    crit = float(fdtri(added, dof, 1.0 - significance))   # F(added, dof) quantile
     hess = np.array([[2 * coef[0], coef[1]], [coef[1], 2 * coef[2]]]) / (scale * scale)
     evals, evecs = np.linalg.eigh(hess)
     k = int(np.argmax(np.abs(evals)))
