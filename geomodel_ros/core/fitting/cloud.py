@@ -16,11 +16,11 @@ from geomodel_ros.core.fitting.orient import toward_sensor
 from geomodel_ros.core.model_graph import FaceInfo
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary
-from geomodel_ros.core.surface_type import FaceFeature, face_bend, face_feature
+from geomodel_ros.core.surface_type import FaceBend, FaceFeature, face_bend, face_feature
 from geomodel_ros.core.view import SceneView
 
 __all__ = ["Plane", "ObjectFace", "ObjectCloud", "build_faces", "as_planar",
-           "independent_noise", "MAX_NOISE_CORRELATION"]
+           "independent_noise", "central_bend", "MAX_NOISE_CORRELATION"]
 
 #: A plane n . x + d = 0: (unit normal (3,), offset d [m]).
 Plane = tuple[NDArray[np.float64], float]
@@ -196,10 +196,21 @@ def _bent(points: NDArray[np.float64], mass: NDArray[np.float64], normal: NDArra
     """
     if not independent_noise(params, correlation):
         return False
+    bend = central_bend(points, mass, normal, feat, correlation)
+    return bend.significant and bend.turn > params.min_arc
+
+
+def central_bend(points: NDArray[np.float64], mass: NDArray[np.float64],
+                 normal: NDArray[np.float64], feat: FaceFeature, correlation: float) -> FaceBend:
+    """:func:`~geomodel_ros.core.surface_type.face_bend` of a face's central region.
+
+    The working points (m, 3) with ``mass`` (m,) within the largest CF radius of the face
+    centre (``feat``, paper 3.1), so that a strip of a neighbouring face or a rounded edge
+    along the border does not bend a flat face; ``normal`` is the face plane's.
+    """
     q = points - feat.center
     inner = np.einsum("ij,ij->i", q, q) <= feat.radii[-1] ** 2
-    bend = face_bend(points[inner], normal, mass[inner], correlation=correlation)
-    return bend.significant and bend.turn > params.min_arc
+    return face_bend(points[inner], normal, mass[inner], correlation=correlation)
 
 
 def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.int64],

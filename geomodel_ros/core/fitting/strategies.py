@@ -18,14 +18,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fastmath import centroid
-from geomodel_ros.core.fitting.cloud import ObjectCloud, ObjectFace, as_planar, independent_noise
+from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar, central_bend,
+                                             independent_noise)
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.model_graph import (FaceInfo, GraphDecision, curvature_candidates,
                                            decide_type)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
-from geomodel_ros.core.surface_type import principal_curvatures
+from geomodel_ros.core.surface_type import face_feature, principal_curvatures
 
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
@@ -286,23 +287,39 @@ class PlanarPatchesOfCurvedObjects:
     the noise over the patch): a sphere with one "planar" face gets the cylinder and cone
     rules of a mixed object, which fail. When the curved faces hold most of the object
     (CURVED_MAJORITY), every face is taken as curved and the object's principal
-    curvatures propose the candidates, fitted to all of its faces (the fits' own checks,
-    inliers and scatter against the noise, still apply). Only where the noise is measured
-    and independent (:func:`~.cloud.independent_noise`: slow errors of real sensors make
-    flat patches look round as well; ``fixed`` keeps the previous strategies exactly).
+    curvatures propose the candidates, fitted to all of its faces, provided each planar
+    face bends significantly beyond the noise in its central region (``cloud.
+    central_bend``; a face that does not is a true flat end, a lid or base, and the mixed
+    rules stand). The fits' own
+    checks (inliers and scatter against the noise) still apply. Only where the noise is
+    measured and independent (:func:`~.cloud.independent_noise`: slow errors of real
+    sensors make flat patches look round as well; ``fixed`` keeps the previous
+    strategies exactly).
     """
 
     name = "planar patches of a curved object"
 
     def applies(self, situation: Situation) -> bool:
-        """Return True for a mixed object whose curved faces hold most working points."""
-        faces = situation.cloud.faces
+        """Return True for a mixed object, mostly curved, whose planar faces all bend."""
         cloud = situation.cloud
+        faces = cloud.faces
         if situation.decision.category != "mixed" or \
                 not independent_noise(cloud.params, cloud.correlation):
             return False
         curved = sum(f.info.size for f in faces if not f.info.planar)
-        return curved > CURVED_MAJORITY * sum(f.info.size for f in faces)
+        if curved <= CURVED_MAJORITY * sum(f.info.size for f in faces):
+            return False
+        # A planar face without a significant bend is a true flat end (a lid, a base).
+        wc, params = cloud.wc, cloud.params
+        for f in faces:
+            if not f.info.planar:
+                continue
+            pts, mass = wc.points[f.working], wc.counts[f.working]
+            feat = face_feature(pts, params.cf_weights, params.cf_threshold,
+                                params.cf_radius_fraction, mass)
+            if not central_bend(pts, mass, f.info.normal, feat, cloud.correlation).significant:
+                return False
+        return True
 
     def attempt(self, situation: Situation) -> Attempt | None:
         """Fit the candidates of the whole object's curvatures with every face curved."""
