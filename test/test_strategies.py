@@ -33,7 +33,8 @@ def decision(category, candidates=(), main=-1, reason="graph"):
 def test_the_strategies_are_tried_in_the_documented_order():
     assert [s.name for s in STRATEGIES] == ["model graph", "curved faces alone",
                                             "flat curved faces as planar",
-                                            "upright above the support"]
+                                            "upright above the support",
+                                            "planar patches of a curved object"]
 
 
 def test_model_graph_candidates_apply_only_when_the_graph_proposed_a_type():

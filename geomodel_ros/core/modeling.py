@@ -93,7 +93,8 @@ def _degenerate(points: NDArray[np.float64], params: ModelingParams) -> str | No
 def model_object(points: NDArray[np.float64], object_id: int, params: ModelingParams,
                  rng: np.random.Generator, spacing: float,
                  face_labels: NDArray[np.int64] | None = None,
-                 supports: tuple[Plane, ...] = (), view: SceneView | None = None) -> Primitive:
+                 supports: tuple[Plane, ...] = (), view: SceneView | None = None,
+                 correlation: float = 1.0) -> Primitive:
     """Model one segmented object.
 
     Parameters
@@ -111,17 +112,20 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
     view : SceneView, optional
         The scene's returns, sensor at the origin: with it, an end hidden from the sensor
         is completed down to the support beyond it (``Primitive.completed``).
+    correlation : float, >= 1
+        The frame's ratio of slow to local depth noise (``NoiseEstimate.scale``), which the
+        surface-type bend test allows for; 1 without an estimate.
 
     The result's ``confidence`` is measured with ``ransac_threshold`` as the noise scale.
     """
     why = _degenerate(points, params)
     if why:
         return _unknown(object_id, points, why)
-    wc, faces, adjacency = build_faces(points, params, face_labels)
+    wc, faces, adjacency = build_faces(points, params, face_labels, correlation)
     if len(wc.points) < MIN_WORKING_POINTS or not faces:
         return _unknown(object_id, points, "too few distinct points after voxelization")
     cloud = ObjectCloud(object_id, points, wc, faces, adjacency, spacing, params, rng, supports,
-                        view)
+                        view, correlation)
     prim, summaries, reasons = run_strategies(Situation(cloud, decide(cloud)))
     if prim is not None:
         prim = with_confidence(prim, points, params.ransac_threshold)
@@ -208,7 +212,8 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
         planes = tuple(v for key, v in (supports or {}).items() if key != oid)
         oparams = params if noise is None else object_params(params, noise, *object_range(opts))
         return model_object(opts, oid, oparams, orng, estimate_spacing(opts, orng),
-                            None if flab is None else flab[sel], planes, view)
+                            None if flab is None else flab[sel], planes, view,
+                            1.0 if noise is None else max(noise.scale, 1.0))
 
     workers = min(len(ids), os.cpu_count() or 1)
     if workers <= 1:

@@ -18,15 +18,19 @@ fails rejects the type).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from geomodel_ros.core.geometry import perpendicular_bases
+from scipy.special import fdtri
 
-__all__ = ["FaceFeature", "covariance_features", "face_feature", "principal_curvatures",
-           "MIN_NEIGHBOURHOOD_POINTS"]
+from geomodel_ros.core.geometry import perpendicular_basis, perpendicular_bases
+
+__all__ = ["FaceFeature", "FaceBend", "covariance_features", "face_feature", "face_bend",
+           "principal_curvatures", "MIN_NEIGHBOURHOOD_POINTS", "BEND_SIGNIFICANCE",
+           "BEND_EXTENT_PERCENTILES"]
 
 #: A neighbourhood needs this many points for its cf (fewer: NaN, and its weight is left
 #: out of the normalisation): the covariance of 3 or 4 points is planar or degenerate
@@ -43,6 +47,23 @@ _RADIUS_STEPS = np.array([1.0, 2.0, 3.0])
 #: matrix entries are of order 1): keeps neighbourhoods with repeated points solvable
 #: without changing well-posed fits measurably.
 _QUADRIC_RIDGE = 1e-9
+#: Significance level of the bend test (:func:`face_bend`): a plane leaves a systematic
+#: bend (the quadric terms' reduction of the residual) this unlikely by chance under
+#: independent noise only where the face is bent. 1e-3 keeps chance "bends" of truly
+#: flat faces to one in a thousand while a real bend of a few noise sigmas over a few
+#: hundred points lies many orders of magnitude beyond it.
+BEND_SIGNIFICANCE = 1e-3
+#: The face's width along its direction of strongest bending is taken between these
+#: percentiles of its points (a few strays do not widen it).
+BEND_EXTENT_PERCENTILES = (2.0, 98.0)
+#: Parameters of a quadric height field h = a x^2 + b x y + c y^2 + d x + e y + f and of
+#: the plane h = d x + e y + f it extends.
+_QUADRIC_TERMS = 6
+_PLANE_TERMS = 3
+#: A face whose heights over its plane stay within this share of its lateral spread is
+#: flat to rounding (an exact plane): the F ratio of two rounding-level residuals says
+#: nothing, and the face is not bent.
+_FLAT_TO_ROUNDING = 1e-9
 
 
 def covariance_features(points: NDArray[np.float64], mass: NDArray[np.float64] | None = None
@@ -145,6 +166,98 @@ def face_feature(points: NDArray[np.float64], weights: tuple[float, float, float
     else:
         total = float(np.sum(w[valid] * cf[valid]) / np.sum(w[valid]))
     return FaceFeature(center, min_width, radii, cf, total, total > cf_threshold)
+
+
+@dataclass(frozen=True)
+class FaceBend:
+    """How a face bends away from its plane (:func:`face_bend`).
+
+    Attributes
+    ----------
+    f_statistic : float
+        F of the quadric height field against the plane (NaN with too few points).
+    significant : bool
+        F beyond its (1 - BEND_SIGNIFICANCE) quantile: the bend is not noise.
+    turn : float [rad]
+        Angle by which the quadric's normal turns across the face along its direction of
+        strongest curvature (curvature times the face's width that way).
+    """
+
+    f_statistic: float
+    significant: bool
+    turn: float
+
+
+def _weighted_lstsq(design: NDArray[np.float64], h: NDArray[np.float64],
+                    sw: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+    """Weighted least squares (row weights ``sw`` squared): coefficients and residual sum."""
+    coef = np.linalg.lstsq(design * sw[:, None], h * sw, rcond=None)[0]
+    r = (h - design @ coef) * sw
+    return coef, float(r @ r)
+
+
+def face_bend(points: NDArray[np.float64], normal: NDArray[np.float64],
+              mass: NDArray[np.float64] | None = None,
+              significance: float = BEND_SIGNIFICANCE, correlation: float = 1.0) -> FaceBend:
+    """Test whether a face bends beyond its noise: quadric against plane (F-test).
+
+    In the frame of the face's plane (``normal``), the heights h of its points over the
+    plane are fitted by a plane h = d x + e y + f and by a quadric that adds
+    a x^2 + b x y + c y^2. Under independent noise of any sigma, the quadric's reduction
+    of the residual sum, per added term, over the quadric's residual per degree of
+    freedom follows F(3, m - 6): the test needs no noise estimate (the residual itself
+    measures the noise at the face's range and incidence), and its power grows with the
+    face's points and with the bend's sagitta over the noise.
+
+    Parameters
+    ----------
+    points : (m, 3) float64 array [m]
+        The face's points (or voxel centroids with ``mass``).
+    normal : (3,) float64, unit
+        Normal of the face's plane.
+    mass : (m,) float64 array, optional
+        Input points each of ``points`` stands for: a centroid of c points has 1/c of
+        their noise variance, so it is weighted by c.
+    significance : float
+        Level of the test.
+    correlation : float, >= 1
+        Ratio of the noise a model fitted across a whole surface meets to the local noise
+        (``NoiseEstimate.scale``: slowly varying errors of real sensors). The quadric's
+        residual measures the local noise only; slow errors bend a face as much as
+        ``correlation**2`` times that variance, so F is divided by it (1: independent
+        noise, the F-test as it stands).
+
+    Returns
+    -------
+    FaceBend
+        Not significant (F NaN, turn 0) with fewer than seven points.
+    """
+    m = len(points)
+    if m <= _QUADRIC_TERMS:
+        return FaceBend(math.nan, False, 0.0)
+    w = np.ones(m) if mass is None else np.asarray(mass, dtype=np.float64)
+    u, v = perpendicular_basis(np.asarray(normal, dtype=np.float64))
+    q = points - w @ points / w.sum()
+    x, y, h = q @ u, q @ v, q @ normal
+    scale = max(float(np.sqrt(np.mean(x * x + y * y))), np.finfo(float).tiny)
+    xs, ys = x / scale, y / scale
+    design = np.column_stack([xs * xs, xs * ys, ys * ys, xs, ys, np.ones(m)])
+    sw = np.sqrt(w)
+    coef, rss_q = _weighted_lstsq(design, h, sw)
+    _, rss_p = _weighted_lstsq(design[:, _PLANE_TERMS:], h, sw)
+    dof = m - _QUADRIC_TERMS
+    added = _QUADRIC_TERMS - _PLANE_TERMS
+    if rss_p <= (_FLAT_TO_ROUNDING * scale) ** 2 * float(w.sum()):
+        return FaceBend(0.0, False, 0.0)
+    f_stat = math.inf if rss_q <= 0.0 else \
+        max(rss_p - rss_q, 0.0) / added / (rss_q / dof) / max(correlation, 1.0) ** 2
+    crit = float(fdtri(added, dof, 1.0 - significance))   # F(added, dof) quantile
+    hess = np.array([[2 * coef[0], coef[1]], [coef[1], 2 * coef[2]]]) / (scale * scale)
+    evals, evecs = np.linalg.eigh(hess)
+    k = int(np.argmax(np.abs(evals)))
+    along = np.column_stack([x, y]) @ evecs[:, k]
+    lo, hi = np.percentile(along, list(BEND_EXTENT_PERCENTILES))
+    return FaceBend(float(f_stat), bool(f_stat > crit), float(abs(evals[k]) * (hi - lo)))
 
 
 def principal_curvatures(points: NDArray[np.float64], normals: NDArray[np.float64],

@@ -71,11 +71,12 @@ def run_suite(params: ModelingParams, seeds: Sequence[int] = (1,), room: bool = 
     rows = []
     for case in suite_cases(tuple(seeds)):
         for r in score_scene(render_case(case), params):
-            rows.append({**r, "noise": case.noise, "distance": case.distance})
+            rows.append({**r, "noise": case.noise, "distance": case.distance,
+                         "seed": case.seed})
     if room:
         for seed in seeds:
             for r in score_scene(room_scene(rng=seed), params, unsized=("plane",)):
-                rows.append({**r, "noise": "laser", "distance": "1-9"})
+                rows.append({**r, "noise": "laser", "distance": "1-9", "seed": seed})
     return rows
 
 
@@ -124,7 +125,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print("\n".join(summary_lines(rows)))
     wrong = [r for r in rows if not r["type_correct"]]
     for r in wrong:
-        print(f"  {r['scene']} id {r['id']}: {r['type']} -> {r['estimated']} (IoU {r['iou']:.2f})")
+        print(f"  {r['scene']} seed {r['seed']} id {r['id']}: {r['type']} -> {r['estimated']} "
+              f"(IoU {r['iou']:.2f})")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1)

@@ -8,7 +8,7 @@ import numpy as np
 
 from geomodel_ros.core.fitting.curved import CurvedFit, fit_curved
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted
-from geomodel_ros.core.fitting.verify import check_radius
+from geomodel_ros.core.fitting.verify import check_noise_scatter, check_radius
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.core.ransac import SphereModel
@@ -34,7 +34,8 @@ def fit_sphere(task: FitTask) -> FitOutcome:
     if not isinstance(side, CurvedFit):
         return side
     model = side.model
-    bad = check_radius(model.radius, cloud.params, SPHERE)
+    bad = check_radius(model.radius, cloud.params, SPHERE) or \
+        check_noise_scatter(cloud.points, model.distance, cloud.params, SPHERE)
     if bad:
         return bad
     prim = Primitive(cloud.oid, SPHERE, model.center.copy(), np.eye(3),

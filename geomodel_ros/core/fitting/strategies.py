@@ -23,7 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fastmath import centroid
-from geomodel_ros.core.fitting.cloud import ObjectCloud, ObjectFace, as_planar
+from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar, central_bend,
+                                             independent_noise)
 from geomodel_ros.core.confidence import surface_distance
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.units import fit_first
@@ -31,13 +32,13 @@ from geomodel_ros.core.model_graph import (FaceInfo, GraphDecision, curvature_ca
                                            decide_type)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
-from geomodel_ros.core.surface_type import principal_curvatures
+from geomodel_ros.core.surface_type import face_feature, principal_curvatures
 
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
-           "UprightAboveSupport", "BoxRival", "flat_faces",
-           "flat_core_faces", "box_rival",
-           "support_below", "truncated_cost", "prefer_box"]
+           "UprightAboveSupport", "BoxRival", "PlanarPatchesOfCurvedObjects", "flat_faces",
+           "flat_core_faces", "box_rival", "support_below", "truncated_cost", "prefer_box",
+           "as_curved"]
 
 #: Parallel planar faces whose offsets differ by at most this many RANSAC thresholds are
 #: one plane (the band within which a plane's own points scatter).
@@ -67,6 +68,9 @@ MIN_FLAT_MEAN_NORM = 1e-9
 #: ``seg_plane_threshold`` plus the RANSAC threshold) and its median lies above it by more.
 SUPPORT_BELOW_PERCENTILE = 1.0
 SUPPORT_TOLERANCE_FACTOR = 2.0
+#: The planar faces of a mixed object may be patches of its curved surface when its curved
+#: faces hold more than this share of its working points (the curved surface dominates).
+CURVED_MAJORITY = 0.5
 ROUND_TYPES = (PrimitiveType.CYLINDER, PrimitiveType.CONE, PrimitiveType.FRUSTUM)
 FLAT_TYPES = (PrimitiveType.PLANE, PrimitiveType.CUBOID)
 
@@ -396,9 +400,79 @@ class UprightAboveSupport:
                        prefix="upright above the support: ")
 
 
+def as_curved(face: ObjectFace) -> ObjectFace:
+    """Return ``face`` re-described as curved (normal: the mean of its point normals)."""
+    info = face.info
+    mean = centroid(info.point_normals) if len(info.point_normals) else info.normal
+    norm = float(np.linalg.norm(mean))
+    normal = mean / norm if norm > MIN_FLAT_MEAN_NORM else info.normal
+    curved = dataclasses.replace(info, planar=False, normal=normal, offset=0.0)
+    s = face.summary
+    return ObjectFace(curved, FaceSummary("curved", s.cf, s.point_count, normal), face.working,
+                      face.points)
+
+
+class PlanarPatchesOfCurvedObjects:
+    """Take the planar faces of a mainly curved object as patches of its curved surface.
+
+    Under depth noise a patch of a small round surface can pass as flat (its bend within
+    the noise over the patch): a sphere with one "planar" face gets the cylinder and cone
+    rules of a mixed object, which fail. When the curved faces hold most of the object
+    (CURVED_MAJORITY), every face is taken as curved and the object's principal
+    curvatures propose the candidates, fitted to all of its faces, provided each planar
+    face bends significantly beyond the noise in its central region (``cloud.
+    central_bend``; a face that does not is a true flat end, a lid or base, and the mixed
+    rules stand). The fits' own
+    checks (inliers and scatter against the noise) still apply. Only where the noise is
+    measured and independent (:func:`~.cloud.independent_noise`: slow errors of real
+    sensors make flat patches look round as well; ``fixed`` keeps the previous
+    strategies exactly).
+    """
+
+    name = "planar patches of a curved object"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True for a mixed object, mostly curved, whose planar faces all bend."""
+        cloud = situation.cloud
+        faces = cloud.faces
+        if situation.decision.category != "mixed" or \
+                not independent_noise(cloud.params, cloud.correlation):
+            return False
+        curved = sum(f.info.size for f in faces if not f.info.planar)
+        if curved <= CURVED_MAJORITY * sum(f.info.size for f in faces):
+            return False
+        # A planar face without a significant bend is a true flat end (a lid, a base).
+        wc, params = cloud.wc, cloud.params
+        for f in faces:
+            if not f.info.planar:
+                continue
+            pts, mass = wc.points[f.working], wc.counts[f.working]
+            feat = face_feature(pts, params.cf_weights, params.cf_threshold,
+                                params.cf_radius_fraction, mass)
+            if not central_bend(pts, mass, f.info.normal, feat, cloud.correlation).significant:
+                return False
+        return True
+
+    def attempt(self, situation: Situation) -> Attempt | None:
+        """Fit the candidates of the whole object's curvatures with every face curved."""
+        cloud = situation.cloud
+        params = cloud.params
+        cands, why = curvature_candidates(
+            *curvatures(cloud, np.ones(len(cloud.wc.points), dtype=bool)),
+            params.sphere_curvature_ratio, params.developable_curvature_ratio,
+            params.cone_curvature_variation)
+        if not cands:
+            return None
+        faces = [as_curved(f) for f in cloud.faces]
+        return Attempt(dataclasses.replace(cloud, faces=faces),
+                       GraphDecision("curved", cands, -1, (), why),
+                       note=f"planar faces taken as patches of the curved surface: {why}")
+
+
 #: The strategies in the order they are tried.
 STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
-                                    FlatCurvedFacesAsPlanar(), UprightAboveSupport())
+                                    FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
+                                    PlanarPatchesOfCurvedObjects())
 
 
 def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES
