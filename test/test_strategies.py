@@ -12,7 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from geomodel_ros.core.fitting.strategies import (STRATEGIES, Attempt, CurvedFacesAlone,
+from geomodel_ros.core.fitting.result import Rejected
+from geomodel_ros.core.fitting.strategies import (STRATEGIES, Attempt, BoxOfFlatCores,
+                                                  CurvedFacesAlone,
                                                   FlatCurvedFacesAsPlanar, ModelGraphCandidates,
                                                   Situation, UprightAboveSupport, flat_faces,
                                                   run_strategies, support_below)
@@ -34,7 +36,8 @@ def test_the_strategies_are_tried_in_the_documented_order():
     assert [s.name for s in STRATEGIES] == ["model graph", "curved faces alone",
                                             "flat curved faces as planar",
                                             "upright above the support",
-                                            "planar patches of a curved object"]
+                                            "planar patches of a curved object",
+                                            "box of the flat cores"]
 
 
 def test_model_graph_candidates_apply_only_when_the_graph_proposed_a_type():
@@ -174,3 +177,27 @@ def test_the_runner_returns_nothing_but_reasons_when_no_strategy_fits():
     prim, summaries, reasons = run_strategies(situation)
     assert prim is None and summaries == tuple(f.summary for f in cloud.faces)
     assert reasons == ["graph reason", "cone: no curved face"]
+
+
+def test_the_runner_records_every_rejection_for_later_strategies():
+    cloud = cloud_of(plane_points())
+    situation = Situation(cloud, decision("planar", ["cone", "sphere"], 0, "graph reason"))
+    run_strategies(situation, (ModelGraphCandidates(),))
+    assert [r.type for r in situation.rejected] == [PrimitiveType.CONE, PrimitiveType.SPHERE]
+    # No curved face: nothing was found and rejected for its scatter.
+    assert not situation.round_beyond_noise
+
+
+def test_the_box_of_flat_cores_needs_a_round_model_rejected_beyond_the_noise():
+    # A flat plate has no box rival at all, and a rejection for another cause (or of a
+    # non-round type) never calls for the box either.
+    cloud = cloud_of(plane_points())
+    for rejected in ([], [Rejected(PrimitiveType.CYLINDER, "too few inliers")],
+                     [Rejected(PrimitiveType.CUBOID, "scatter", beyond_noise=True)]):
+        situation = Situation(cloud, decision("planar", [], 0), rejected=list(rejected))
+        assert not situation.round_beyond_noise
+        assert not BoxOfFlatCores().applies(situation)
+    scattered = Situation(cloud, decision("planar", [], 0), rejected=[
+        Rejected(PrimitiveType.CONE, "scatter", beyond_noise=True)])
+    assert scattered.round_beyond_noise
+    assert scattered.box_rival is None and not BoxOfFlatCores().applies(scattered)

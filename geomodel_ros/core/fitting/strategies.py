@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Protocol, Sequence
 
@@ -27,6 +27,7 @@ from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
                                              independent_noise)
 from geomodel_ros.core.confidence import surface_distance
 from geomodel_ros.core.fitting.measure import every_kth
+from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.model_graph import (FaceInfo, GraphDecision, curvature_candidates,
                                            decide_type)
@@ -36,7 +37,8 @@ from geomodel_ros.core.surface_type import face_feature, principal_curvatures
 
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
-           "UprightAboveSupport", "BoxRival", "PlanarPatchesOfCurvedObjects", "flat_faces",
+           "UprightAboveSupport", "BoxRival", "PlanarPatchesOfCurvedObjects", "BoxOfFlatCores",
+           "flat_faces",
            "flat_core_faces", "box_rival", "support_below", "truncated_cost", "prefer_box",
            "as_curved"]
 
@@ -118,10 +120,19 @@ def curved_faces_alone(cloud: ObjectCloud) -> GraphDecision:
 
 @dataclass
 class Situation:
-    """An object and the model graph's decision on it, as the strategies see them."""
+    """An object and the model graph's decision on it, as the strategies see them.
+
+    ``rejected`` collects the fits rejected so far (:func:`run_strategies` fills it).
+    """
 
     cloud: ObjectCloud
     decision: GraphDecision
+    rejected: list[Rejected] = field(default_factory=list)
+
+    @property
+    def round_beyond_noise(self) -> bool:
+        """Whether a round model was found whose points scatter beyond the noise."""
+        return any(r.beyond_noise and r.type in ROUND_TYPES for r in self.rejected)
 
     @property
     def mixed_without_rule(self) -> bool:
@@ -469,10 +480,34 @@ class PlanarPatchesOfCurvedObjects:
                        note=f"planar faces taken as patches of the curved surface: {why}")
 
 
+class BoxOfFlatCores:
+    """The box of the flat cores (:func:`box_rival`) of an object no round model explains.
+
+    A round fit that verifies competes with this box in :func:`prefer_box`. When every
+    round model found was rejected because its points scatter beyond the measured depth
+    noise (``Rejected.beyond_noise``: the data are not that shape, e.g. a carton whose
+    gable merged with a side into one curved face), the box is fitted on its own and kept
+    if it passes the cuboid unit's verification. Objects without a scattered round model
+    (no flat cores, no round candidate) are not given a box this way.
+    """
+
+    name = "box of the flat cores"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True when a round model scattered beyond the noise and a box rival exists."""
+        return situation.round_beyond_noise and situation.box_rival is not None
+
+    def attempt(self, situation: Situation) -> Attempt:
+        """Fit the cuboid to the box rival's sides."""
+        rival = situation.box_rival
+        return Attempt(rival.cloud, rival.decision,
+                       note=f"round models scatter beyond the noise; {rival.note}")
+
+
 #: The strategies in the order they are tried.
 STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
                                     FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
-                                    PlanarPatchesOfCurvedObjects())
+                                    PlanarPatchesOfCurvedObjects(), BoxOfFlatCores())
 
 
 def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES
@@ -492,7 +527,8 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
             continue
         if attempt.note:
             reasons.append(attempt.note)
-        prim, tried = fit_first(attempt.cloud, attempt.decision, attempt.axis_prior)
+        prim, tried = fit_first(attempt.cloud, attempt.decision, attempt.axis_prior,
+                                situation.rejected)
         reasons.extend(attempt.prefix + r for r in tried)
         if prim is not None:
             faces = tuple(f.summary for f in attempt.cloud.faces)

@@ -57,13 +57,15 @@ def _skipped(kind: PrimitiveType, cone: Rejected | None) -> bool:
 
 
 def fit_first(cloud: ObjectCloud, decision: GraphDecision,
-              axis_prior: NDArray[np.float64] | None = None
+              axis_prior: NDArray[np.float64] | None = None,
+              rejected: list[Rejected] | None = None
               ) -> tuple[Primitive | None, list[str]]:
     """Try the decision's candidate types in order; the first that fits with finite sizes.
 
-    Returns that primitive (None if none fits) and the reason of every attempt. A
-    frustum after a cone rejected for anything but stopping short of its apex is not
-    tried (:data:`CONE_SHORT_OF_APEX`).
+    Returns that primitive (None if none fits) and the reason of every attempt; every
+    rejection is also appended to ``rejected`` when given. A frustum after a cone
+    rejected for anything but stopping short of its apex is not tried
+    (:data:`CONE_SHORT_OF_APEX`).
     """
     task = FitTask(cloud, decision.main_face, decision.axis_of_face, axis_prior)
     reasons = []
@@ -79,6 +81,8 @@ def fit_first(cloud: ObjectCloud, decision: GraphDecision,
         reasons.append(outcome.reason)
         if isinstance(outcome, Fitted) and is_finite_primitive(outcome.primitive):
             return outcome.primitive, reasons
+        if rejected is not None and isinstance(outcome, Rejected):
+            rejected.append(outcome)
         if kind is PrimitiveType.CONE and isinstance(outcome, Rejected):
             cone = outcome
     return None, reasons

@@ -156,5 +156,5 @@ def check_noise_scatter(points: NDArray[np.float64],
     ratio = noise_scatter_ratio(distance, points, params.noise_amplitude / K_AMPLITUDE)
     if ratio > NOISE_SCATTER_BOUND:
         return Rejected(kind, f"{kind} rejected: its points scatter {ratio:.1f} times the "
-                              "measured noise about it")
+                              "measured noise about it", beyond_noise=True)
     return None
