@@ -350,9 +350,11 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     patches = split_faces(cloud, params.face_angle_threshold, params.edge_variation_threshold,
                           params.min_face_points, max_edge).labels
     noise_w = working_noise(points, counts, noise)
-    step = np.maximum(STEP_SHARE * params.seg_plane_threshold, STEP_NOISE_SIGMAS * noise_w)
+    floor = STEP_SHARE * params.seg_plane_threshold
+    step = np.maximum(floor, STEP_NOISE_SIGMAS * noise_w)
     patches = _cut_steps(points, normals, nbrs, sqdist, patches, max_edge, step,
-                         min_piece=params.min_face_points)
+                         min_piece=params.min_face_points,
+                         noisy=STEP_NOISE_SIGMAS * noise_w > floor)
     n_p = int(patches.max()) + 1
     normals = _patch_normals(points, normals, nbrs, patches, noise_w)
     a, b, votes, yes = _border_votes(points, normals, nbrs, sqdist, patches, n_p, max_edge,
@@ -477,7 +479,8 @@ def _step_free(points: NDArray[np.float64], normals: NDArray[np.float64], i: NDA
 def _cut_steps(points: NDArray[np.float64], normals: NDArray[np.float64],
                nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
                patches: NDArray[np.int64], max_edge: float, step: NDArray[np.float64],
-               min_piece: int = 1) -> NDArray[np.int64]:
+               min_piece: int = 1, noisy: NDArray[np.bool_] | None = None
+               ) -> NDArray[np.int64]:
     """Split the smooth patches along the links that cross a step (:func:`_step_free`).
 
     Smooth patches link neighbours by the angle of their normals alone, so two parallel
@@ -500,8 +503,11 @@ def _cut_steps(points: NDArray[np.float64], normals: NDArray[np.float64],
     step : (M,) float64 array
         Largest step [m] within one surface at each point.
     min_piece : int
-        A piece of fewer points is no face of its own (e.g. ``min_face_points``): it stays
-        with the piece of its old patch it has the most links to (:func:`_rejoin_shreds`).
+        A piece of fewer points, all of them ``noisy``, is no face of its own (e.g.
+        ``min_face_points``): it stays with the piece of its old patch it has the most
+        links to (:func:`_rejoin_shreds`).
+    noisy : (M,) bool array, optional
+        Points whose ``step`` is set by their noise (not by a fixed floor); default none.
 
     Returns
     -------
@@ -515,22 +521,25 @@ def _cut_steps(points: NDArray[np.float64], normals: NDArray[np.float64],
     keep = same.copy()
     keep[same] = _step_free(points, normals, i[same], j[same], step)[2]
     _, comp = connected_components(link_graph(nbrs, keep.reshape(m, k), m), directed=False)
-    if min_piece > 1:
-        comp = _rejoin_shreds(comp, i[same], j[same], min_piece)
+    if min_piece > 1 and noisy is not None and noisy.any():
+        comp = _rejoin_shreds(comp, i[same], j[same], min_piece, noisy)
     return comp.astype(np.int64)
 
 
 def _rejoin_shreds(comp: NDArray[np.int64], i: NDArray[np.int64], j: NDArray[np.int64],
-                   min_piece: int) -> NDArray[np.int64]:
-    """Give every piece smaller than ``min_piece`` points to the piece it links to most.
+                   min_piece: int, noisy: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """Give every noisy piece smaller than ``min_piece`` points to the piece it links to most.
 
     The step test of a link is a test against the noise, so on a sparse or noisy surface
     it cuts some links of one face; a point or two whose links all failed it fall off as
     a piece of their own (on the room scan's cabinet, 4-6 m away, its narrow side face
     seen at grazing incidence fell apart into pieces of 1-5 points and the cabinet lost
-    it). A piece smaller than the smallest face is no evidence of a second surface, so it
-    returns to the neighbouring piece of its old patch it has the most links to, the step
-    ignored; real faces beyond a step are larger and stay apart.
+    it). A piece smaller than the smallest face whose points' steps are all set by their
+    noise is no evidence of a second surface, so it returns to the neighbouring piece of
+    its old patch it has the most links to, the step ignored. Real faces beyond a step are
+    larger and stay apart, and so does a small piece where the noise is below the fixed
+    step (a strip of a box's top along the crease under a box stacked on it, noise-free:
+    a real surface, not a chip).
 
     Parameters
     ----------
@@ -539,6 +548,8 @@ def _rejoin_shreds(comp: NDArray[np.int64], i: NDArray[np.int64], j: NDArray[np.
     i, j : (L,) int64 arrays
         The links within the old patches (before the step test).
     min_piece : int
+    noisy : (M,) bool array
+        Points whose step is set by their noise; only pieces of such points rejoin.
 
     Returns
     -------
@@ -548,7 +559,10 @@ def _rejoin_shreds(comp: NDArray[np.int64], i: NDArray[np.int64], j: NDArray[np.
     n = int(comp.max()) + 1
     size = np.bincount(comp, minlength=n)
     ci, cj = comp[i], comp[j]
-    ok = (ci != cj) & (size[ci] < min_piece)
+    quiet = np.bincount(comp, weights=~noisy, minlength=n) > 0
+    ok = (ci != cj) & (size[ci] < min_piece) & ~quiet[ci]
+    if not ok.any():
+        return comp
     key, links = np.unique(ci[ok] * n + cj[ok], return_counts=True)
     shred, partner = key // n, key % n
     order = np.lexsort((links, shred))  # per shred, the partner with most links comes last
