@@ -19,7 +19,7 @@ import pytest
 from geomodel_ros.core.faces import estimate_normals
 from geomodel_ros.core.joins import _round_footprint, join_contained_parts, merge_patches
 from geomodel_ros.core.ransac import PlaneModel
-from geomodel_ros.core.segmentation import _cut_steps
+from geomodel_ros.core.segmentation import _cut_steps, _step_free
 
 UP = np.array([0.0, 0.0, 1.0])
 MM = 1e-3
@@ -91,6 +91,46 @@ def test_faces_beyond_a_real_step_stay_apart_also_where_noise_set_the_step():
                      min_piece=12, noisy=np.ones(len(points), dtype=bool))
     assert len(np.unique(out)) == 2
     assert len(np.unique(out[points[:, 0] < 0.028])) == 1
+
+
+# --------------------------------------------------------------------------- _step_free
+#: cos(0.2 rad), the default face_angle_threshold: normals within it are parallel.
+PARALLEL_COS = float(np.cos(0.2))
+
+
+def _link(p_j, n_i, n_j, parallel_cos=PARALLEL_COS) -> bool:
+    points = np.array([[0.0, 0.0, 0.0], p_j])
+    normals = np.array([n_i, n_j], dtype=float)
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    return bool(_step_free(points, normals, np.array([0]), np.array([1]),
+                           np.full(2, 1 * MM), parallel_cos)[2][0])
+
+
+def test_a_small_step_is_seen_along_the_mean_normal_of_a_tilted_pair():
+    # j lies 9 mm along x and 2.5 mm above i (a can's top beside a box's top). i's normal
+    # is tilted 10 degrees towards the step (its neighbourhood averages both levels):
+    # along it j is only 9 sin 10 - 2.5 cos 10 = -0.90 mm off (within the 1 mm step);
+    # along j's normal i is 2.5 mm below. Mean-normal offset (0.90 + 2.5) / 2 = 1.7 mm.
+    tilt = np.radians(10.0)
+    n_i = [-np.sin(tilt), 0.0, np.cos(tilt)]
+    assert not _link([0.009, 0.0, 0.0025], n_i, [0.0, 0.0, 1.0])
+    # Without the parallel test only the smaller offset (-0.90 mm) counts: no step.
+    assert _link([0.009, 0.0, 0.0025], n_i, [0.0, 0.0, 1.0], parallel_cos=1.0)
+
+
+@pytest.mark.parametrize("case", ["flat-noisy", "cylinder", "convex-edge"])
+def test_no_step_on_one_smooth_surface_or_at_a_fold(case):
+    if case == "flat-noisy":  # j 0.5 mm above i on one plane: offsets +-0.5 mm
+        assert _link([0.006, 0.0, 0.0005], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0])
+    elif case == "cylinder":
+        # Two points 6 mm apart on a cylinder of r = 40 mm (axis y, top at z = 0): the
+        # normals differ by 8.6 degrees (parallel); each end lies r (1 - cos) = 0.45 mm
+        # below the other's tangent plane (convex), so the mean-normal offset is 0.
+        a = 0.006 / 0.040
+        p_j = [0.040 * np.sin(a), 0.0, 0.040 * (np.cos(a) - 1.0)]
+        assert _link(p_j, [0.0, 0.0, 1.0], [np.sin(a), 0.0, np.cos(a)])
+    else:  # a box's top edge: i on the top, j on the side 3 mm below and 1 mm in front
+        assert _link([0.001, 0.0, -0.003], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
 
 
 # --------------------------------------------------------------------------- containers
