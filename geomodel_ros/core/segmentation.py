@@ -468,8 +468,9 @@ def _step_free(points: NDArray[np.float64], normals: NDArray[np.float64], i: NDA
         At a small step (a can's top 2.5 mm above a box's top beside it, noise-free) the
         working points next to it average both levels and their normals tilt towards it:
         measured along the tilted normal the other level lies within the step, along the
-        mean normal it does not (on the clutter benchmark, 20 scenes noise-free, two such
-        pairs of objects stayed one segment). On one face (below_i ~ -below_j) this is the
+        mean normal it does not (clutter benchmark, 20 scenes noise-free: 96.0 % of the
+        objects with IoU >= 0.8 and 4.0 % under-segmented, 95.2 / 4.8 % without; Kinect
+        noise unchanged, 89.2 / 4.4 %). On one face (below_i ~ -below_j) this is the
         test of the smaller of the two; at a convex or concave fold the normals differ.
         1 (the default): no link is parallel, the test is the smaller offset alone.
 
