@@ -484,12 +484,16 @@ def _step_free(points: NDArray[np.float64], normals: NDArray[np.float64], i: NDA
         parallel normals, are the two ends offset along their mean normal by more.
     """
     d = take_rows(points, i) - take_rows(points, j)
-    below_i = np.einsum("ij,ij->i", take_rows(normals, i), d)
-    below_j = -np.einsum("ij,ij->i", take_rows(normals, j), d)
+    n_i, n_j = take_rows(normals, i), take_rows(normals, j)
+    below_i = np.einsum("ij,ij->i", n_i, d)
+    below_j = -np.einsum("ij,ij->i", n_j, d)
     limit = np.minimum(step[i], step[j])
     no_step = np.minimum(below_i, below_j) >= -limit
-    parallel = np.einsum("ij,ij->i", take_rows(normals, i), take_rows(normals, j)) > parallel_cos
-    return below_i, below_j, no_step & ~(parallel & (np.abs(below_i - below_j) > 2.0 * limit))
+    if parallel_cos < 1.0:
+        offset = np.abs(below_i - below_j) > 2.0 * limit
+        offset[offset] = np.einsum("ij,ij->i", n_i[offset], n_j[offset]) > parallel_cos
+        no_step &= ~offset
+    return below_i, below_j, no_step
 
 
 def _cut_steps(points: NDArray[np.float64], normals: NDArray[np.float64],
@@ -576,16 +580,20 @@ def _rejoin_shreds(comp: NDArray[np.int64], i: NDArray[np.int64], j: NDArray[np.
     """
     n = int(comp.max()) + 1
     size = np.bincount(comp, minlength=n)
-    ci, cj = comp[i], comp[j]
     quiet = np.bincount(comp, weights=~noisy, minlength=n) > 0
-    ok = (ci != cj) & (size[ci] < min_piece) & ~quiet[ci]
-    if not ok.any():
+    shred = (size < min_piece) & ~quiet
+    if not shred.any():
         return comp
+    from_shred = shred[comp][i]
+    ci, cj = comp[i[from_shred]], comp[j[from_shred]]
+    ok = ci != cj
     key, links = np.unique(ci[ok] * n + cj[ok], return_counts=True)
-    shred, partner = key // n, key % n
-    order = np.lexsort((links, shred))  # per shred, the partner with most links comes last
-    shred, partner = shred[order], partner[order]
-    last = np.append(shred[1:] != shred[:-1], True)
+    if not len(key):
+        return comp
+    src, partner = key // n, key % n
+    order = np.lexsort((links, src))  # per shred, the partner with most links comes last
+    src, partner = src[order], partner[order]
+    last = np.append(src[1:] != src[:-1], True)
     target = np.arange(n)
-    target[shred[last]] = partner[last]
+    target[src[last]] = partner[last]
     return target[comp]
