@@ -219,9 +219,6 @@ def test_room_scene_with_defaults_gives_walls_and_floor_as_planes():
     assert sum(fixed[i] == "plane" for i in planes) < 4
 
 
-@pytest.mark.xfail(strict=True, reason="known limit: the cabinet's two faces at 4-6 m are cut "
-                   "apart by the segmentation's step rule (step at 1 sigma of the working "
-                   "noise; its sparse, long links tilt more than that) and it comes out a plane")
 def test_room_scene_with_defaults_gives_furniture_as_cuboids():
     truth = {o.id: o.type for o in room_scene(rng=1).objects}
     got = _room_types(ModelingParams())

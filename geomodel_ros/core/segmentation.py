@@ -350,20 +350,24 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     patches = split_faces(cloud, params.face_angle_threshold, params.edge_variation_threshold,
                           params.min_face_points, max_edge).labels
     noise_w = working_noise(points, counts, noise)
-    step = np.maximum(STEP_SHARE * params.seg_plane_threshold, STEP_NOISE_SIGMAS * noise_w)
-    patches = _cut_steps(points, normals, nbrs, sqdist, patches, max_edge, step)
+    floor = STEP_SHARE * params.seg_plane_threshold
+    step = np.maximum(floor, STEP_NOISE_SIGMAS * noise_w)
+    parallel = float(np.cos(params.face_angle_threshold))
+    patches = _cut_steps(points, normals, nbrs, sqdist, patches, max_edge, step,
+                         min_piece=params.min_face_points,
+                         noisy=STEP_NOISE_SIGMAS * noise_w > floor, parallel_cos=parallel)
     n_p = int(patches.max()) + 1
     normals = _patch_normals(points, normals, nbrs, patches, noise_w)
     a, b, votes, yes = _border_votes(points, normals, nbrs, sqdist, patches, n_p, max_edge,
-                                     params.seg_concavity_tolerance, step)
-    obj = merge_patches(n_p, a, b, votes, yes)
+                                     params.seg_concavity_tolerance, step, parallel)
+    obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p))
     return obj[patches].astype(np.int64)
 
 
 def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
                   nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
                   patches: NDArray[np.int64], n_p: int, max_edge: float, tolerance: float,
-                  step: NDArray[np.float64]
+                  step: NDArray[np.float64], parallel_cos: float = 1.0
                   ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray, NDArray]:
     """Convexity votes of the neighbour links across each border of two patches.
 
@@ -371,8 +375,8 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     patches and no longer than ``max_edge`` [m] (a longer one spans a depth jump) votes
     with its convexity (n_i - n_j) . (p_i - p_j) / |p_i - p_j| (~0 flat, > 0 convex, < 0
     concave); the vote is *yes* when it is at least ``-tolerance`` and the link crosses no
-    step (:func:`_step_free` with ``step`` (M,) [m]: two parallel faces at different heights
-    have a convexity of 0 but are no continuation of one surface).
+    step (:func:`_step_free` with ``step`` (M,) [m] and ``parallel_cos``: two parallel faces
+    at different heights have a convexity of 0 but are no continuation of one surface).
 
     Returns
     -------
@@ -387,7 +391,7 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     ok = (patches[i] != patches[j]) & (sqdist.ravel() <= max_edge * max_edge)
     i, j = i[ok], j[ok]
     dist = np.sqrt(sqdist.ravel()[ok])
-    below_i, below_j, no_step = _step_free(points, normals, i, j, step)
+    below_i, below_j, no_step = _step_free(points, normals, i, j, step, parallel_cos)
     good = (below_i + below_j >= -tolerance * dist) & no_step
     pi, pj = patches[i], patches[j]
     key = np.minimum(pi, pj) * n_p + np.maximum(pi, pj)
@@ -440,7 +444,7 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
 
 
 def _step_free(points: NDArray[np.float64], normals: NDArray[np.float64], i: NDArray[np.int64],
-               j: NDArray[np.int64], step: NDArray[np.float64]
+               j: NDArray[np.int64], step: NDArray[np.float64], parallel_cos: float = 1.0
                ) -> tuple[NDArray, NDArray, NDArray]:
     """How far each of the links i -> j lies below the tangent planes at its two ends.
 
@@ -457,6 +461,18 @@ def _step_free(points: NDArray[np.float64], normals: NDArray[np.float64], i: NDA
         sensor noise: a silhouette, a remnant of the desk beside the support band) does
         not lift the step of its link to a dense surface (on osd_learn with the larger,
         three more objects of 112 came out over-segmented, joined to desk remnants).
+    parallel_cos : float
+        Links whose two normals agree within this cosine (e.g. of ``face_angle_threshold``:
+        one face to the patch growing) are between parallel surfaces; for them the offset
+        along the mean normal, (below_i - below_j) / 2, must also stay within the step.
+        At a small step (a can's top 2.5 mm above a box's top beside it, noise-free) the
+        working points next to it average both levels and their normals tilt towards it:
+        measured along the tilted normal the other level lies within the step, along the
+        mean normal it does not (clutter benchmark, 20 scenes noise-free: 96.0 % of the
+        objects with IoU >= 0.8 and 4.0 % under-segmented, 95.2 / 4.8 % without; Kinect
+        noise unchanged, 89.2 / 4.4 %). On one face (below_i ~ -below_j) this is the
+        test of the smaller of the two; at a convex or concave fold the normals differ.
+        1 (the default): no link is parallel, the test is the smaller offset alone.
 
     Returns
     -------
@@ -464,19 +480,27 @@ def _step_free(points: NDArray[np.float64], normals: NDArray[np.float64], i: NDA
         n_i . (p_i - p_j) and n_j . (p_j - p_i) [m]: positive where the other end lies below
         the tangent plane (convex), about 0 on a plane, negative above it (concave).
     no_step : (L,) bool array
-        Neither end lies above the other's tangent plane by more than ``step``.
+        Neither end lies above the other's tangent plane by more than ``step``, nor, for
+        parallel normals, are the two ends offset along their mean normal by more.
     """
     d = take_rows(points, i) - take_rows(points, j)
-    below_i = np.einsum("ij,ij->i", take_rows(normals, i), d)
-    below_j = -np.einsum("ij,ij->i", take_rows(normals, j), d)
+    n_i, n_j = take_rows(normals, i), take_rows(normals, j)
+    below_i = np.einsum("ij,ij->i", n_i, d)
+    below_j = -np.einsum("ij,ij->i", n_j, d)
     limit = np.minimum(step[i], step[j])
-    return below_i, below_j, np.minimum(below_i, below_j) >= -limit
+    no_step = np.minimum(below_i, below_j) >= -limit
+    if parallel_cos < 1.0:
+        offset = np.abs(below_i - below_j) > 2.0 * limit
+        offset[offset] = np.einsum("ij,ij->i", n_i[offset], n_j[offset]) > parallel_cos
+        no_step &= ~offset
+    return below_i, below_j, no_step
 
 
 def _cut_steps(points: NDArray[np.float64], normals: NDArray[np.float64],
                nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
-               patches: NDArray[np.int64], max_edge: float, step: NDArray[np.float64]
-               ) -> NDArray[np.int64]:
+               patches: NDArray[np.int64], max_edge: float, step: NDArray[np.float64],
+               min_piece: int = 1, noisy: NDArray[np.bool_] | None = None,
+               parallel_cos: float = 1.0) -> NDArray[np.int64]:
     """Split the smooth patches along the links that cross a step (:func:`_step_free`).
 
     Smooth patches link neighbours by the angle of their normals alone, so two parallel
@@ -498,6 +522,14 @@ def _cut_steps(points: NDArray[np.float64], normals: NDArray[np.float64],
         Longest link [m].
     step : (M,) float64 array
         Largest step [m] within one surface at each point.
+    min_piece : int
+        A piece of fewer points, all of them ``noisy``, is no face of its own (e.g.
+        ``min_face_points``): it stays with the piece of its old patch it has the most
+        links to (:func:`_rejoin_shreds`).
+    noisy : (M,) bool array, optional
+        Points whose ``step`` is set by their noise (not by a fixed floor); default none.
+    parallel_cos : float
+        Normals of parallel surfaces agree within this cosine (:func:`_step_free`).
 
     Returns
     -------
@@ -507,7 +539,61 @@ def _cut_steps(points: NDArray[np.float64], normals: NDArray[np.float64],
     m, k = nbrs.shape
     i = np.repeat(np.arange(m), k)
     j = nbrs.ravel()
-    keep = (patches[i] == patches[j]) & (sqdist.ravel() <= max_edge * max_edge)
-    keep[keep] = _step_free(points, normals, i[keep], j[keep], step)[2]
+    same = (patches[i] == patches[j]) & (sqdist.ravel() <= max_edge * max_edge)
+    keep = same.copy()
+    keep[same] = _step_free(points, normals, i[same], j[same], step, parallel_cos)[2]
     _, comp = connected_components(link_graph(nbrs, keep.reshape(m, k), m), directed=False)
+    if min_piece > 1 and noisy is not None and noisy.any():
+        comp = _rejoin_shreds(comp, i[same], j[same], min_piece, noisy)
     return comp.astype(np.int64)
+
+
+def _rejoin_shreds(comp: NDArray[np.int64], i: NDArray[np.int64], j: NDArray[np.int64],
+                   min_piece: int, noisy: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """Give every noisy piece smaller than ``min_piece`` points to the piece it links to most.
+
+    The step test of a link is a test against the noise, so on a sparse or noisy surface
+    it cuts some links of one face; a point or two whose links all failed it fall off as
+    a piece of their own (on the room scan's cabinet, 4-6 m away, its narrow side face
+    seen at grazing incidence fell apart into pieces of 1-5 points and the cabinet lost
+    it). A piece smaller than the smallest face whose points' steps are all set by their
+    noise is no evidence of a second surface, so it returns to the neighbouring piece of
+    its old patch it has the most links to, the step ignored. Real faces beyond a step are
+    larger and stay apart, and so does a small piece where the noise is below the fixed
+    step (a strip of a box's top along the crease under a box stacked on it, noise-free:
+    a real surface, not a chip).
+
+    Parameters
+    ----------
+    comp : (M,) int64 array
+        Piece of every point (connected components after the cut).
+    i, j : (L,) int64 arrays
+        The links within the old patches (before the step test).
+    min_piece : int
+    noisy : (M,) bool array
+        Points whose step is set by their noise; only pieces of such points rejoin.
+
+    Returns
+    -------
+    (M,) int64 array
+        Piece of every point (ids of ``comp``; one pass, a shred's partner keeps its own).
+    """
+    n = int(comp.max()) + 1
+    size = np.bincount(comp, minlength=n)
+    quiet = np.bincount(comp, weights=~noisy, minlength=n) > 0
+    shred = (size < min_piece) & ~quiet
+    if not shred.any():
+        return comp
+    from_shred = shred[comp][i]
+    ci, cj = comp[i[from_shred]], comp[j[from_shred]]
+    ok = ci != cj
+    key, links = np.unique(ci[ok] * n + cj[ok], return_counts=True)
+    if not len(key):
+        return comp
+    src, partner = key // n, key % n
+    order = np.lexsort((links, src))  # per shred, the partner with most links comes last
+    src, partner = src[order], partner[order]
+    last = np.append(src[1:] != src[:-1], True)
+    target = np.arange(n)
+    target[src[last]] = partner[last]
+    return target[comp]
