@@ -266,7 +266,7 @@ def test_a_cylinder_beside_a_larger_flat_part_is_rejected_for_coverage():
     share = round(100 * len(cyl) / (len(cyl) + len(beside)))
     assert share < 50
     assert out == Rejected(PrimitiveType.CYLINDER, f"cylinder rejected: only {share}% of the "
-                           "object's points lie on it")
+                           "object's points lie on it", misfit=True)
     # With a smaller rectangle most points lie on the cylinder again: it is accepted.
     out = fit("cylinder", cloud_of(np.vstack([cyl, plane_points(n=20000)])))
     assert isinstance(out, Fitted)

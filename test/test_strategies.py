@@ -184,20 +184,20 @@ def test_the_runner_records_every_rejection_for_later_strategies():
     situation = Situation(cloud, decision("planar", ["cone", "sphere"], 0, "graph reason"))
     run_strategies(situation, (ModelGraphCandidates(),))
     assert [r.type for r in situation.rejected] == [PrimitiveType.CONE, PrimitiveType.SPHERE]
-    # No curved face: nothing was found and rejected for its scatter.
-    assert not situation.round_beyond_noise
+    # No curved face: no round model was found that could misfit the points.
+    assert not situation.round_misfit
 
 
-def test_the_box_of_flat_cores_needs_a_round_model_rejected_beyond_the_noise():
-    # A flat plate has no box rival at all, and a rejection for another cause (or of a
-    # non-round type) never calls for the box either.
+def test_the_box_of_flat_cores_needs_a_round_model_that_does_not_explain_the_points():
+    # A flat plate has no box rival at all, and a rejection for another cause than a
+    # misfit (or of a non-round type) never calls for the box either.
     cloud = cloud_of(plane_points())
-    for rejected in ([], [Rejected(PrimitiveType.CYLINDER, "too few inliers")],
-                     [Rejected(PrimitiveType.CUBOID, "scatter", beyond_noise=True)]):
+    for rejected in ([], [Rejected(PrimitiveType.CYLINDER, "axis not aligned")],
+                     [Rejected(PrimitiveType.CUBOID, "scatter", misfit=True)]):
         situation = Situation(cloud, decision("planar", [], 0), rejected=list(rejected))
-        assert not situation.round_beyond_noise
+        assert not situation.round_misfit
         assert not BoxOfFlatCores().applies(situation)
     scattered = Situation(cloud, decision("planar", [], 0), rejected=[
-        Rejected(PrimitiveType.CONE, "scatter", beyond_noise=True)])
-    assert scattered.round_beyond_noise
+        Rejected(PrimitiveType.CONE, "scatter", misfit=True)])
+    assert scattered.round_misfit
     assert scattered.box_rival is None and not BoxOfFlatCores().applies(scattered)

@@ -40,14 +40,15 @@ class Rejected:
         The type that was tried.
     reason : str
         Why it was rejected (human readable, kept in the object's ``reason``).
-    beyond_noise : bool
-        The model was found but its points scatter about it beyond the measured depth
-        noise (:func:`~.verify.check_noise_scatter`): the data are not this shape.
+    misfit : bool
+        The model was found but does not explain the object's points: too few inliers
+        on it, too few of the points on it, or its points scatter about it beyond the
+        measured depth noise (:mod:`~.verify`): the data are not this shape.
     """
 
     type: PrimitiveType
     reason: str
-    beyond_noise: bool = False
+    misfit: bool = False
 
 
 #: What every fitting unit returns.

@@ -130,9 +130,9 @@ class Situation:
     rejected: list[Rejected] = field(default_factory=list)
 
     @property
-    def round_beyond_noise(self) -> bool:
-        """Whether a round model was found whose points scatter beyond the noise."""
-        return any(r.beyond_noise and r.type in ROUND_TYPES for r in self.rejected)
+    def round_misfit(self) -> bool:
+        """Whether a round model was found that does not explain the points (``misfit``)."""
+        return any(r.misfit and r.type in ROUND_TYPES for r in self.rejected)
 
     @property
     def mixed_without_rule(self) -> bool:
@@ -483,25 +483,25 @@ class PlanarPatchesOfCurvedObjects:
 class BoxOfFlatCores:
     """The box of the flat cores (:func:`box_rival`) of an object no round model explains.
 
-    A round fit that verifies competes with this box in :func:`prefer_box`. When every
-    round model found was rejected because its points scatter beyond the measured depth
-    noise (``Rejected.beyond_noise``: the data are not that shape, e.g. a carton whose
-    gable merged with a side into one curved face), the box is fitted on its own and kept
-    if it passes the cuboid unit's verification. Objects without a scattered round model
-    (no flat cores, no round candidate) are not given a box this way.
+    A round fit that verifies competes with this box in :func:`prefer_box`. When no
+    round fit verified and a round model was found that does not explain the points
+    (``Rejected.misfit``: too few inliers, or a scatter beyond the measured noise; e.g. a
+    carton whose gable merged with a side into one curved face), the box is fitted on its
+    own and kept if it passes the cuboid unit's verification. Objects without such a
+    round model or without flat cores aligned as a box are not given a box this way.
     """
 
     name = "box of the flat cores"
 
     def applies(self, situation: Situation) -> bool:
-        """Return True when a round model scattered beyond the noise and a box rival exists."""
-        return situation.round_beyond_noise and situation.box_rival is not None
+        """Return True when a round model did not explain the points and a box rival exists."""
+        return situation.round_misfit and situation.box_rival is not None
 
     def attempt(self, situation: Situation) -> Attempt:
         """Fit the cuboid to the box rival's sides."""
         rival = situation.box_rival
         return Attempt(rival.cloud, rival.decision,
-                       note=f"round models scatter beyond the noise; {rival.note}")
+                       note=f"no round model explains the points; {rival.note}")
 
 
 #: The strategies in the order they are tried.

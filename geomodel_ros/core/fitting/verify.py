@@ -65,7 +65,7 @@ def check_inlier_ratio(ratio: float, params: ModelingParams,
     """Reject a fit with less than ``min_inlier_ratio`` inliers on its faces."""
     if ratio < params.min_inlier_ratio:
         return Rejected(kind, f"{kind} fit rejected: {ratio:.0%} inliers < "
-                              f"{params.min_inlier_ratio:.0%}")
+                              f"{params.min_inlier_ratio:.0%}", misfit=True)
     return None
 
 
@@ -74,7 +74,7 @@ def check_coverage(on_model: NDArray[np.bool_], kind: PrimitiveType) -> Rejected
     share = float(np.mean(on_model)) if on_model.size else 0.0
     if share < MIN_COVERAGE:
         return Rejected(kind, f"{kind} rejected: only {share:.0%} of the object's points lie "
-                              "on it")
+                              "on it", misfit=True)
     return None
 
 
@@ -156,5 +156,5 @@ def check_noise_scatter(points: NDArray[np.float64],
     ratio = noise_scatter_ratio(distance, points, params.noise_amplitude / K_AMPLITUDE)
     if ratio > NOISE_SCATTER_BOUND:
         return Rejected(kind, f"{kind} rejected: its points scatter {ratio:.1f} times the "
-                              "measured noise about it", beyond_noise=True)
+                              "measured noise about it", misfit=True)
     return None
