@@ -213,3 +213,23 @@ def test_real_preset_measures_like_a_real_kinect_frame():
     z = est_real.plane_depth
     local = est_real.sigma(z) / est_real.scale
     assert local == pytest.approx(float(KINECT_CLASS_NOISE.sigma(z)), rel=0.2)
+
+
+# ----------------------------------------------------------------------------- calibration tool
+def test_calibration_measures_a_known_quantised_wall():
+    from geomodel_ros.tools.noise_calibration import lag_correlation, measure, plane_residuals
+
+    # A fronto-parallel wall at 1 m, displaced along the rays by a field of known std and
+    # correlation length: residuals along the rays = the displacement (up to its mean).
+    wall = _wall(1.0)
+    field = 0.002 * correlated_field(wall.shape[:2], 6.0, 5)
+    bumped = wall * (1.0 + field / np.linalg.norm(wall, axis=2))[..., None]
+    res = plane_residuals(bumped, np.ones(wall.shape[:2], dtype=bool))
+    ok = np.isfinite(res)
+    assert ok.mean() > 0.98                       # 3 robust sigmas keep nearly all
+    assert float(np.std(res[ok])) == pytest.approx(float(np.std(field[ok])), rel=0.05)
+    assert lag_correlation(res, (6,))[0] == pytest.approx(np.exp(-0.5), abs=0.08)
+    # The 1/z step of a quantised wall is the quantisation step.
+    quant = quantize_disparity(bumped, KINECT_INV_DEPTH_STEP)
+    got = measure(quant, np.ones(wall.shape[:2], dtype=bool))
+    assert got["inv_z_gap"] == pytest.approx(KINECT_INV_DEPTH_STEP, rel=1e-3)
