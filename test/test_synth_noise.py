@@ -233,3 +233,30 @@ def test_calibration_measures_a_known_quantised_wall():
     quant = quantize_disparity(bumped, KINECT_INV_DEPTH_STEP)
     got = measure(quant, np.ones(wall.shape[:2], dtype=bool))
     assert got["inv_z_gap"] == pytest.approx(KINECT_INV_DEPTH_STEP, rel=1e-3)
+
+
+# ----------------------------------------------------------------------------- benches
+def test_suite_runs_the_realistic_level_only_on_request():
+    from geomodel_ros.tools.synth.suite import SUITE_NOISE, suite_cases
+
+    assert {c.noise for c in suite_cases()} == set(SUITE_NOISE)
+    assert "kinect-real" not in SUITE_NOISE
+    cases = suite_cases((1,), ("kinect", "kinect-real"))
+    assert {c.noise for c in cases} == {"kinect", "kinect-real"}
+    clean = render_case(SuiteCase("set_a", 1.0, "clean", 1))
+    real = render_case(SuiteCase("set_a", 1.0, "kinect-real", 1))
+    want = apply_noise(clean.organized, clean.label_image, KINECT_REAL_NOISE, 1)
+    np.testing.assert_array_equal(real.organized, want[0])
+    np.testing.assert_array_equal(real.label_image, want[1])
+
+
+def test_sensor_summary_keeps_its_columns_for_the_default_levels():
+    from geomodel_ros.tools.bench_sensors import summary_lines
+
+    row = {"type": "plane", "type_correct": True, "recalled": True, "size_errors_m": [0.001],
+           "scene": "s", "time_s": 0.5}
+    default = summary_lines([{**row, "noise": "kinect"}])
+    assert default[0].startswith("noise   ") and default[1].startswith("kinect  ")
+    wide = summary_lines([{**row, "noise": "kinect"}, {**row, "noise": "kinect-real"}])
+    assert wide[1].startswith("kinect       ") and wide[2].startswith("kinect-real ")
+    assert len(wide[1]) == len(wide[2])                      # aligned columns

@@ -126,12 +126,10 @@ def main(argv: list[str] | None = None) -> int:
     params = load_params_file(args.params) if args.params else ModelingParams()
     seeds = range(args.first, args.first + args.scenes)
     report = {}
-    runs = [*{"both": (False, True), "clean": (False,), "kinect": (True,)}[args.noise],
-            *(OPTIONAL_NOISE[name] for name in args.noise_model)]
-    names = {id(m): f"{n}-noise" for n, m in OPTIONAL_NOISE.items()}
-    for noisy in runs:
-        label = names[id(noisy)] if isinstance(noisy, NoiseModel) else (
-            "kinect-noise" if noisy else "noise-free")
+    runs = [("kinect-noise" if noisy else "noise-free", noisy)
+            for noisy in {"both": (False, True), "clean": (False,), "kinect": (True,)}[args.noise]]
+    runs += [(f"{name}-noise", OPTIONAL_NOISE[name]) for name in args.noise_model]
+    for label, noisy in runs:
         rows = report[label] = clutter_rows(seeds, noisy, params)
         print("\n".join(clutter_lines(rows, f"clutter {label}")))
         if args.failures:

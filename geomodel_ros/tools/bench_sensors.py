@@ -109,13 +109,15 @@ def summary_lines(rows: list[dict]) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the suite and print its summary (``--json`` writes every row)."""
+    from geomodel_ros.tools.synth.suite import OPTIONAL_NOISE
+
     ap = argparse.ArgumentParser(prog="python -m geomodel_ros.tools.bench_sensors",
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1])
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="parameter override (default: every parameter at its default)")
     ap.add_argument("--no-room", action="store_true", help="skip the room scene")
-    ap.add_argument("--noise-model", action="append", default=[], choices=["kinect-real"],
+    ap.add_argument("--noise-model", action="append", default=[], choices=sorted(OPTIONAL_NOISE),
                     help="also run the suite with this noise model (correlated range error "
                          "and disparity quantisation calibrated on real Kinect frames)")
     ap.add_argument("--json", help="write every row here")

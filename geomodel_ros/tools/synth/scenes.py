@@ -220,10 +220,12 @@ KINECT_CLASS_NOISE = NoiseModel(sigma_at_0_5m=0.0002, dropout=0.05, holes=3, sig
 #: and the table's residual correlation along rows/columns falls from 0.79 at 1 px to 0.53
 #: at 4, 0.39 at 16 and 0.23 at 48 px (medians); on the suite's 9 tabletop renders at 0.5,
 #: 1.0, 1.5 m (2 seeds) this preset gives scale 1.64-2.29 (median 2.00; Kinect-class alone
-#: 1.00-1.11), local sigma 0.96-1.13 sigma(z) (Kinect-like), and desk correlation 0.73 at
-#: 1 px, 0.70 at 4, 0.41 at 16 px: of correlation lengths 8, 12, 16, 24, 32 px and shares
+#: 1.00-1.11), local sigma 0.96-1.13 sigma(z) (Kinect-like), and desk correlation 0.71 at
+#: 1 px, 0.68 at 4, 0.38 at 16 px: of correlation lengths 8, 12, 16, 24, 32 px and shares
 #: 1-2 it is the closest to the real correlation with every scale in the real range
-#: (BENCHMARKS.md, "Synthetic scenes with realistic sensor noise").
+#: (``python -m geomodel_ros.tools.noise_calibration``; BENCHMARKS.md, "Synthetic scenes
+#: with realistic sensor noise"). The real Kinect's local noise is 0.62-0.83 of the
+#: Kinect-class sigma(z): this preset is about 1.4x noisier overall than osd_learn.
 KINECT_REAL_NOISE = NoiseModel(sigma_at_0_5m=0.0002, dropout=0.05, holes=3, sigma_offset=0.0012,
                                corr_ratio=1.75, corr_length_px=16.0,
                                inv_depth_step=KINECT_INV_DEPTH_STEP)
