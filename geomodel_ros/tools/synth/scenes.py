@@ -202,10 +202,11 @@ class NoiseModel:
 
 #: Step of the inverse depth [1/m] of a Kinect v1 (structured light, 1/8-pixel disparity):
 #: Khoshelham and Elberink (2012), "Accuracy and Resolution of Kinect Depth Data for Indoor
-#: Mapping Applications", Sensors 12(2), 1437-1454, eq. 9 (1/Z is linear in the normalised
-#: disparity, m/fb = -2.85e-3 per unit from their calibration) and eq. 12 (depth resolution
-#: m/fb Z^2: 2.85 mm at 1 m, 7 cm at 5 m). Measured on the 45 osd_learn frames (Kinect): the
-#: median gap between the distinct 1/z values on the table is 2.82e-3 to 2.87e-3 1/m.
+#: Mapping Applications", Sensors 12(2), 1437-1454: 1/Z is linear in the normalised
+#: disparity d' (1/8-pixel units), with m/fb = -2.85e-3 per unit from their calibration, so
+#: one unit of d' is a depth step of 2.85e-3 Z^2 (2.85 mm at 1 m, 7 cm at 5 m). Measured on
+#: the 45 osd_learn frames (Kinect): the median gap between the distinct 1/z values on the
+#: table is 2.82e-3 to 2.88e-3 1/m (``python -m geomodel_ros.tools.noise_calibration``).
 KINECT_INV_DEPTH_STEP = 2.85e-3
 #: A typical close-range structured-light / stereo sensor.
 SENSOR_NOISE = NoiseModel(sigma_at_0_5m=0.001, dropout=0.02, holes=0)
