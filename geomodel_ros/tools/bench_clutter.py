@@ -5,7 +5,9 @@
 segments them and prints the share of objects segmented with IoU >= 0.8, under- and
 over-segmented (:func:`geomodel_ros.tools.evaluation.segmentation_scores`), in all and per
 object kind, and the segmentation time. ``--osd`` adds the osd_learn figure
-(:func:`geomodel_ros.tools.benchmark.osd_benchmark`, segmentation only).
+(:func:`geomodel_ros.tools.benchmark.osd_benchmark`, segmentation only);
+``--noise-model kinect-real`` (or ``kinect-class``) adds the scenes under that noise model
+(``KINECT_REAL_NOISE``: correlated error and quantisation calibrated on real frames).
 """
 
 from __future__ import annotations
