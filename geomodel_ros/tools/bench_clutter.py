@@ -5,7 +5,9 @@
 segments them and prints the share of objects segmented with IoU >= 0.8, under- and
 over-segmented (:func:`geomodel_ros.tools.evaluation.segmentation_scores`), in all and per
 object kind, and the segmentation time. ``--osd`` adds the osd_learn figure
-(:func:`geomodel_ros.tools.benchmark.osd_benchmark`, segmentation only).
+(:func:`geomodel_ros.tools.benchmark.osd_benchmark`, segmentation only);
+``--noise-model kinect-real`` (or ``kinect-class``) adds the scenes under that noise model
+(``KINECT_REAL_NOISE``: correlated error and quantisation calibrated on real frames).
 """
 
 from __future__ import annotations
@@ -25,6 +27,11 @@ from geomodel_ros.core.segmentation import segment_scene
 from geomodel_ros.tools.evaluation import segmentation_scores
 from geomodel_ros.tools.paths import CONFIG_DIR
 from geomodel_ros.tools.synth.clutter import KINECT_NOISE, render_clutter
+from geomodel_ros.tools.synth.scenes import KINECT_CLASS_NOISE, KINECT_REAL_NOISE, NoiseModel
+
+#: Noise models run on request (``--noise-model``), beside the default rows: Kinect-class
+#: i.i.d. noise and the same with the correlated error and quantisation of real frames.
+OPTIONAL_NOISE = {"kinect-class": KINECT_CLASS_NOISE, "kinect-real": KINECT_REAL_NOISE}
 
 __all__ = ["clutter_rows", "clutter_lines", "main", "MIN_SCORED_POINTS", "GOOD_IOU"]
 
@@ -36,15 +43,19 @@ MIN_SCORED_POINTS = 200
 GOOD_IOU = 0.8
 
 
-def clutter_rows(seeds: Sequence[int], noisy: bool, params: ModelingParams) -> list[dict]:
+def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: ModelingParams
+                 ) -> list[dict]:
     """Segment the clutter scenes ``seeds``; one row per scored object.
+
+    ``noisy``: True for the clutter's KINECT_NOISE, False for none, or a NoiseModel.
 
     Each row holds ``seed``, ``id``, ``kind``, ``points``, ``iou``, ``under``, ``over`` and
     the scene's ``segmentation_s``.
     """
     rows = []
     for seed in seeds:
-        scene = render_clutter(seed, KINECT_NOISE if noisy else None)
+        noise = noisy if isinstance(noisy, NoiseModel) else (KINECT_NOISE if noisy else None)
+        scene = render_clutter(seed, noise)
         t0 = time.perf_counter()
         seg = segment_scene(scene.organized, params)
         seconds = time.perf_counter() - t0
@@ -103,6 +114,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenes", type=int, default=20, help="number of seeds (0 ..)")
     parser.add_argument("--first", type=int, default=0, help="first seed")
     parser.add_argument("--noise", choices=("both", "clean", "kinect"), default="both")
+    parser.add_argument("--noise-model", action="append", default=[],
+                        choices=sorted(OPTIONAL_NOISE),
+                        help="also run the scenes with this noise model (kinect-real: "
+                             "correlated error and quantisation calibrated on real frames)")
     parser.add_argument("--params", type=Path, default=None,
                         help="parameter YAML for the clutter scenes (default: defaults)")
     parser.add_argument("--osd", action="store_true",
@@ -113,8 +128,10 @@ def main(argv: list[str] | None = None) -> int:
     params = load_params_file(args.params) if args.params else ModelingParams()
     seeds = range(args.first, args.first + args.scenes)
     report = {}
-    for noisy in {"both": (False, True), "clean": (False,), "kinect": (True,)}[args.noise]:
-        label = "kinect-noise" if noisy else "noise-free"
+    runs = [("kinect-noise" if noisy else "noise-free", noisy)
+            for noisy in {"both": (False, True), "clean": (False,), "kinect": (True,)}[args.noise]]
+    runs += [(f"{name}-noise", OPTIONAL_NOISE[name]) for name in args.noise_model]
+    for label, noisy in runs:
         rows = report[label] = clutter_rows(seeds, noisy, params)
         print("\n".join(clutter_lines(rows, f"clutter {label}")))
         if args.failures:

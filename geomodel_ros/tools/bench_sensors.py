@@ -11,7 +11,7 @@ is reported as an object; its type is right when the object's type is the expect
 Usage::
 
     python -m geomodel_ros.tools.bench_sensors [--seeds 1 2] [--set noise_model=fixed]
-        [--json out.json]
+        [--noise-model kinect-real] [--json out.json]
 """
 
 from __future__ import annotations
@@ -62,14 +62,17 @@ def score_scene(scene, params: ModelingParams, unsized: tuple[str, ...] = ()) ->
     return rows
 
 
-def run_suite(params: ModelingParams, seeds: Sequence[int] = (1,), room: bool = True
-              ) -> list[dict]:
-    """Rows of :func:`score_scene` over every suite case (and the room scene)."""
+def run_suite(params: ModelingParams, seeds: Sequence[int] = (1,), room: bool = True,
+              extra_noise: Sequence[str] = ()) -> list[dict]:
+    """Rows of :func:`score_scene` over every suite case (and the room scene).
+
+    ``extra_noise`` adds levels of ``OPTIONAL_NOISE`` beside the suite's own.
+    """
     from geomodel_ros.tools.synth.scenes import room_scene
-    from geomodel_ros.tools.synth.suite import render_case, suite_cases
+    from geomodel_ros.tools.synth.suite import SUITE_NOISE, render_case, suite_cases
 
     rows = []
-    for case in suite_cases(tuple(seeds)):
+    for case in suite_cases(tuple(seeds), (*SUITE_NOISE, *extra_noise)):
         for r in score_scene(render_case(case), params):
             rows.append({**r, "noise": case.noise, "distance": case.distance,
                          "seed": case.seed})
@@ -83,7 +86,8 @@ def run_suite(params: ModelingParams, seeds: Sequence[int] = (1,), room: bool = 
 def summary_lines(rows: list[dict]) -> list[str]:
     """Per noise level: type accuracy per type, recall, median and max size error [mm]."""
     types = sorted({r["type"] for r in rows})
-    lines = [f"{'noise':<7} " + " ".join(f"{t:>10}" for t in types)
+    w = max(7, *(len(r["noise"]) for r in rows))
+    lines = [f"{'noise':<{w}} " + " ".join(f"{t:>10}" for t in types)
              + f" {'recall':>8} {'size err mm median/max':>23} {'s/frame':>8}"]
     by_noise: dict[str, list[dict]] = defaultdict(list)
     for r in rows:
@@ -96,7 +100,7 @@ def summary_lines(rows: list[dict]) -> list[str]:
                          else f"{'-':>10}")
         errs = [1000 * e for r in rs for e in r["size_errors_m"]] or [float("nan")]
         times = {r["scene"]: r["time_s"] for r in rs}
-        lines.append(f"{noise:<7} " + " ".join(cells)
+        lines.append(f"{noise:<{w}} " + " ".join(cells)
                      + f" {sum(r['recalled'] for r in rs) / len(rs):>8.3f}"
                      f" {np.median(errs):>11.3f} /{np.max(errs):>9.3f}"
                      f" {statistics.median(times.values()):>8.2f}")
@@ -105,12 +109,17 @@ def summary_lines(rows: list[dict]) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the suite and print its summary (``--json`` writes every row)."""
+    from geomodel_ros.tools.synth.suite import OPTIONAL_NOISE
+
     ap = argparse.ArgumentParser(prog="python -m geomodel_ros.tools.bench_sensors",
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1])
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="parameter override (default: every parameter at its default)")
     ap.add_argument("--no-room", action="store_true", help="skip the room scene")
+    ap.add_argument("--noise-model", action="append", default=[], choices=sorted(OPTIONAL_NOISE),
+                    help="also run the suite with this noise model (correlated range error "
+                         "and disparity quantisation calibrated on real Kinect frames)")
     ap.add_argument("--json", help="write every row here")
     args = ap.parse_args(argv)
     values = {}
@@ -121,7 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except json.JSONDecodeError:
             values[name] = raw
     params = ModelingParams.from_mapping(values)
-    rows = run_suite(params, args.seeds, room=not args.no_room)
+    rows = run_suite(params, args.seeds, room=not args.no_room, extra_noise=args.noise_model)
     print("\n".join(summary_lines(rows)))
     wrong = [r for r in rows if not r["type_correct"]]
     for r in wrong:

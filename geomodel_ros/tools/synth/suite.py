@@ -20,8 +20,8 @@ from typing import Callable
 import numpy as np
 
 from .camera import PinholeCamera
-from .scenes import (DESK_CENTER, DESK_NORMAL, DESK_SIZE, KINECT_CLASS_NOISE, NoiseModel, Scene,
-                     apply_noise)
+from .scenes import (DESK_CENTER, DESK_NORMAL, DESK_SIZE, KINECT_CLASS_NOISE, KINECT_REAL_NOISE,
+                     NoiseModel, Scene, apply_noise)
 from .shapes import Box, Cone, Cylinder, Frustum, Rectangle, Shape, Sphere, Torus
 
 __all__ = ["SUITE_CAMERA", "SUITE_DISTANCES", "SUITE_NOISE", "SUITE_LAYOUTS", "EXTRA_LAYOUTS",
@@ -38,6 +38,9 @@ SUITE_NOISE: dict[str, NoiseModel | None] = {
     "mid": NoiseModel(sigma_offset=0.0005, sigma_at_0_5m=0.0001, dropout=0.02),
     "kinect": KINECT_CLASS_NOISE,
 }
+#: Noise levels run only on request (``suite_cases(noises=...)``): a Kinect v1 as measured on
+#: real frames (correlated range error and disparity quantisation added to Kinect-class).
+OPTIONAL_NOISE: dict[str, NoiseModel] = {"kinect-real": KINECT_REAL_NOISE}
 
 #: Layout item: a shape (posed at the origin, upright: local z along the desk normal, or
 #: lying: local z in the desk plane), its desk coordinates u, v [mm] and "standing",
@@ -109,11 +112,12 @@ class SuiteCase:
     seed: int
 
 
-def suite_cases(seeds: tuple[int, ...] = (1,)) -> list[SuiteCase]:
-    """Every combination of layout, distance, noise level and seed."""
+def suite_cases(seeds: tuple[int, ...] = (1,), noises: tuple[str, ...] | None = None
+                ) -> list[SuiteCase]:
+    """Every combination of layout, distance, noise level (default: SUITE_NOISE) and seed."""
     layouts = [*SUITE_LAYOUTS, *EXTRA_LAYOUTS]
     return [SuiteCase(lay, d, n, s) for lay in layouts for d in SUITE_DISTANCES
-            for n in SUITE_NOISE for s in seeds]
+            for n in (noises or SUITE_NOISE) for s in seeds]
 
 
 def render_case(case: SuiteCase) -> Scene:
@@ -124,7 +128,7 @@ def render_case(case: SuiteCase) -> Scene:
     shapes = [Rectangle(DESK_SIZE, DESK_SIZE, center=centre, rotation=frame)]
     shapes += [_place(item, centre) for item in build()]
     organized, labels = SUITE_CAMERA.render(shapes)
-    noise = SUITE_NOISE[case.noise]
+    noise = {**SUITE_NOISE, **OPTIONAL_NOISE}[case.noise]
     if noise is not None:
         organized, labels = apply_noise(organized, labels, noise, case.seed)
     return Scene(name=f"{case.layout}@{case.distance:g}m/{case.noise}", organized=organized,
