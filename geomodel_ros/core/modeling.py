@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, with_confidence
 from geomodel_ros.core.errors import InputError, as_points
-from geomodel_ros.core.fastmath import centroid, take_rows
+from geomodel_ros.core.fastmath import centroid, single_threaded_blas, take_rows
 from geomodel_ros.core.fitting.cloud import SUPPORT_END_FACTOR, ObjectCloud, Plane, build_faces
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategies
@@ -216,12 +216,15 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
                             1.0 if noise is None else max(noise.scale, 1.0))
 
     workers = min(len(ids), os.cpu_count() or 1)
-    if workers <= 1:
-        return [one(k) for k in range(len(ids))]
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        # Largest objects first so that the pool stays balanced.
-        order_k = np.argsort(-(ends - starts), kind="stable").tolist()
-        done = dict(zip(order_k, pool.map(one, order_k)))
+    # The objects are the parallel grain: BLAS's own threads would only wait for the cores
+    # the workers hold (:func:`~geomodel_ros.core.fastmath.single_threaded_blas`).
+    with single_threaded_blas():
+        if workers <= 1:
+            return [one(k) for k in range(len(ids))]
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            # Largest objects first so that the pool stays balanced.
+            order_k = np.argsort(-(ends - starts), kind="stable").tolist()
+            done = dict(zip(order_k, pool.map(one, order_k)))
     return [done[k] for k in range(len(ids))]
 
 
