@@ -138,3 +138,21 @@ def test_hull_filter_in_blocks_keeps_the_hull_and_drops_the_interior_of_a_large_
     on_border = np.isclose(np.abs(xy[:, 0]), 0.3) | np.isclose(np.abs(xy[:, 1]), 0.2)
     assert len(cand) == np.count_nonzero(on_border) == 2 * 301 + 2 * 199
     assert np.all(np.isclose(np.abs(cand[:, 0]), 0.3) | np.isclose(np.abs(cand[:, 1]), 0.2))
+
+
+def test_model_scene_runs_on_one_blas_thread_and_leaves_the_count_as_it_was(monkeypatch):
+    if not fastmath._openblas_controls():
+        pytest.skip("no OpenBLAS loaded (another BLAS): the limiter is a no-op")
+    before = _blas_counts()
+    seen = []
+    real = modeling.frame_noise
+
+    def spy(*args, **kwargs):
+        seen.append(_blas_counts())
+        return real(*args, **kwargs)
+
+    points, _ = _two_boxes()
+    monkeypatch.setattr(modeling, "frame_noise", spy)
+    modeling.model_scene(points, ModelingParams())
+    assert seen == [[1] * len(before)]
+    assert _blas_counts() == before

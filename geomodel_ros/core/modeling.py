@@ -299,9 +299,10 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
     flab = None if face_labels is None else _check_labels(face_labels, len(pts), "face_labels")
     rng = np.random.default_rng(params.seed if rng is None else rng)
     idx_all = np.flatnonzero(in_range(pts, params.max_range) & (lab >= 0))
-    if params.noise_model == "auto" and noise is None:
-        noise = frame_noise(pts, params)
-    return _model_rows(pts, idx_all, lab, flab, params, rng, supports, t0, noise)
+    with single_threaded_blas():
+        if params.noise_model == "auto" and noise is None:
+            noise = frame_noise(pts, params)
+        return _model_rows(pts, idx_all, lab, flab, params, rng, supports, t0, noise)
 
 
 def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArray[np.int64],
@@ -361,6 +362,17 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
     if organized_shape is not None and organized_shape[0] * organized_shape[1] != len(pts):
         raise InputError(f"organized_shape {organized_shape} does not match {len(pts)} points")
     rng = np.random.default_rng(params.seed if rng is None else rng)
+    # OpenBLAS's helper threads spin for tens of ms after every product they share
+    # (measured: a (300000, 3) x (3,) product each 50 ms kept a second core busy
+    # throughout), which takes half of a 2-core machine from the rest of the frame.
+    with single_threaded_blas():
+        return _model_scene(pts, params, rng, organized_shape)
+
+
+def _model_scene(pts: NDArray[np.float64], params: ModelingParams, rng: np.random.Generator,
+                 organized_shape: tuple[int, int] | None
+                 ) -> tuple[NDArray[np.int64], ModelingResult]:
+    """Return :func:`model_scene` of the checked ``pts`` (N, 3) [m] (its body)."""
     t0 = time.perf_counter()
     noise = frame_noise(pts, params) if params.noise_model == "auto" else None
     t_noise = time.perf_counter() - t0
