@@ -10,12 +10,16 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
+import threading
+from contextlib import contextmanager
+from typing import Callable, Iterator
 
 import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["row_norms", "centroid", "rows_finite", "take_rows", "robust_sigma", "knn",
-           "retain_freed_memory"]
+           "retain_freed_memory", "single_threaded_blas"]
 
 
 def row_norms(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -109,3 +113,80 @@ def retain_freed_memory(mmap_threshold: int = 32 * 2**20, trim_threshold: int = 
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
     return bool(mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold))) and \
         bool(mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)))
+
+
+#: Names of OpenBLAS's thread-count setter and getter in its builds: the plain library and
+#: the wheels of numpy (64-bit integers, suffix ``64_``) and scipy (prefix ``scipy_``).
+_OPENBLAS_SYMBOLS = (("openblas_set_num_threads", "openblas_get_num_threads"),
+                     ("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
+                     ("scipy_openblas_set_num_threads", "scipy_openblas_get_num_threads"))
+#: Where a Linux process lists its mapped files (the OpenBLAS libraries loaded).
+_PROC_MAPS = "/proc/self/maps"
+
+_blas_lock = threading.Lock()
+_blas_users = 0
+_blas_saved: list[tuple[Callable[[int], None], int]] = []
+_blas_controls: list[tuple[Callable[[int], None], Callable[[], int]]] | None = None
+
+
+def _openblas_controls() -> list[tuple[Callable[[int], None], Callable[[], int]]]:
+    """(set, get) thread-count functions of every OpenBLAS library this process loaded."""
+    import scipy.linalg  # noqa: F401  (loads scipy's own OpenBLAS, used by its fitting)
+
+    paths: list[str] = []
+    try:
+        with open(_PROC_MAPS, encoding="utf-8", errors="replace") as maps:
+            for line in maps:
+                path = line.split(maxsplit=5)[-1].strip()
+                if "openblas" in os.path.basename(path).lower() and path not in paths:
+                    paths.append(path)
+    except OSError:
+        return []
+    controls = []
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for set_name, get_name in _OPENBLAS_SYMBOLS:
+            setter, getter = getattr(lib, set_name, None), getattr(lib, get_name, None)
+            if setter is not None and getter is not None:
+                setter.argtypes, setter.restype = (ctypes.c_int,), None
+                getter.argtypes, getter.restype = (), ctypes.c_int
+                controls.append((setter, getter))
+                break
+    return controls
+
+
+@contextmanager
+def single_threaded_blas() -> Iterator[None]:
+    """Run the block with OpenBLAS on one thread; restore its thread count afterwards.
+
+    For code that is parallel at a coarser grain (the modeling's one worker thread per
+    object on all cores): there OpenBLAS's own threads for a product over a large object
+    (an (n, 3) cloud times a 3-vector) only wait for a core the workers hold, 1-10 ms per
+    call on a loaded machine. Products whose sums run over a few coordinates give the
+    same bits with any thread count (OpenBLAS splits their output); a sum over the rows
+    of a large cloud (:func:`centroid` of more than about 150,000 points) is split into
+    one partial sum per thread, so there the last bit depends on the thread count (that
+    is, on the machine's cores without this). Process-wide (OpenBLAS has no per-thread
+    count in every build); nested and concurrent uses count, the last one out restores.
+    A no-op where no OpenBLAS is found (another BLAS, or no ``/proc``).
+    """
+    global _blas_users, _blas_controls
+    with _blas_lock:
+        if _blas_controls is None:
+            _blas_controls = _openblas_controls()
+        if _blas_users == 0:
+            _blas_saved[:] = [(setter, getter()) for setter, getter in _blas_controls]
+            for setter, _ in _blas_saved:
+                setter(1)
+        _blas_users += 1
+    try:
+        yield
+    finally:
+        with _blas_lock:
+            _blas_users -= 1
+            if _blas_users == 0:
+                for setter, count in _blas_saved:
+                    setter(count)
