@@ -246,14 +246,14 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
                             1.0 if noise is None else max(noise.scale, 1.0))
 
     workers = min(len(ids), os.cpu_count() or 1)
-    # The objects are the parallel grain: BLAS's own threads would only wait for the cores
-    # the workers hold (:func:`~geomodel_ros.core.fastmath.single_threaded_blas`).
-    with single_threaded_blas():
-        if workers <= 1:
-            return [one(k) for k in range(len(ids))]
-        # Largest objects first so that the pool stays balanced.
-        order_k = np.argsort(-(ends - starts), kind="stable").tolist()
-        done = dict(zip(order_k, _worker_pool().map(one, order_k)))
+    if workers <= 1:
+        return [one(k) for k in range(len(ids))]
+    # The objects are the parallel grain; the callers (model_objects, model_scene) hold
+    # BLAS to one thread, whose own threads would only wait for the cores the workers
+    # hold (:func:`~geomodel_ros.core.fastmath.single_threaded_blas`).
+    # Largest objects first so that the pool stays balanced.
+    order_k = np.argsort(-(ends - starts), kind="stable").tolist()
+    done = dict(zip(order_k, _worker_pool().map(one, order_k)))
     return [done[k] for k in range(len(ids))]
 
 
