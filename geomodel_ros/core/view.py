@@ -7,6 +7,12 @@ behind it: the sensor looked through), hidden (a return in front of it: an occlu
 unknown (no return). :class:`SceneView` answers that for any set of target points without
 assuming an organized image: the returns are binned on a small angular grid around the
 targets' directions (a gnomonic projection centred on them, uniform near its centre).
+
+A ray without a return is unknown only inside the sensor's field of view. A camera (cloud
+in its optical frame: z forward) sees a rectangle of image coordinates (x / z, y / z); the
+smallest such rectangle holding every return is the part of the field of view the scene
+shows, and a ray outside it was never looked along (:meth:`SceneView.beyond_image`): what
+lies there is hidden from the sensor, not free.
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ from numpy.typing import NDArray
 
 from geomodel_ros.core.geometry import perpendicular_basis, unit3
 
-__all__ = ["SceneView", "RayReturns", "MAX_HALF_ANGLE"]
+__all__ = ["SceneView", "RayReturns", "MAX_HALF_ANGLE", "LABEL_SAMPLE"]
 
 #: Largest half angle [rad] of the cone of directions a query looks at: the gnomonic
 #: projection stays near-uniform well inside it (cell areas grow with 1 / cos^3).
@@ -28,6 +34,14 @@ MAX_HALF_ANGLE = math.radians(45.0)
 #: The cone of a query reaches this many cells beyond its outermost target, so that the
 #: cells of the outermost targets are complete.
 CONE_MARGIN_CELLS = 2.0
+#: The points of a label are summarised (e.g. to fit its plane) on about this many of them,
+#: every k-th in the cloud's order: a plane of 4000 points is known to well below a
+#: millimetre, and the summary of a 300 000-point frame costs a few milliseconds.
+LABEL_SAMPLE = 4000
+#: ... taken from a first every-k-th cut of the whole cloud to about this many points
+#: (16 labels' worth): only labels of thousands of points (large planes) are summarised
+#: for a use, and sorting a whole frame by label would cost more than the rest.
+SAMPLE_ROWS = 16 * LABEL_SAMPLE
 
 
 @dataclass(frozen=True)
@@ -94,6 +108,58 @@ class SceneView:
         with np.errstate(invalid="ignore"):
             r[r > self.max_range] = np.nan
         return cols, r
+
+    @cached_property
+    def image_bounds(self) -> NDArray[np.float64] | None:
+        """Extent of the returns in image coordinates: (4,) min and max of x / z, y / z.
+
+        None when a return lies at z <= 0 (the cloud is not in a camera's optical frame,
+        e.g. a scanner that sees all round): no field of view is known then.
+        """
+        cols, r = self._columns
+        ok = np.isfinite(r)
+        x, y, z = cols[0][ok], cols[1][ok], cols[2][ok]
+        if z.size == 0 or float(z.min()) <= 0.0:
+            return None
+        u, v = x / z, y / z
+        return np.array([u.min(), u.max(), v.min(), v.max()])
+
+    def beyond_image(self, targets: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Whether the rays to ``targets`` (m, 3) [m] lie outside the field of view (m,).
+
+        Outside: behind the camera (z <= 0) or beyond :attr:`image_bounds`. All False
+        when no field of view is known.
+        """
+        bounds = self.image_bounds
+        if bounds is None:
+            return np.zeros(len(targets), dtype=bool)
+        z = targets[:, 2]
+        ahead = z > 0.0
+        zs = np.where(ahead, z, 1.0)
+        u, v = targets[:, 0] / zs, targets[:, 1] / zs
+        inside = ahead & (u >= bounds[0]) & (u <= bounds[1]) & (v >= bounds[2]) & \
+            (v <= bounds[3])
+        return ~inside
+
+    @cached_property
+    def label_samples(self) -> dict[int, NDArray[np.float64]]:
+        """Every k-th usable point of each label >= 0: label -> (s, 3) [m], s <~ 2 LABEL_SAMPLE.
+
+        Taken from every k-th usable point of the cloud (about SAMPLE_ROWS).
+        """
+        _, r = self._columns
+        rows = np.flatnonzero(np.isfinite(r) & (self.labels >= 0))
+        rows = rows[::max(1, len(rows) // SAMPLE_ROWS)]
+        if rows.size == 0:
+            return {}
+        order = rows[np.argsort(self.labels[rows], kind="stable")]
+        ids, starts, counts = np.unique(self.labels[order], return_index=True,
+                                        return_counts=True)
+        out = {}
+        for lab, s0, c in zip(ids.tolist(), starts.tolist(), counts.tolist()):
+            step = max(1, c // LABEL_SAMPLE)
+            out[lab] = self.points[order[s0:s0 + c:step]]
+        return out
 
     def returns(self, targets: NDArray[np.float64], cell: float,
                 band: tuple[float, float] = (0.0, math.inf)) -> RayReturns:
