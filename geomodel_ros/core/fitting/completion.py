@@ -43,6 +43,7 @@ from geomodel_ros.core.fitting.cloud import SUPPORT_END_FACTOR, ObjectCloud, Pla
 from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.obb import hull_candidates
+from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import fit_plane_svd, refine
 
 __all__ = ["Section", "RectangleSection", "CircleSection", "Extension", "end_planes",
@@ -209,7 +210,7 @@ def end_planes(cloud: ObjectCloud) -> list[Plane]:
     The support planes, then every other segment of the scene view that is one large
     plane: PLANE_SEGMENT_SHARE of its sampled points within ``seg_plane_threshold`` of
     their least-squares plane, spanning ``seg_min_support_area`` (convex hull in the
-    plane). Without a scene view only the supports.
+    plane) and not a support itself. Without a scene view only the supports.
     """
     planes = list(cloud.supports)
     if cloud.view is None:
@@ -224,8 +225,20 @@ def end_planes(cloud: ObjectCloud) -> list[Plane]:
                 _plane_area(pts[on], model.normal) < params.seg_min_support_area:
             continue
         toward = float(model.normal @ pts.mean(axis=0)) < 0.0
-        planes.append((model.normal, model.d) if toward else (-model.normal, -model.d))
+        n, d = (model.normal, model.d) if toward else (-model.normal, -model.d)
+        if not any(_same_plane((n, d), p, params) for p in cloud.supports):
+            planes.append((n, d))
     return planes
+
+
+def _same_plane(a: Plane, b: Plane, params: ModelingParams) -> bool:
+    """Whether two planes (normals towards the sensor) are one.
+
+    One: normals within ``angle_tolerance``, offsets within the contact tolerance (the
+    segment of a support plane is that support).
+    """
+    tol = SUPPORT_END_FACTOR * params.seg_plane_threshold
+    return float(a[0] @ b[0]) >= math.cos(params.angle_tolerance) and abs(a[1] - b[1]) <= tol
 
 
 def _plane_area(pts: NDArray[np.float64], normal: NDArray[np.float64]) -> float:
