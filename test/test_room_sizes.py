@@ -215,3 +215,47 @@ def _plane_of(points: np.ndarray) -> tuple[np.ndarray, float]:
     n = np.linalg.svd(points - c, full_matrices=False)[2][2]
     n = -n if n @ c > 0 else n
     return n, float(-n @ c)
+
+
+# --------------------------------------------------------------------------- end planes
+def _grid(a: tuple[float, float], b: tuple[float, float], step: float = 0.01) -> np.ndarray:
+    ga, gb = np.meshgrid(np.arange(a[0], a[1], step), np.arange(b[0], b[1], step))
+    return np.column_stack([ga.ravel(), gb.ravel()])
+
+
+def test_end_planes_are_the_supports_and_the_large_plane_segments():
+    from types import SimpleNamespace
+
+    from geomodel_ros.core.fitting.completion import end_planes
+    from geomodel_ros.core.params import ModelingParams
+
+    # In the camera frame: a floor 1 m below (2 x 2 m, label 3), a wall 4 m ahead (label
+    # 4, also given as a support), a small plate (0.2 x 0.2 m = 0.04 m^2, below the
+    # support area 0.1 m^2; label 5) and a box corner (two perpendicular 0.5 x 0.5 m
+    # faces, one segment; label 6).
+    xz = _grid((-1.0, 1.0), (1.0, 3.0))
+    floor = np.column_stack([xz[:, 0], np.full(len(xz), FLOOR_Y), xz[:, 1]])
+    xy = _grid((-2.0, 2.0), (-1.0, 1.0))
+    wall = np.column_stack([xy, np.full(len(xy), 4.0)])
+    pl = _grid((0.0, 0.2), (0.0, 0.2))
+    plate = np.column_stack([pl, np.full(len(pl), 2.0)])
+    sq = _grid((0.0, 0.5), (0.0, 0.5))
+    corner = np.vstack([np.column_stack([sq[:, 0] - 0.8, sq[:, 1] - 0.5,
+                                         np.full(len(sq), 2.5)]),
+                        np.column_stack([np.full(len(sq), -0.3), sq[:, 1] - 0.5,
+                                         sq[:, 0] + 2.5])])
+    parts = [floor, wall, plate, corner]
+    points = np.vstack(parts)
+    labels = np.concatenate([np.full(len(p), 3 + i) for i, p in enumerate(parts)])
+    near_wall = (np.array([0.0, 0.0, -1.0]), 4.0)
+    cloud = SimpleNamespace(view=SceneView(points, labels, 10.0), params=ModelingParams(),
+                            oid=7, supports=(near_wall,))
+    planes = end_planes(cloud)
+    # The wall once (as the support), then the floor, normal up (towards the camera).
+    assert len(planes) == 2
+    assert planes[0] is near_wall
+    assert planes[1][0] == pytest.approx(FLOOR[0], abs=1e-9)
+    assert planes[1][1] == pytest.approx(FLOOR[1], abs=1e-9)
+    # The object's own segment is never a plane to complete it to.
+    cloud.oid = 3
+    assert len(end_planes(cloud)) == 1
