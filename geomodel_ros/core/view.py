@@ -18,15 +18,19 @@ lies there is hidden from the sensor, not free.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
+from threading import Lock
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import ConvexHull, QhullError
 
-from geomodel_ros.core.geometry import perpendicular_basis, unit3
+from geomodel_ros.core.geometry import frame_with_z, perpendicular_basis, unit3
+from geomodel_ros.core.obb import hull_candidates
+from geomodel_ros.core.ransac import fit_plane_svd, refine
 
-__all__ = ["SceneView", "RayReturns", "MAX_HALF_ANGLE", "LABEL_SAMPLE"]
+__all__ = ["SceneView", "RayReturns", "PlaneSegment", "MAX_HALF_ANGLE", "LABEL_SAMPLE"]
 
 #: Largest half angle [rad] of the cone of directions a query looks at: the gnomonic
 #: projection stays near-uniform well inside it (cell areas grow with 1 / cos^3).
@@ -35,13 +39,45 @@ MAX_HALF_ANGLE = math.radians(45.0)
 #: cells of the outermost targets are complete.
 CONE_MARGIN_CELLS = 2.0
 #: The points of a label are summarised (e.g. to fit its plane) on about this many of them,
-#: every k-th in the cloud's order: a plane of 4000 points is known to well below a
-#: millimetre, and the summary of a 300 000-point frame costs a few milliseconds.
-LABEL_SAMPLE = 4000
+#: every k-th in the cloud's order: a plane of 1000 points is known to a fraction of its
+#: noise, and the planes of a frame's labels cost a few milliseconds.
+LABEL_SAMPLE = 1000
 #: ... taken from a first every-k-th cut of the whole cloud to about this many points
 #: (16 labels' worth): only labels of thousands of points (large planes) are summarised
 #: for a use, and sorting a whole frame by label would cost more than the rest.
 SAMPLE_ROWS = 16 * LABEL_SAMPLE
+#: Labels with fewer sampled points get no plane (too few to say anything of one).
+MIN_PLANE_SAMPLES = 50
+#: A label's plane is refined on its points within this many robust standard deviations
+#: (1.4826 median absolute distances) of the least-squares plane: a plane's own noise
+#: stays in, another surface of the segment (a box's second face) mostly out.
+RESIDUAL_SIGMAS = 3.0
+#: 1.4826 median absolute deviation is the standard deviation of a Gaussian.
+MAD_TO_SIGMA = 1.4826
+
+
+@dataclass(frozen=True)
+class PlaneSegment:
+    """The plane of one label's points.
+
+    Attributes
+    ----------
+    label : int
+    normal : (3,) float64, unit, towards the sensor (the origin)
+    d : float [m], the plane is normal . x + d = 0
+    residuals : (s,) float64 [m], distances of the label's sampled points, ascending
+    area : float [m^2], area of the convex hull of those points in the plane
+    """
+
+    label: int
+    normal: NDArray[np.float64]
+    d: float
+    residuals: NDArray[np.float64]
+    area: float
+
+    def share(self, band: float) -> float:
+        """Share of the sampled points within ``band`` [m] of the plane."""
+        return float(np.searchsorted(self.residuals, band, side="right")) / len(self.residuals)
 
 
 @dataclass(frozen=True)
@@ -86,6 +122,9 @@ class SceneView:
     points: NDArray[np.float64]
     labels: NDArray[np.int64]
     max_range: float
+    _plane_lock: Lock = field(init=False, repr=False, compare=False, default_factory=Lock)
+    _planes: list[list[PlaneSegment]] = field(init=False, repr=False, compare=False,
+                                               default_factory=list)
 
     def __post_init__(self) -> None:
         """Check that points and labels align."""
@@ -161,6 +200,24 @@ class SceneView:
             out[lab] = self.points[order[s0:s0 + c:step]]
         return out
 
+    @property
+    def plane_segments(self) -> list[PlaneSegment]:
+        """The plane of each label's sample (labels of MIN_PLANE_SAMPLES samples or more).
+
+        A least-squares plane, refined on RESIDUAL_SIGMAS times the robust scatter of its
+        points about it. Computed once per view (under a lock: the modeling's objects
+        ask for it from several threads) and shared by every caller.
+        """
+        with self._plane_lock:
+            if self._planes:
+                return self._planes[0]
+            out = []
+            for lab, pts in self.label_samples.items():
+                if len(pts) >= MIN_PLANE_SAMPLES:
+                    out.append(_plane_segment(lab, pts))
+            self._planes.append(out)
+            return out
+
     def returns(self, targets: NDArray[np.float64], cell: float,
                 band: tuple[float, float] = (0.0, math.inf)) -> RayReturns:
         """Find the scene's nearest return along the ray to each of ``targets`` (m, 3) [m].
@@ -200,6 +257,26 @@ class SceneView:
         r_sel = all_r[sel]
         near = sel[(r_sel >= band[0]) & (r_sel <= band[1])]
         return RayReturns(nearest, nearest_label, r_t, self.points[near], self.labels[near])
+
+
+def _plane_segment(label: int, pts: NDArray[np.float64]) -> PlaneSegment:
+    """Plane of one label's sampled points ``pts`` (s, 3) [m] (see SceneView.plane_segments)."""
+    model = fit_plane_svd(pts)
+    scatter = MAD_TO_SIGMA * float(np.median(np.abs(pts @ model.normal + model.d)))
+    if scatter > 0.0:
+        model = refine(model, pts, RESIDUAL_SIGMAS * scatter)
+    toward = float(model.normal @ pts.mean(axis=0)) < 0.0
+    n, d = (model.normal, model.d) if toward else (-model.normal, -model.d)
+    return PlaneSegment(label, n, float(d), np.sort(np.abs(pts @ n + d)), _plane_area(pts, n))
+
+
+def _plane_area(pts: NDArray[np.float64], normal: NDArray[np.float64]) -> float:
+    """Area [m^2] of the convex hull of ``pts`` (k, 3) [m] in the plane of ``normal``."""
+    xy = pts @ frame_with_z(normal)[:, :2]
+    try:
+        return float(ConvexHull(hull_candidates(xy)).volume)
+    except (QhullError, ValueError):
+        return 0.0
 
 
 def _cell_keys(u: NDArray[np.float64], v: NDArray[np.float64], cell: float,

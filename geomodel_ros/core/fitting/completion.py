@@ -37,14 +37,11 @@ from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import ConvexHull, QhullError
 
 from geomodel_ros.core.fitting.cloud import SUPPORT_END_FACTOR, ObjectCloud, Plane
 from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR
 from geomodel_ros.core.geometry import frame_with_z
-from geomodel_ros.core.obb import hull_candidates
 from geomodel_ros.core.params import ModelingParams
-from geomodel_ros.core.ransac import fit_plane_svd, refine
 
 __all__ = ["Section", "RectangleSection", "CircleSection", "Extension", "end_planes",
            "plane_beyond", "hidden_extension", "complete_box", "complete_axial"]
@@ -70,13 +67,10 @@ MIN_KNOWN_SHARE = 0.5
 #: flying pixels do not).
 MIN_OTHER_RETURNS = 20
 #: A segment of the scene is one large plane when at least this share of its points lie
-#: within ``seg_plane_threshold`` of its least-squares plane (a box's segment, two faces
-#: or more, holds at most about half of its points on one plane) ...
+#: within ``seg_plane_threshold`` of its plane (a box's segment, two faces or more, holds
+#: at most about half of its points on one plane) and its points cover
+#: ``seg_min_support_area`` (the area that makes a support).
 PLANE_SEGMENT_SHARE = 0.9
-#: ... and those points cover ``seg_min_support_area`` (the area that makes a support) on
-#: at least this many of the segment's sampled points (fewer say nothing of a plane).
-MIN_PLANE_SAMPLES = 50
-
 
 class Section(Protocol):
     """Cross-section of an object perpendicular to its axis, in (s1, s2) coordinates [m]."""
@@ -209,25 +203,20 @@ def end_planes(cloud: ObjectCloud) -> list[Plane]:
 
     The support planes, then every other segment of the scene view that is one large
     plane: PLANE_SEGMENT_SHARE of its sampled points within ``seg_plane_threshold`` of
-    their least-squares plane, spanning ``seg_min_support_area`` (convex hull in the
-    plane) and not a support itself. Without a scene view only the supports.
+    its plane (:attr:`~geomodel_ros.core.view.SceneView.plane_segments`), the convex hull
+    of its points in the plane covering ``seg_min_support_area``, and not a support
+    itself. Without a scene view only the supports.
     """
     planes = list(cloud.supports)
     if cloud.view is None:
         return planes
     params = cloud.params
-    for lab, pts in cloud.view.label_samples.items():
-        if lab == cloud.oid or len(pts) < MIN_PLANE_SAMPLES:
+    for seg in cloud.view.plane_segments:
+        if seg.label == cloud.oid or seg.area < params.seg_min_support_area or \
+                seg.share(params.seg_plane_threshold) < PLANE_SEGMENT_SHARE:
             continue
-        model = refine(fit_plane_svd(pts), pts, params.seg_plane_threshold)
-        on = np.abs(pts @ model.normal + model.d) <= params.seg_plane_threshold
-        if np.count_nonzero(on) < PLANE_SEGMENT_SHARE * len(pts) or \
-                _plane_area(pts[on], model.normal) < params.seg_min_support_area:
-            continue
-        toward = float(model.normal @ pts.mean(axis=0)) < 0.0
-        n, d = (model.normal, model.d) if toward else (-model.normal, -model.d)
-        if not any(_same_plane((n, d), p, params) for p in cloud.supports):
-            planes.append((n, d))
+        if not any(_same_plane((seg.normal, seg.d), p, params) for p in cloud.supports):
+            planes.append((seg.normal, seg.d))
     return planes
 
 
@@ -239,16 +228,6 @@ def _same_plane(a: Plane, b: Plane, params: ModelingParams) -> bool:
     """
     tol = SUPPORT_END_FACTOR * params.seg_plane_threshold
     return float(a[0] @ b[0]) >= math.cos(params.angle_tolerance) and abs(a[1] - b[1]) <= tol
-
-
-def _plane_area(pts: NDArray[np.float64], normal: NDArray[np.float64]) -> float:
-    """Area [m^2] of the convex hull of ``pts`` (k, 3) [m] in the plane of ``normal``."""
-    frame = frame_with_z(normal)
-    xy = pts @ frame[:, :2]
-    try:
-        return float(ConvexHull(hull_candidates(xy)).volume)
-    except (QhullError, ValueError):
-        return 0.0
 
 
 def plane_beyond(cloud: ObjectCloud, axis: NDArray[np.float64], origin: NDArray[np.float64],
