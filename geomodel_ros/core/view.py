@@ -123,8 +123,8 @@ class SceneView:
     labels: NDArray[np.int64]
     max_range: float
     _plane_lock: Lock = field(init=False, repr=False, compare=False, default_factory=Lock)
-    _planes: list[list[PlaneSegment]] = field(init=False, repr=False, compare=False,
-                                               default_factory=list)
+    _planes: dict[int, PlaneSegment] = field(init=False, repr=False, compare=False,
+                                              default_factory=dict)
 
     def __post_init__(self) -> None:
         """Check that points and labels align."""
@@ -184,11 +184,14 @@ class SceneView:
     def label_samples(self) -> dict[int, NDArray[np.float64]]:
         """Every k-th usable point of each label >= 0: label -> (s, 3) [m], s <~ 2 LABEL_SAMPLE.
 
-        Taken from every k-th usable point of the cloud (about SAMPLE_ROWS).
+        Taken from every k-th point of the cloud (about SAMPLE_ROWS), the usable ones
+        (finite, within ``max_range``).
         """
-        _, r = self._columns
-        rows = np.flatnonzero(np.isfinite(r) & (self.labels >= 0))
-        rows = rows[::max(1, len(rows) // SAMPLE_ROWS)]
+        rows = np.arange(0, len(self.points), max(1, len(self.points) // SAMPLE_ROWS))
+        pts = self.points[rows]
+        with np.errstate(invalid="ignore"):
+            usable = np.sqrt(np.einsum("ij,ij->i", pts, pts)) <= self.max_range
+        rows = rows[usable & (self.labels[rows] >= 0)]
         if rows.size == 0:
             return {}
         order = rows[np.argsort(self.labels[rows], kind="stable")]
@@ -200,23 +203,29 @@ class SceneView:
             out[lab] = self.points[order[s0:s0 + c:step]]
         return out
 
-    @property
-    def plane_segments(self) -> list[PlaneSegment]:
-        """The plane of each label's sample (labels of MIN_PLANE_SAMPLES samples or more).
+    def plane_segments(self, min_area: float = 0.0) -> list[PlaneSegment]:
+        """Return the plane of each label's sample that may cover ``min_area`` [m^2].
 
-        A least-squares plane, refined on RESIDUAL_SIGMAS times the robust scatter of its
-        points about it. Computed once per view (under a lock: the modeling's objects
-        ask for it from several threads) and shared by every caller.
+        Labels of fewer than MIN_PLANE_SAMPLES samples get none, nor labels too small for
+        ``min_area``: a plane figure of diameter D has at most the area pi D^2 / 4 of a
+        disc (isodiametric inequality), and D is at most the diagonal of the sample's
+        bounding box. A least-squares plane, refined on RESIDUAL_SIGMAS times the robust
+        scatter of its points about it; computed once per label and view (under a lock:
+        the modeling's objects ask from several threads) and shared by every caller.
         """
-        with self._plane_lock:
-            if self._planes:
-                return self._planes[0]
-            out = []
-            for lab, pts in self.label_samples.items():
-                if len(pts) >= MIN_PLANE_SAMPLES:
-                    out.append(_plane_segment(lab, pts))
-            self._planes.append(out)
-            return out
+        out = []
+        for lab, pts in self.label_samples.items():
+            if len(pts) < MIN_PLANE_SAMPLES:
+                continue
+            diag2 = float(np.sum(np.ptp(pts, axis=0) ** 2))
+            if math.pi / 4.0 * diag2 < min_area:
+                continue
+            with self._plane_lock:
+                seg = self._planes.get(lab)
+                if seg is None:
+                    seg = self._planes[lab] = _plane_segment(lab, pts)
+            out.append(seg)
+        return out
 
     def returns(self, targets: NDArray[np.float64], cell: float,
                 band: tuple[float, float] = (0.0, math.inf)) -> RayReturns:

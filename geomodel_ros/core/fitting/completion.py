@@ -203,7 +203,7 @@ def end_planes(cloud: ObjectCloud) -> list[Plane]:
 
     The support planes, then every other segment of the scene view that is one large
     plane: PLANE_SEGMENT_SHARE of its sampled points within ``seg_plane_threshold`` of
-    its plane (:attr:`~geomodel_ros.core.view.SceneView.plane_segments`), the convex hull
+    its plane (:meth:`~geomodel_ros.core.view.SceneView.plane_segments`), the convex hull
     of its points in the plane covering ``seg_min_support_area``, and not a support
     itself. Without a scene view only the supports.
     """
@@ -211,7 +211,7 @@ def end_planes(cloud: ObjectCloud) -> list[Plane]:
     if cloud.view is None:
         return planes
     params = cloud.params
-    for seg in cloud.view.plane_segments:
+    for seg in cloud.view.plane_segments(params.seg_min_support_area):
         if seg.label == cloud.oid or seg.area < params.seg_min_support_area or \
                 seg.share(params.seg_plane_threshold) < PLANE_SEGMENT_SHARE:
             continue

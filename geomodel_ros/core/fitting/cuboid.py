@@ -93,9 +93,11 @@ def _kept_values(values: NDArray[np.float64], side_values: list[NDArray[np.float
     cut; flying pixels beyond a face's end are strays of that face too.
     """
     vals = without_strays(values)
-    ranges = [(float(k.min()), float(k.max())) for k in
-              (without_strays(fv) for fv in side_values if len(fv) >= MIN_SIDE_POINTS)]
     lo, hi = float(vals.min()), float(vals.max())
+    # Only a face with values beyond the bulk's range can widen it (most lie within).
+    beyond = [fv for fv in side_values if len(fv) >= MIN_SIDE_POINTS and
+              (float(fv.min()) < lo or float(fv.max()) > hi)]
+    ranges = [(float(k.min()), float(k.max())) for k in map(without_strays, beyond)]
     wider = [(a, b) for a, b in ranges if a < lo or b > hi]
     if not wider:
         return vals
