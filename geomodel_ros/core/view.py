@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
 from geomodel_ros.core.geometry import frame_with_z, perpendicular_basis, unit3
+from geomodel_ros.core.noise import MAD_TO_SIGMA
 from geomodel_ros.core.obb import hull_candidates
 from geomodel_ros.core.ransac import fit_plane_svd, refine
 
@@ -52,8 +53,6 @@ MIN_PLANE_SAMPLES = 50
 #: (1.4826 median absolute distances) of the least-squares plane: a plane's own noise
 #: stays in, another surface of the segment (a box's second face) mostly out.
 RESIDUAL_SIGMAS = 3.0
-#: 1.4826 median absolute deviation is the standard deviation of a Gaussian.
-MAD_TO_SIGMA = 1.4826
 
 
 @dataclass(frozen=True)
