@@ -298,9 +298,18 @@ def test_hidden_extension_needs_another_occluder_in_front_and_nothing_inside():
     # Returns behind the extension (a wall at 1.2 m seen through it): not hidden.
     wall = _patch((-0.1, 0.1), (-0.03, 0.15), 1.2)
     assert not hidden_extension(_cloud_seeing(wall, np.full(len(wall), 2)), ext)
-    # No returns at all (a hole in the data): unknown, not completed.
-    far = _patch((1.0, 1.2), (1.0, 1.2), 1.0)
-    assert not hidden_extension(_cloud_seeing(far, np.full(len(far), 2)), ext)
+    # No returns along the rays but returns all round them (a hole in the data inside
+    # the field of view): unknown, not completed.
+    left, right = _patch((-0.3, -0.1), (-0.1, 0.3), 1.0), _patch((0.1, 0.3), (-0.1, 0.3), 1.0)
+    frame = np.vstack([left, right])
+    assert not hidden_extension(_cloud_seeing(frame, np.full(len(frame), 2)), ext)
+    # The same rays outside the field of view (every return lies at x / z > 0.1 or
+    # y / z < -0.03, the extension's rays at |x / z| < 0.031, 0 < y / z < 0.11): never
+    # looked along, hidden, completed.
+    aside = _patch((0.1, 0.3), (-0.1, 0.3), 1.0)
+    assert hidden_extension(_cloud_seeing(aside, np.full(len(aside), 2)), ext)
+    above = _patch((-0.3, 0.3), (-0.3, -0.03), 1.0)
+    assert hidden_extension(_cloud_seeing(above, np.full(len(above), 2)), ext)
     # Something else inside the extension (a horizontal disc of another object at
     # y = 0.05, 1 mm grid): it is not the can's.
     disc = _patch((-0.02, 0.02), (0.0, 0.04), 0.0)[:, [0, 2, 1]] + [0.0, 0.05, 0.98]

@@ -1,17 +1,23 @@
 """Support-aware sizes: an object's hidden lower part extends down to the support it rests on.
 
 A camera looking down at a box on a desk sees its top and sides down to the desk, unless
-something nearer hides the lower part (another object, the desk's edge). Then the box's
-points stop above the desk and its height comes out short. When a support plane (desk,
-shelf, floor) lies beyond an open end of an object along an axis perpendicular to it, the
+something nearer hides the lower part (another object, the desk's edge, the edge of the
+image). Then the box's points stop above the desk and its height comes out short. When a
+large plane lies beyond an open end of an object along an axis perpendicular to it, the
 end is *completed* down to the plane if the evidence says the part in between is hidden
-and not empty:
+and not empty. The large planes are the support planes of the segmentation (desk, shelf,
+floor) and every other segment of the scene that is one large plane (:func:`end_planes`:
+a floor or a wall the segmentation reported as an object, e.g. when the walls of a room
+outnumber the supports it keeps); the nearest one beyond the end counts, and an end that
+lies on a plane already is closed by it and not completed further. The evidence:
 
 * the sensor cannot have seen the gap: of the rays to the sides of the hypothesised
-  extension that face the sensor, at least MIN_KNOWN_SHARE have a return (the object's
-  own points in front of a side do not count: an object hides the space behind itself,
-  which is no evidence), and at most MAX_THROUGH_SHARE of those lie behind the sides (a
-  floating object shows the support or the background through the gap);
+  extension that face the sensor, at least MIN_KNOWN_SHARE are known, i.e. have a return
+  or lie outside the sensor's field of view (never looked along: hidden,
+  :meth:`~geomodel_ros.core.view.SceneView.beyond_image`); the object's own points in
+  front of a side do not count (an object hides the space behind itself, which is no
+  evidence); and at most MAX_THROUGH_SHARE of the known rays have their return behind
+  the sides (a floating object shows the support or the background through the gap);
 * nothing else holds the object up short of the plane: no surface of other points at the
   object's observed end under or right beside its footprint (within the contact
   tolerance: a ledge, such as the top of a box it stands on);
@@ -32,12 +38,13 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from geomodel_ros.core.fitting.cloud import SUPPORT_END_FACTOR, ObjectCloud
+from geomodel_ros.core.fitting.cloud import SUPPORT_END_FACTOR, ObjectCloud, Plane
 from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR
 from geomodel_ros.core.geometry import frame_with_z
+from geomodel_ros.core.params import ModelingParams
 
-__all__ = ["Section", "RectangleSection", "CircleSection", "Extension", "plane_beyond",
-           "hidden_extension", "complete_box", "complete_axial"]
+__all__ = ["Section", "RectangleSection", "CircleSection", "Extension", "end_planes",
+           "plane_beyond", "hidden_extension", "complete_box", "complete_axial"]
 
 #: Angular cell of the ray look-up, in median point spacings of the object (at its
 #: range): a surface facing the sensor leaves about four returns per cell, so no cell on
@@ -59,7 +66,11 @@ MIN_KNOWN_SHARE = 0.5
 #: Fewest other returns on a ledge or inside the extension that count as a surface (a few
 #: flying pixels do not).
 MIN_OTHER_RETURNS = 20
-
+#: A segment of the scene is one large plane when at least this share of its points lie
+#: within ``seg_plane_threshold`` of its plane (a box's segment, two faces or more, holds
+#: at most about half of its points on one plane) and its points cover
+#: ``seg_min_support_area`` (the area that makes a support).
+PLANE_SEGMENT_SHARE = 0.9
 
 class Section(Protocol):
     """Cross-section of an object perpendicular to its axis, in (s1, s2) coordinates [m]."""
@@ -187,28 +198,66 @@ class Extension:
         return pts[facing]
 
 
+def end_planes(cloud: ObjectCloud) -> list[Plane]:
+    """Planes (normal towards the sensor, d) an end of ``cloud`` may be completed to.
+
+    The support planes, then every other segment of the scene view that is one large
+    plane: PLANE_SEGMENT_SHARE of its sampled points within ``seg_plane_threshold`` of
+    its plane (:meth:`~geomodel_ros.core.view.SceneView.plane_segments`), the convex hull
+    of its points in the plane covering ``seg_min_support_area``, and not a support
+    itself. Without a scene view only the supports.
+    """
+    planes = list(cloud.supports)
+    if cloud.view is None:
+        return planes
+    params = cloud.params
+    for seg in cloud.view.plane_segments(params.seg_min_support_area):
+        if seg.label == cloud.oid or seg.area < params.seg_min_support_area or \
+                seg.share(params.seg_plane_threshold) < PLANE_SEGMENT_SHARE:
+            continue
+        if not any(_same_plane((seg.normal, seg.d), p, params) for p in cloud.supports):
+            planes.append((seg.normal, seg.d))
+    return planes
+
+
+def _same_plane(a: Plane, b: Plane, params: ModelingParams) -> bool:
+    """Whether two planes (normals towards the sensor) are one.
+
+    One: normals within ``angle_tolerance``, offsets within the contact tolerance (the
+    segment of a support plane is that support).
+    """
+    tol = SUPPORT_END_FACTOR * params.seg_plane_threshold
+    return float(a[0] @ b[0]) >= math.cos(params.angle_tolerance) and abs(a[1] - b[1]) <= tol
+
+
 def plane_beyond(cloud: ObjectCloud, axis: NDArray[np.float64], origin: NDArray[np.float64],
-                 ref: NDArray[np.float64], lo: float, hi: float) -> tuple[int, float] | None:
-    """Find the nearest support plane beyond an end of [lo, hi] along ``axis`` (3,).
+                 ref: NDArray[np.float64], lo: float, hi: float,
+                 planes: list[Plane] | None = None) -> tuple[int, float] | None:
+    """Find the nearest plane beyond an open end of [lo, hi] along ``axis`` (3,).
 
     Coordinates are ``(x - origin) . axis`` [m]; the plane is crossed on the axis line
-    through ``ref`` (3,). Only planes perpendicular to the axis (within
-    ``angle_tolerance``), with ``ref`` on their sensor side, beyond the contact tolerance
-    (SUPPORT_END_FACTOR ``seg_plane_threshold``) of an end count. Returns (0 for the low
-    end or 1 for the high end, the plane's coordinate), or None.
+    through ``ref`` (3,). Of ``planes`` (default: :func:`end_planes`) only those
+    perpendicular to the axis (within ``angle_tolerance``) with ``ref`` on their sensor
+    side count. An end within the contact tolerance (SUPPORT_END_FACTOR
+    ``seg_plane_threshold``) of one of them is closed by it; beyond an open end the
+    nearest is taken. Returns (0 for the low end or 1 for the high end, the plane's
+    coordinate), or None.
     """
     params = cloud.params
     tol = SUPPORT_END_FACTOR * params.seg_plane_threshold
     best: tuple[float, int, float] | None = None
-    for n, d in cloud.supports:
+    closed = [False, False]
+    for n, d in end_planes(cloud) if planes is None else planes:
         c, above = float(n @ axis), float(n @ ref) + d
         if abs(c) < math.cos(params.angle_tolerance) or above <= 0.0:
             continue
         t = float((ref - origin) @ axis) - above / c
-        gap = lo - t if t < lo else t - hi
+        end = 0 if t < (lo + hi) / 2 else 1
+        gap = lo - t if end == 0 else t - hi
+        closed[end] |= abs(gap) <= tol
         if gap > tol and (best is None or gap < best[0]):
-            best = (gap, 0 if t < lo else 1, t)
-    return None if best is None else best[1:]
+            best = (gap, end, t)
+    return None if best is None or closed[best[1]] else best[1:]
 
 
 def hidden_extension(cloud: ObjectCloud, ext: Extension) -> bool:
@@ -238,9 +287,12 @@ def hidden_extension(cloud: ObjectCloud, ext: Extension) -> bool:
     # The object's own points in front of a probe hide it from itself, which says nothing
     # about what lies there (the gap behind a box towards a wall).
     own = (got.nearest_label[:len(probes)] == cloud.oid) & (nearest < r_t - tol)
-    known = np.isfinite(nearest) & ~own
-    through = int(np.count_nonzero(nearest[known] > (r_t + tol)[known]))
-    n_known = int(np.count_nonzero(known))
+    seen = np.isfinite(nearest) & ~own
+    through = int(np.count_nonzero(nearest[seen] > (r_t + tol)[seen]))
+    # A ray outside the field of view was never looked along: hidden, as by an occluder.
+    unseen = ~np.isfinite(nearest)
+    unseen[unseen] = view.beyond_image(probes[unseen])
+    n_known = int(np.count_nonzero(seen | unseen))
     if n_known < MIN_KNOWN_SHARE * len(probes) or through > MAX_THROUGH_SHARE * n_known:
         return False
     return not _held_or_filled(cloud, ext, got.points[got.labels != cloud.oid])
@@ -288,10 +340,11 @@ def complete_box(cloud: ObjectCloud, rot: NDArray[np.float64], lo: NDArray[np.fl
     """
     lo, hi = lo.copy(), hi.copy()
     done = []
+    planes = end_planes(cloud)
     for a in range(3):
         b, c = (a + 1) % 3, (a + 2) % 3
         centre = rot @ ((lo + hi) / 2)
-        beyond = plane_beyond(cloud, rot[:, a], np.zeros(3), centre, lo[a], hi[a])
+        beyond = plane_beyond(cloud, rot[:, a], np.zeros(3), centre, lo[a], hi[a], planes)
         if beyond is None:
             continue
         end, t_plane = beyond

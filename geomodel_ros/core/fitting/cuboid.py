@@ -31,6 +31,9 @@ RAY_DEPTH_FACTOR = 2.0
 #: When more than this share of a face's points fail that test, the rays do not fit the
 #: face (the cloud is not seen from the origin): none of its points are left out.
 MAX_RAY_OUTLIER_SHARE = 0.5
+#: A face's own points decide what is a stray along it (:func:`_kept_values`) when it has
+#: at least this many: a plane of fewer (a sliver, a few flying pixels) says nothing.
+MIN_SIDE_POINTS = 20
 
 
 def _face_planes(cloud: ObjectCloud, faces: list[int]) -> tuple[list[PlaneModel], float]:
@@ -77,16 +80,45 @@ def _projections(cloud: ObjectCloud, planes: list[PlaneModel], nearest: NDArray[
     return take_rows(q, used) @ rot, per_face
 
 
+def _kept_values(values: NDArray[np.float64], side_values: list[NDArray[np.float64]]
+                 ) -> NDArray[np.float64]:
+    """``values`` (n,) [m] without strays, judged against the bulk and each face's own.
+
+    Strays are judged on all of the box's projections together
+    (:func:`~geomodel_ros.core.fitting.measure.without_strays`) and, separately, on the
+    points of each face that runs along the axis (``side_values``, with at least
+    MIN_SIDE_POINTS): a value within the range a face's own points keep is no stray. A
+    side seen at a grazing angle holds a few per cent of a box's points spread along the
+    view, which the bulk of a box seen face on (its front, a few millimetres deep) would
+    cut; flying pixels beyond a face's end are strays of that face too.
+    """
+    vals = without_strays(values)
+    lo, hi = float(vals.min()), float(vals.max())
+    # Only a face with values beyond the bulk's range can widen it (most lie within).
+    beyond = [fv for fv in side_values if len(fv) >= MIN_SIDE_POINTS and
+              (float(fv.min()) < lo or float(fv.max()) > hi)]
+    ranges = [(float(k.min()), float(k.max())) for k in map(without_strays, beyond)]
+    wider = [(a, b) for a, b in ranges if a < lo or b > hi]
+    if not wider:
+        return vals
+    keep = (values >= lo) & (values <= hi)
+    for a, b in wider:
+        keep |= (values >= a) & (values <= b)
+    return values[keep]
+
+
 def _axis_interval(cloud: ObjectCloud, values: NDArray[np.float64], axis: NDArray[np.float64],
-                   face_values: list[NDArray[np.float64]]) -> tuple[float, float]:
+                   face_values: list[NDArray[np.float64]],
+                   side_values: list[NDArray[np.float64]]) -> tuple[float, float]:
     """Extent [m] of the box along one ``axis`` (3,) from the points' ``values`` (n,).
 
     ``face_values`` are the coordinates along it of the points of the faces
     perpendicular to it; their median closes the nearer end (unless they lie beyond the
-    bulk: strays). A support plane closes an end no face closes.
+    bulk: strays). ``side_values`` are those of the faces running along it
+    (:func:`_kept_values`). A support plane closes an end no face closes.
     """
     reach = OUTLIER_FACTOR * cloud.params.ransac_threshold
-    vals = without_strays(values)
+    vals = _kept_values(values, side_values)
     vmin, vmax = float(vals.min()), float(vals.max())
     closed_lo, closed_hi = [], []
     for fv in face_values:
@@ -110,8 +142,9 @@ def _box_extent(cloud: ObjectCloud, planes: list[PlaneModel], assign: NDArray[np
     for a in range(3):
         face_values = [pf[:, a] for fi, pf in enumerate(proj_faces)
                        if assign[fi] == a and len(pf) > 0]
+        side_values = [pf[:, a] for fi, pf in enumerate(proj_faces) if assign[fi] != a]
         lo[a], hi[a] = _axis_interval(cloud, np.ascontiguousarray(proj[:, a]), rot[:, a],
-                                      face_values)
+                                      face_values, side_values)
     return lo, hi
 
 

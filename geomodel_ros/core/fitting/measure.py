@@ -33,7 +33,8 @@ REACH_PERCENTILE = 98.0
 #: Sizing ignores projections farther than STRAY_PAD times the bulk's extent plus
 #: STRAY_MARGIN [m] beyond the bulk (STRAY_PERCENTILES) of an object's points. A side
 #: must hold more than about 2 % of the points not to be cut (a box seen almost face on
-#: whose sides hold less may come out too thin along the view).
+#: whose sides hold less would come out too thin along the view: the cuboid sizing
+#: therefore also judges each side face on its own points, ``cuboid._kept_values``).
 STRAY_PAD = 0.25
 STRAY_MARGIN = 0.01
 STRAY_PERCENTILES = (1.0, 99.0)
