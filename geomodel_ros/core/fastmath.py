@@ -74,7 +74,9 @@ def knn(points: NDArray[np.float64], k: int, return_sqdist: bool = False):
         empty = np.zeros((m, k), dtype=np.int64)
         return (empty, np.zeros((m, k))) if return_sqdist else empty
     data = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float64))
-    search = o3d.core.nns.NearestNeighborSearch(data)
+    # int64 indices from the search itself (the same values as its default int32, without
+    # a converted copy of the (M, k) array).
+    search = o3d.core.nns.NearestNeighborSearch(data, o3d.core.int64)
     if not search.knn_index():
         raise RuntimeError("open3d could not build a nearest-neighbour index")
     idx, sqdist = search.knn_search(data, k)

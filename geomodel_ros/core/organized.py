@@ -265,27 +265,22 @@ def _stencil_links(wp: NDArray[np.float64], grid_ids: NDArray[np.int64],
 
     ``grid_ids`` (Hb, Wb) hold the working point of every block (-1: none) and ``used``
     (M,) the flat block of every working point. Missing neighbours are -1; the squared
-    distances [m^2] of the links are ``inf`` for them. Computed on the block grid, one
-    shifted view per offset (no gathers).
+    distances [m^2] of the links are ``inf`` for them. One gather of the padded block grid
+    per link, over the working points only (not over every block of the image).
     """
     hb, wb = grid_ids.shape
     pad = int(np.abs(offsets).max())
-    ids = np.pad(grid_ids, pad, constant_values=-1)
-    # Coordinates as three planes (3, Hb, Wb): the shifted differences run over contiguous rows.
-    centre = np.full((3, hb * wb), np.nan)
-    centre[:, used] = wp.T
-    centre = centre.reshape(3, hb, wb)
-    pos = np.pad(centre, ((0, 0), (pad, pad), (pad, pad)), constant_values=np.nan)
-    nb = np.empty((len(offsets), hb, wb), dtype=np.int64)
-    sq = np.zeros((len(offsets), hb, wb))
-    for k, (dr, dc) in enumerate(offsets):
-        rows, cols = slice(pad + dr, pad + dr + hb), slice(pad + dc, pad + dc + wb)
-        nb[k] = ids[rows, cols]
-        for axis in range(3):
-            diff = pos[axis, rows, cols] - centre[axis]
-            sq[k] += diff * diff
-    nb = np.ascontiguousarray(nb.reshape(len(offsets), -1)[:, used].T)
-    sq = np.ascontiguousarray(sq.reshape(len(offsets), -1)[:, used].T)
+    ids = np.pad(grid_ids, pad, constant_values=-1).ravel()
+    wide = wb + 2 * pad
+    # Flat index of every working point's block in the padded grid, and of every offset.
+    home = (used // wb + pad) * wide + (used % wb + pad)
+    shift = offsets[:, 0] * wide + offsets[:, 1]
+    nb = ids[home[:, None] + shift[None, :]]
+    sq = np.zeros(nb.shape)
+    for axis in range(3):
+        col = np.ascontiguousarray(wp[:, axis])
+        diff = col[nb] - col[:, None]        # a missing neighbour (-1) is set to inf below
+        sq += diff * diff
     sq[nb < 0] = np.inf
     return nb, sq
 
