@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 from scipy.sparse import csr_matrix
 
 from geomodel_ros.core.faces import smallest_eigenpairs_sym
-from geomodel_ros.core.fastmath import centroid
+from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.params import ModelingParams
 
 __all__ = ["GridCloud", "block_size", "grid_cloud", "stencil_offsets"]
@@ -109,11 +109,11 @@ class GridCloud:
         """
         local = np.full(len(self.points), -1, dtype=np.int64)
         local[subset] = np.arange(len(subset))
-        nb = local[self.neighbors[subset]]
-        sq = self.sqdist[subset]
+        nb = local[take_rows(self.neighbors, subset)]
+        sq = take_rows(self.sqdist, subset)
         keep = (nb >= 0) & np.isfinite(sq)
         nb, sq = _without_links(nb, sq, keep)
-        pts = self.points[subset]
+        pts = take_rows(self.points, subset)
         normals, variation = _stencil_normals(pts, nb, keep)
         return normals, variation, nb, sq
 
@@ -186,17 +186,18 @@ def grid_cloud(points: NDArray[np.float64], shape: tuple[int, int], finite: NDAr
     hb, wb = -(-h // b), -(-w // b)
     row, col = finite // w, finite % w
     blk = (row // b) * wb + col // b
-    p = points[finite]
+    p = take_rows(points, finite)
     dist = np.sqrt(np.einsum("ij,ij->i", p, p))
     in_layer = np.abs(dist - _block_medians(dist, row, col, (hb, wb, b))[blk]) <= jump
     ids = np.full(hb * wb, -1, dtype=np.int64)
     used = np.flatnonzero(np.bincount(blk, minlength=hb * wb))
     ids[used] = np.arange(len(used))
     inverse = ids[blk]
-    ref = _means(p[in_layer], inverse[in_layer], len(used))
+    ref = _means(take_rows(p, in_layer), inverse[in_layer], len(used))
     away = np.flatnonzero(~in_layer)
     if len(away):
-        inverse[away] = _nearest_block(p[away], blk[away], ids.reshape(hb, wb), ref, wb)
+        inverse[away] = _nearest_block(take_rows(p, away), blk[away], ids.reshape(hb, wb),
+                                       ref, wb)
     counts = np.bincount(inverse, minlength=len(used))
     wp = _means(p, inverse, len(used))
     offsets = stencil_offsets(params.normal_neighbors)
