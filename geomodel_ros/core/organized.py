@@ -234,7 +234,8 @@ def _block_medians(values: NDArray[np.float64], row: NDArray[np.int64], col: NDA
     """
     hb, wb, b = grid
     table = np.full((hb, b, wb, b), np.inf)
-    table[row // b, row % b, col // b, col % b] = values
+    # Laid out as the image padded to (Hb * b, Wb * b): pixel (row, col) is one flat index.
+    table.reshape(-1)[row * (wb * b) + col] = values
     table = table.transpose(0, 2, 1, 3).reshape(hb * wb, b * b)
     table.sort(axis=1)
     sizes = np.count_nonzero(np.isfinite(table), axis=1)
