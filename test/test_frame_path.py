@@ -90,3 +90,44 @@ def test_a_built_cloud_reads_back_bit_for_bit():
     np.testing.assert_array_equal(cloud_to_xyz(msg, keep_organized=True,
                                                dtype=np.float32)[0], pts)
     assert len(msg.data) == 500 * msg.point_step and not msg.is_dense
+
+
+def test_objects_and_markers_go_out_before_the_clouds_are_built(monkeypatch):
+    from geomodel_ros.ros import processing
+
+    objects = _objects()
+    labels = np.array([7, 7, -1, 11, 11, 4])
+    events: list[str] = []
+    handed: list[tuple] = []
+    real_segments, real_reconstruct = processing.segments_cloud, processing.reconstruct
+
+    def segments(*args, **kwargs):
+        events.append("segments")
+        return real_segments(*args, **kwargs)
+
+    def recon(*args, **kwargs):
+        events.append("reconstruction")
+        return real_reconstruct(*args, **kwargs)
+
+    def first(markers, objects_msg):
+        events.append("objects")
+        handed.append((markers, objects_msg))
+
+    def core(_points, _params, **_):
+        return labels, ModelingResult(objects=objects, timing={})
+
+    monkeypatch.setattr(processing, "segments_cloud", segments)
+    monkeypatch.setattr(processing, "reconstruct", recon)
+    pts = np.random.default_rng(2).normal(0.0, 0.1, (6, 3)) + [0.0, 0.0, 1.0]
+    frame = process_cloud(xyz_to_cloud(pts, make_header("cam", 5)), ModelingParams(),
+                          model_scene=core, on_objects=first)
+    assert events == ["objects", "segments", "reconstruction"]
+    assert len(handed) == 1
+    assert handed[0][0] is frame.markers and handed[0][1] is frame.objects
+    assert [o.id for o in frame.objects.primitives] == [7, 2, 11, 4]
+    assert "first_out_s" in frame.timing
+    # Without the callback nothing changes but the stage it would time.
+    events.clear()
+    plain = process_cloud(xyz_to_cloud(pts, make_header("cam", 5)), ModelingParams(),
+                          model_scene=core)
+    assert events == ["segments", "reconstruction"] and "first_out_s" not in plain.timing

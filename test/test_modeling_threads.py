@@ -11,13 +11,17 @@ import threading
 
 import numpy as np
 import pytest
+import threadpoolctl
 
 from geomodel_ros.core import fastmath, modeling, obb
 from geomodel_ros.core.params import ModelingParams
 
 
 def _blas_counts() -> list[int]:
-    return [getter() for _, getter in fastmath._openblas_controls()]
+    """Thread count of every BLAS library loaded, as threadpoolctl reports it afresh."""
+    import scipy.linalg  # noqa: F401  (scipy's own OpenBLAS, as the limiter loads it)
+    return [lib["num_threads"] for lib in threadpoolctl.threadpool_info()
+            if lib["user_api"] == "blas"]
 
 
 def _two_boxes() -> tuple[np.ndarray, np.ndarray]:
@@ -34,8 +38,8 @@ def _two_boxes() -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_single_threaded_blas_sets_one_thread_and_restores_the_count_when_nested():
-    if not fastmath._openblas_controls():
-        pytest.skip("no OpenBLAS loaded (another BLAS): the limiter is a no-op")
+    if not _blas_counts():
+        pytest.skip("no BLAS library found: the limiter is a no-op")
     before = _blas_counts()
     with fastmath.single_threaded_blas():
         assert _blas_counts() == [1] * len(before)
@@ -43,6 +47,61 @@ def test_single_threaded_blas_sets_one_thread_and_restores_the_count_when_nested
             assert _blas_counts() == [1] * len(before)
         assert _blas_counts() == [1] * len(before)  # the outer block still runs
     assert _blas_counts() == before
+
+
+def test_single_threaded_blas_restores_a_count_set_before_it():
+    if not _blas_counts():
+        pytest.skip("no BLAS library found: the limiter is a no-op")
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+        assert _blas_counts() == [2] * len(_blas_counts())
+        with fastmath.single_threaded_blas():
+            assert _blas_counts() == [1] * len(_blas_counts())
+        assert _blas_counts() == [2] * len(_blas_counts())
+
+
+def test_single_threaded_blas_holds_until_the_last_of_two_threads_leaves():
+    if not _blas_counts():
+        pytest.skip("no BLAS library found: the limiter is a no-op")
+    before = _blas_counts()
+    entered, release, left = threading.Event(), threading.Event(), threading.Event()
+    inside: list[list[int]] = []
+
+    def other() -> None:
+        with fastmath.single_threaded_blas():
+            entered.set()
+            release.wait(10)
+            inside.append(_blas_counts())
+        left.set()
+
+    worker = threading.Thread(target=other)
+    with fastmath.single_threaded_blas():    # this thread sets the count
+        worker.start()
+        assert entered.wait(10)
+    assert _blas_counts() == [1] * len(before)   # the other thread is still inside
+    release.set()
+    assert left.wait(10)                         # ... and restores it, last out
+    worker.join(10)
+    assert inside == [[1] * len(before)]
+    assert _blas_counts() == before
+
+
+def test_single_threaded_blas_works_from_a_second_thread_after_the_first():
+    if not _blas_counts():
+        pytest.skip("no BLAS library found: the limiter is a no-op")
+    before = _blas_counts()
+    with fastmath.single_threaded_blas():    # the main thread used it first
+        pass
+    seen: list[list[int]] = []
+
+    def other() -> None:
+        with fastmath.single_threaded_blas():
+            seen.append(_blas_counts())
+        seen.append(_blas_counts())
+
+    worker = threading.Thread(target=other)
+    worker.start()
+    worker.join(10)
+    assert seen == [[1] * len(before), before]
 
 
 def test_single_threaded_blas_restores_the_count_after_an_exception():
@@ -141,8 +200,8 @@ def test_hull_filter_in_blocks_keeps_the_hull_and_drops_the_interior_of_a_large_
 
 
 def test_model_scene_runs_on_one_blas_thread_and_leaves_the_count_as_it_was(monkeypatch):
-    if not fastmath._openblas_controls():
-        pytest.skip("no OpenBLAS loaded (another BLAS): the limiter is a no-op")
+    if not _blas_counts():
+        pytest.skip("no BLAS library found: the limiter is a no-op")
     before = _blas_counts()
     seen = []
     real = modeling.frame_noise

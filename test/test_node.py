@@ -235,6 +235,8 @@ def test_scene_is_modeled_and_published_with_the_input_header(make_harness, core
         radial = np.linalg.norm(q - np.outer(q @ axis, axis), axis=1)
         assert radial.max() == pytest.approx(cyl.scale.x / 2, abs=1e-3)
         assert np.abs(q @ axis).max() == pytest.approx(cyl.scale.z / 2, abs=1e-3)
+    # processed counts a frame once all its outputs are out (the clouds go last)
+    wait_until(lambda: h.node.stats().processed == 1, "the frame to be processed")
     stats = h.node.stats()
     assert (stats.processed, stats.failed, stats.dropped) == (1, 0, 0)
 
@@ -284,7 +286,7 @@ def test_malformed_cloud_is_skipped_and_the_node_keeps_running(make_harness, cor
     assert markers.markers[0].header.stamp.sec == 5
     assert {"plane", "cuboid"} <= set(shapes(markers))
     assert len(core.calls) == 1
-    assert h.node.stats().processed == 1
+    wait_until(lambda: h.node.stats().processed == 1, "the good frame to be processed")
     log = capfd.readouterr().err
     assert "skipping malformed PointCloud2" in log and "expected row_step*height" in log
     # throttled: the second malformed frame within WARN_THROTTLE_S is not logged again
@@ -300,7 +302,8 @@ def test_core_failure_is_skipped_and_the_next_frame_is_modeled(make_harness, cor
     markers = h.markers.wait()
     assert markers.markers[0].header.stamp.sec == 2
     assert len(h.markers) == 1
-    assert h.node.stats().processed == 1
+    wait_until(lambda: h.node.stats().processed == 1, "the second frame to be processed")
+    assert h.node.stats().failed == 1
     assert "RuntimeError: injected core failure" in capfd.readouterr().err
 
 

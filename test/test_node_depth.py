@@ -140,6 +140,8 @@ def test_depth_image_gives_the_objects_of_the_same_scene_as_a_cloud(harness, sce
         assert dimensions.keys() == p.dimensions.keys()
         for name, value in p.dimensions.items():
             assert dimensions[name] == pytest.approx(value, abs=tol), (p.type, name)
+    # The objects go out before the frame's clouds: processed counts the whole frame.
+    wait_until(lambda: h.node.stats().processed == 1, "the frame to be processed")
     stats = h.node.stats()
     assert (stats.received, stats.processed, stats.failed) == (1, 1, 0)
 
@@ -170,6 +172,7 @@ def test_frames_without_camera_info_or_of_the_wrong_size_or_encoding_are_dropped
     msg = h.objects.wait()
     assert msg.header.stamp.sec == 4
     assert core.calls[-1]["organized_shape"] == (120, 160)
+    wait_until(lambda: h.node.stats().processed == 1, "the good frame to be processed")
     stats = h.node.stats()
     assert (stats.received, stats.processed, stats.failed) == (4, 1, 3)
     err = capfd.readouterr().err

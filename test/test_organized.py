@@ -19,8 +19,8 @@ from data_helpers import require
 from geomodel_ros.core.errors import InputError
 from geomodel_ros.core.fastmath import rows_finite
 from geomodel_ros.core.modeling import model_scene
-from geomodel_ros.core.organized import (BLOCK_SPACING_SHARE, block_size, grid_cloud,
-                                         stencil_offsets)
+from geomodel_ros.core.organized import (BLOCK_SPACING_SHARE, _stencil_links, block_size,
+                                         grid_cloud, stencil_offsets)
 from geomodel_ros.core.params import ModelingParams, load_params_file
 from geomodel_ros.core.segmentation import segment_scene
 from geomodel_ros.tools.benchmark import data_dir
@@ -53,6 +53,34 @@ def _cloud(image: np.ndarray, params: ModelingParams = FAST):
 
 
 # ------------------------------------------------------------------ stencil and block size
+
+def test_stencil_links_follow_the_offsets_on_the_block_grid_and_skip_empty_blocks():
+    # A 3 x 4 block grid with blocks (0, 1) and (2, 3) empty; working point i sits at
+    # (column, row, 0.1 * i) [m], so a link's squared length is dc^2 + dr^2 + (0.1 di)^2.
+    grid = np.array([[0, -1, 1, 2], [3, 4, 5, 6], [7, 8, 9, -1]])
+    used = np.flatnonzero(grid.ravel() >= 0)
+    rows, cols = used // 4, used % 4
+    wp = np.column_stack([cols, rows, 0.1 * np.arange(len(used))]).astype(np.float64)
+    offsets = np.array([[0, 0], [0, 1], [1, 0], [-1, -1], [0, -2]])
+    nb, sq = _stencil_links(wp, grid, used, offsets)
+    assert nb.shape == sq.shape == (10, 5) and nb.dtype == np.int64
+    # Point 4 at block (1, 1): itself, (1, 2) -> 5, (2, 1) -> 8, (0, 0) -> 0, (1, -1): none.
+    np.testing.assert_array_equal(nb[4], [4, 5, 8, 0, -1])
+    np.testing.assert_allclose(sq[4, :4], [0.0, 1.01, 1.16, 2.16], rtol=0, atol=1e-12)
+    assert sq[4, 4] == np.inf
+    # Point 0 at block (0, 0): right of it the empty block, below it point 3; nothing at
+    # (-1, -1) nor (0, -2) (outside the grid).
+    np.testing.assert_array_equal(nb[0], [0, -1, 3, -1, -1])
+    assert np.isinf(sq[0, [1, 3, 4]]).all() and sq[0, 2] == pytest.approx(1.09, abs=1e-12)
+    # Point 9 at block (2, 2): (2, 3) is empty, (3, 2) outside, (1, 1) -> 4, (2, 0) -> 7.
+    np.testing.assert_array_equal(nb[9], [9, -1, -1, 4, 7])
+    np.testing.assert_allclose(sq[9, [3, 4]], [2.25, 4.04], rtol=0, atol=1e-12)
+    # Every link's length is the distance of its two points, every missing link inf.
+    ok = nb >= 0
+    d = wp[nb[ok]] - np.repeat(wp, 5, axis=0)[ok.ravel()]
+    np.testing.assert_array_equal(sq[ok], (d[:, 0] ** 2 + d[:, 1] ** 2) + d[:, 2] ** 2)
+    assert np.isinf(sq[~ok]).all()
+
 
 def test_stencil_is_the_smallest_disc_with_enough_offsets():
     # r^2 <= 4 holds 1 + 4 + 4 + 4 = 13 offsets, r^2 <= 5 adds the 8 knight moves: 21 >= 16.

@@ -34,6 +34,7 @@ ROSDEP_KEYS = {
     # Python libraries: rosdistro rosdep/python.yaml
     "numpy": "python3-numpy",
     "scipy": "python3-scipy",
+    "threadpoolctl": "python3-threadpoolctl",
     "yaml": "python3-yaml",
     "open3d": "python3-open3d-pip",
     "hypothesis": "python3-hypothesis",

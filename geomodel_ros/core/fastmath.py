@@ -10,16 +10,15 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
-import os
 import threading
 from contextlib import contextmanager
-from typing import Callable, Iterator
+from typing import Iterator
 
 import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["row_norms", "centroid", "rows_finite", "take_rows", "robust_sigma", "knn",
-           "retain_freed_memory", "single_threaded_blas"]
+           "retain_freed_memory", "single_threaded_blas", "blas_libraries"]
 
 
 def row_norms(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -75,7 +74,9 @@ def knn(points: NDArray[np.float64], k: int, return_sqdist: bool = False):
         empty = np.zeros((m, k), dtype=np.int64)
         return (empty, np.zeros((m, k))) if return_sqdist else empty
     data = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float64))
-    search = o3d.core.nns.NearestNeighborSearch(data)
+    # int64 indices from the search itself (the same values as its default int32, without
+    # a converted copy of the (M, k) array).
+    search = o3d.core.nns.NearestNeighborSearch(data, o3d.core.int64)
     if not search.knn_index():
         raise RuntimeError("open3d could not build a nearest-neighbour index")
     idx, sqdist = search.knn_search(data, k)
@@ -115,52 +116,31 @@ def retain_freed_memory(mmap_threshold: int = 32 * 2**20, trim_threshold: int = 
         bool(mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)))
 
 
-#: Names of OpenBLAS's thread-count setter and getter in its builds: the plain library and
-#: the wheels of numpy (64-bit integers, suffix ``64_``) and scipy (prefix ``scipy_``).
-_OPENBLAS_SYMBOLS = (("openblas_set_num_threads", "openblas_get_num_threads"),
-                     ("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
-                     ("scipy_openblas_set_num_threads", "scipy_openblas_get_num_threads"))
-#: Where a Linux process lists its mapped files (the OpenBLAS libraries loaded).
-_PROC_MAPS = "/proc/self/maps"
-
 _blas_lock = threading.Lock()
 _blas_users = 0
-_blas_saved: list[tuple[Callable[[int], None], int]] = []
-_blas_controls: list[tuple[Callable[[int], None], Callable[[], int]]] | None = None
+_blas_limiter = None
+_blas_libraries = None
 
 
-def _openblas_controls() -> list[tuple[Callable[[int], None], Callable[[], int]]]:
-    """(set, get) thread-count functions of every OpenBLAS library this process loaded."""
-    import scipy.linalg  # noqa: F401  (loads scipy's own OpenBLAS, used by its fitting)
+def blas_libraries():
+    """Return the threadpoolctl controller of the BLAS libraries this process has loaded.
 
-    paths: list[str] = []
-    try:
-        with open(_PROC_MAPS, encoding="utf-8", errors="replace") as maps:
-            for line in maps:
-                path = line.split(maxsplit=5)[-1].strip()
-                if "openblas" in os.path.basename(path).lower() and path not in paths:
-                    paths.append(path)
-    except OSError:
-        return []
-    controls = []
-    for path in paths:
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for set_name, get_name in _OPENBLAS_SYMBOLS:
-            setter, getter = getattr(lib, set_name, None), getattr(lib, get_name, None)
-            if setter is not None and getter is not None:
-                setter.argtypes, setter.restype = (ctypes.c_int,), None
-                getter.argtypes, getter.restype = (), ctypes.c_int
-                controls.append((setter, getter))
-                break
-    return controls
+    numpy's and scipy's (each wheel ships its own OpenBLAS; scipy's is loaded here first),
+    or whatever BLAS they were built with; found once and cached, so a BLAS library loaded
+    later is not controlled.
+    """
+    global _blas_libraries
+    if _blas_libraries is None:
+        import scipy.linalg  # noqa: F401  (loads scipy's own BLAS, used by its fitting)
+        from threadpoolctl import ThreadpoolController
+
+        _blas_libraries = ThreadpoolController().select(user_api="blas")
+    return _blas_libraries
 
 
 @contextmanager
 def single_threaded_blas() -> Iterator[None]:
-    """Run the block with OpenBLAS on one thread; restore its thread count afterwards.
+    """Run the block with BLAS on one thread; restore its thread count afterwards.
 
     For code that is parallel at a coarser grain (the modeling's one worker thread per
     object on all cores): there OpenBLAS's own threads for a product over a large object
@@ -171,16 +151,14 @@ def single_threaded_blas() -> Iterator[None]:
     one partial sum per thread, so there the last bit depends on the thread count (that
     is, on the machine's cores without this). Process-wide (OpenBLAS has no per-thread
     count in every build); nested and concurrent uses count, the last one out restores.
-    A no-op where no OpenBLAS is found (another BLAS, or no ``/proc``).
+    Every BLAS library loaded (:func:`blas_libraries`, through threadpoolctl: OpenBLAS,
+    MKL, BLIS, FlexiBLAS) is limited; a no-op where none is found.
     """
-    global _blas_users, _blas_controls
+    global _blas_users, _blas_limiter
     with _blas_lock:
-        if _blas_controls is None:
-            _blas_controls = _openblas_controls()
         if _blas_users == 0:
-            _blas_saved[:] = [(setter, getter()) for setter, getter in _blas_controls]
-            for setter, _ in _blas_saved:
-                setter(1)
+            _release_blas_control()
+            _blas_limiter = blas_libraries().limit(limits=1)
         _blas_users += 1
     try:
         yield
@@ -188,5 +166,24 @@ def single_threaded_blas() -> Iterator[None]:
         with _blas_lock:
             _blas_users -= 1
             if _blas_users == 0:
-                for setter, count in _blas_saved:
-                    setter(count)
+                _release_blas_control()
+                _blas_limiter.restore_original_limits()
+                _blas_limiter = None
+                _release_blas_control()
+
+
+def _release_blas_control() -> None:
+    """Let any thread set OpenBLAS's process-wide thread count next.
+
+    threadpoolctl lets only the first thread that set it set it again (later threads are
+    silently ignored) until that thread's ``with`` blocks are done; here the count is set
+    and restored under :data:`_blas_lock`, possibly by different threads (the last one
+    out restores), so the control is released around each change. (Older threadpoolctl
+    releases, e.g. Debian's 3.1, have no such control: nothing to release.)
+    """
+    import threadpoolctl
+
+    release = getattr(getattr(threadpoolctl, "OpenBLASController", None),
+                      "clear_controlling_thread", None)
+    if release is not None:
+        release(force=True)

@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 from scipy.sparse import csr_matrix
 
 from geomodel_ros.core.faces import smallest_eigenpairs_sym
-from geomodel_ros.core.fastmath import centroid
+from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.params import ModelingParams
 
 __all__ = ["GridCloud", "block_size", "grid_cloud", "stencil_offsets"]
@@ -109,11 +109,11 @@ class GridCloud:
         """
         local = np.full(len(self.points), -1, dtype=np.int64)
         local[subset] = np.arange(len(subset))
-        nb = local[self.neighbors[subset]]
-        sq = self.sqdist[subset]
+        nb = local[take_rows(self.neighbors, subset)]
+        sq = take_rows(self.sqdist, subset)
         keep = (nb >= 0) & np.isfinite(sq)
         nb, sq = _without_links(nb, sq, keep)
-        pts = self.points[subset]
+        pts = take_rows(self.points, subset)
         normals, variation = _stencil_normals(pts, nb, keep)
         return normals, variation, nb, sq
 
@@ -144,9 +144,9 @@ def block_size(image: NDArray[np.float64], voxel: float) -> int | None:
     and columns). None when too few adjacent pixels are finite to tell.
     """
     sub = image[::SPACING_STRIDE]
-    steps = [np.linalg.norm(sub[:, 1:] - sub[:, :-1], axis=2).ravel()]
+    steps = [_step_lengths(sub[:, 1:], sub[:, :-1])]
     sub = image[:, ::SPACING_STRIDE]
-    steps.append(np.linalg.norm(sub[1:] - sub[:-1], axis=2).ravel())
+    steps.append(_step_lengths(sub[1:], sub[:-1]))
     d = np.concatenate(steps)
     d = d[np.isfinite(d)]
     if len(d) < MIN_SPACING_PAIRS:
@@ -155,6 +155,19 @@ def block_size(image: NDArray[np.float64], voxel: float) -> int | None:
     if spacing <= 0.0:
         return None
     return int(min(MAX_BLOCK, max(1, round(voxel * BLOCK_SPACING_SHARE / spacing))))
+
+
+def _step_lengths(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distances [m] between the pixels of ``a`` and ``b`` (R, C, 3), flattened (R * C,).
+
+    Coordinate by coordinate (numpy's norm over the short last axis is several times
+    slower; the sum is the same, x^2 + y^2 first).
+    """
+    sq = np.zeros(a.shape[:2])
+    for axis in range(3):
+        diff = a[:, :, axis] - b[:, :, axis]
+        sq += diff * diff
+    return np.sqrt(sq).ravel()
 
 
 def grid_cloud(points: NDArray[np.float64], shape: tuple[int, int], finite: NDArray[np.int64],
@@ -186,17 +199,18 @@ def grid_cloud(points: NDArray[np.float64], shape: tuple[int, int], finite: NDAr
     hb, wb = -(-h // b), -(-w // b)
     row, col = finite // w, finite % w
     blk = (row // b) * wb + col // b
-    p = points[finite]
+    p = take_rows(points, finite)
     dist = np.sqrt(np.einsum("ij,ij->i", p, p))
     in_layer = np.abs(dist - _block_medians(dist, row, col, (hb, wb, b))[blk]) <= jump
     ids = np.full(hb * wb, -1, dtype=np.int64)
     used = np.flatnonzero(np.bincount(blk, minlength=hb * wb))
     ids[used] = np.arange(len(used))
     inverse = ids[blk]
-    ref = _means(p[in_layer], inverse[in_layer], len(used))
+    ref = _means(take_rows(p, in_layer), inverse[in_layer], len(used))
     away = np.flatnonzero(~in_layer)
     if len(away):
-        inverse[away] = _nearest_block(p[away], blk[away], ids.reshape(hb, wb), ref, wb)
+        inverse[away] = _nearest_block(take_rows(p, away), blk[away], ids.reshape(hb, wb),
+                                       ref, wb)
     counts = np.bincount(inverse, minlength=len(used))
     wp = _means(p, inverse, len(used))
     offsets = stencil_offsets(params.normal_neighbors)
@@ -220,7 +234,8 @@ def _block_medians(values: NDArray[np.float64], row: NDArray[np.int64], col: NDA
     """
     hb, wb, b = grid
     table = np.full((hb, b, wb, b), np.inf)
-    table[row // b, row % b, col // b, col % b] = values
+    # Laid out as the image padded to (Hb * b, Wb * b): pixel (row, col) is one flat index.
+    table.reshape(-1)[row * (wb * b) + col] = values
     table = table.transpose(0, 2, 1, 3).reshape(hb * wb, b * b)
     table.sort(axis=1)
     sizes = np.count_nonzero(np.isfinite(table), axis=1)
@@ -265,27 +280,22 @@ def _stencil_links(wp: NDArray[np.float64], grid_ids: NDArray[np.int64],
 
     ``grid_ids`` (Hb, Wb) hold the working point of every block (-1: none) and ``used``
     (M,) the flat block of every working point. Missing neighbours are -1; the squared
-    distances [m^2] of the links are ``inf`` for them. Computed on the block grid, one
-    shifted view per offset (no gathers).
+    distances [m^2] of the links are ``inf`` for them. One gather of the padded block grid
+    per link, over the working points only (not over every block of the image).
     """
     hb, wb = grid_ids.shape
     pad = int(np.abs(offsets).max())
-    ids = np.pad(grid_ids, pad, constant_values=-1)
-    # Coordinates as three planes (3, Hb, Wb): the shifted differences run over contiguous rows.
-    centre = np.full((3, hb * wb), np.nan)
-    centre[:, used] = wp.T
-    centre = centre.reshape(3, hb, wb)
-    pos = np.pad(centre, ((0, 0), (pad, pad), (pad, pad)), constant_values=np.nan)
-    nb = np.empty((len(offsets), hb, wb), dtype=np.int64)
-    sq = np.zeros((len(offsets), hb, wb))
-    for k, (dr, dc) in enumerate(offsets):
-        rows, cols = slice(pad + dr, pad + dr + hb), slice(pad + dc, pad + dc + wb)
-        nb[k] = ids[rows, cols]
-        for axis in range(3):
-            diff = pos[axis, rows, cols] - centre[axis]
-            sq[k] += diff * diff
-    nb = np.ascontiguousarray(nb.reshape(len(offsets), -1)[:, used].T)
-    sq = np.ascontiguousarray(sq.reshape(len(offsets), -1)[:, used].T)
+    ids = np.pad(grid_ids, pad, constant_values=-1).ravel()
+    wide = wb + 2 * pad
+    # Flat index of every working point's block in the padded grid, and of every offset.
+    home = (used // wb + pad) * wide + (used % wb + pad)
+    shift = offsets[:, 0] * wide + offsets[:, 1]
+    nb = ids[home[:, None] + shift[None, :]]
+    sq = np.zeros(nb.shape)
+    for axis in range(3):
+        col = np.ascontiguousarray(wp[:, axis])
+        diff = col[nb] - col[:, None]        # a missing neighbour (-1) is set to inf below
+        sq += diff * diff
     sq[nb < 0] = np.inf
     return nb, sq
 

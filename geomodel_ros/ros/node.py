@@ -609,7 +609,7 @@ class ModelerNode(Node):
                                  reconstruction=options.publish_reconstruction,
                                  model_scene=self._model_scene,
                                  tracking=self._current_tracking(options.tracking),
-                                 to_scene=to_scene)
+                                 to_scene=to_scene, on_objects=self._publish_objects)
         except (PointCloud2Error, DepthImageError) as exc:
             self._count_failure()
             frame_id, _ = header_of(msg)
@@ -626,6 +626,12 @@ class ModelerNode(Node):
                 throttle_duration_sec=WARN_THROTTLE_S)
             self.get_logger().debug("".join(traceback.format_exception(exc.__cause__ or exc)))
         return None
+
+    def _publish_objects(self, markers: MarkerArray, objects: PrimitiveArray) -> None:
+        """Publish a frame's typed objects and markers (before its clouds are built)."""
+        self._pub_objects.publish(objects)
+        if markers.markers:  # tracked and nothing changed: no headerless empty array
+            self._pub_markers.publish(markers)
 
     def _current_tracking(self, enabled: bool) -> ObjectTracking | None:
         """Return the worker's tracking state with the current config (None: disabled)."""
@@ -651,13 +657,12 @@ class ModelerNode(Node):
         timing = {k: v for k, v in frame.timing.items() if not k.startswith("core_")}
         core_timing = {k: v for k, v in frame.timing.items() if k.startswith("core_")}
 
+        # The typed objects and markers went out as soon as they were built
+        # (:meth:`_publish_objects`); the clouds follow.
         if frame.segments is not None:
             self._pub_segments.publish(frame.segments)
         if frame.reconstruction is not None:
             self._pub_reconstruction.publish(frame.reconstruction)
-        self._pub_objects.publish(frame.objects)
-        if frame.markers.markers:  # tracked and nothing changed: no headerless empty array
-            self._pub_markers.publish(frame.markers)
         t6 = time.perf_counter()
         timing["publish_s"] = t6 - t5
         timing["total_s"] = t6 - t0

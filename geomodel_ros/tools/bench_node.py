@@ -66,9 +66,10 @@ _STAGES = (("convert_s", "convert in (message -> numpy)"),
            ("model_s", "core (model_scene)"),
            ("markers_s", "tracking + markers out"),
            ("objects_s", "typed objects out (~/objects)"),
+           ("first_out_s", "publish objects + markers (before the clouds)"),
            ("segments_s", "segments cloud out"),
            ("reconstruction_s", "reconstruction + cloud out"),
-           ("publish_s", "publish"),
+           ("publish_s", "publish the clouds"),
            ("total_s", "node total"))
 
 
