@@ -181,11 +181,16 @@ class FaceBend:
     turn : float [rad]
         Angle by which the quadric's normal turns across the face along its direction of
         strongest curvature (curvature times the face's width that way).
+    height : float [m]
+        RMS height of the quadric's bend over the plane: the root of the quadric's
+        reduction of the (mass-weighted) mean square residual. Slow sensor errors bend a
+        flat face by an amount of this kind, whatever the number of points.
     """
 
     f_statistic: float
     significant: bool
     turn: float
+    height: float = 0.0
 
 
 def _weighted_lstsq(design: NDArray[np.float64], h: NDArray[np.float64],
@@ -249,6 +254,7 @@ def face_bend(points: NDArray[np.float64], normal: NDArray[np.float64],
     added = _QUADRIC_TERMS - _PLANE_TERMS
     if rss_p <= (_FLAT_TO_ROUNDING * scale) ** 2 * float(w.sum()):
         return FaceBend(0.0, False, 0.0)
+    height = math.sqrt(max(rss_p - rss_q, 0.0) / float(w.sum()))
     f_stat = math.inf if rss_q <= 0.0 else \
         max(rss_p - rss_q, 0.0) / added / (rss_q / dof) / max(correlation, 1.0) ** 2
     crit = float(fdtri(added, dof, 1.0 - significance))   # F(added, dof) quantile
@@ -257,7 +263,7 @@ def face_bend(points: NDArray[np.float64], normal: NDArray[np.float64],
     k = int(np.argmax(np.abs(evals)))
     along = np.column_stack([x, y]) @ evecs[:, k]
     lo, hi = np.percentile(along, list(BEND_EXTENT_PERCENTILES))
-    return FaceBend(float(f_stat), bool(f_stat > crit), float(abs(evals[k]) * (hi - lo)))
+    return FaceBend(float(f_stat), bool(f_stat > crit), float(abs(evals[k]) * (hi - lo)), height)
 
 
 def principal_curvatures(points: NDArray[np.float64], normals: NDArray[np.float64],

@@ -1,0 +1,185 @@
+"""How much a frame's slow sensor errors bend a flat surface: the null of the bend test.
+
+Real depth cameras add to their pixel-to-pixel noise a range error that varies slowly
+across the image (``NoiseEstimate.scale`` 1.6-2.5 on every real frame measured: the noise
+across the frame's dominant plane over the local noise). Such an error bends a flat face
+by an amount that does not shrink with the face's number of points, so an F-test whose
+null hypothesis is independent noise calls flat faces curved
+(:func:`~geomodel_ros.core.surface_type.face_bend`). Here the null hypothesis is "a plane
+plus this frame's errors", measured on the frame itself: patches of its largest support
+plane (desk, table, floor: flat, and seen by the same sensor) as large in the image as the
+face under test. The bend each patch shows (the quadric's RMS height over the plane, and
+the turn of its normal) is what the frame's errors alone produce there; it is scaled to
+the face's range by the ratio of the depth noise sigma(z) there and at the patch. A face
+bends beyond the errors when its bend height exceeds every patch's (a Monte-Carlo test at
+level 1 / (patches + 1)) and its turn exceeds ``min_arc`` by the patches' median turn
+(:func:`bends_beyond`).
+
+The correlation length of the errors is fixed in pixels (the sensor's), so a patch of the
+same angular size (radius over range) meets the same part of the error field whatever its
+range; the errors' amplitude grows with range as the depth noise does.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from geomodel_ros.core.fastmath import centroid
+from geomodel_ros.core.noise import NoiseEstimate
+from geomodel_ros.core.surface_type import FaceBend, face_bend
+
+__all__ = ["NULL_PATCHES", "NULL_SAMPLE", "MIN_NULL_PATCHES", "SlowBend", "SlowBendNull",
+           "slow_bend_null", "bends_beyond"]
+
+#: Patches of the support measured per bound: a face beyond all of them bends beyond the
+#: frame's errors at a level of 1 / (NULL_PATCHES + 1) (2.4 %; the face's turn must
+#: exceed ``min_arc`` as well, see :func:`bends_beyond`).
+NULL_PATCHES = 40
+#: Fewer usable patches than this (a small support, seen in few pixels) say nothing about
+#: the errors: no bound (infinite), and no face is found bent by this test.
+MIN_NULL_PATCHES = 10
+#: The support is sampled to about this many points (every k-th): patches of a few
+#: hundred points down to a tenth of a 640 x 480 image's width keep 20 points or more.
+NULL_SAMPLE = 20000
+#: A patch's bend is fitted to at most about this many of its points (every k-th): the
+#: height of a quadric over a few hundred points is known to a few per cent.
+PATCH_MAX_POINTS = 400
+#: A patch needs this many points for its quadric (six terms) to say anything.
+MIN_PATCH_POINTS = 20
+#: A patch whose points' centroid lies more than this share of its radius from its centre
+#: is cut by the support's border (a half disc's centroid lies 0.42 radii off): left out.
+MAX_PATCH_OFFSET = 1.0 / 3.0
+#: Fixed seed of the patch centres: the null of a frame does not depend on the order in
+#: which objects are modeled, nor on their random streams.
+NULL_SEED = 20261202
+
+
+@dataclass(frozen=True)
+class SlowBend:
+    """The bend the frame's errors give a flat patch of a given size and range.
+
+    Attributes
+    ----------
+    height : float [m]
+        Largest RMS bend height over the patches (inf: too few patches).
+    turn : float [rad]
+        Median turn of the patches' normals.
+    patches : int
+        Patches measured.
+    """
+
+    height: float
+    turn: float
+    patches: int
+
+
+@dataclass(frozen=True)
+class SlowBendNull:
+    """Patches of a frame's support plane, for the bounds of :meth:`bound`.
+
+    Attributes
+    ----------
+    points : (P, 3) float64 [m]
+        A sample of the support's points (sensor at the origin).
+    normal : (3,) float64, unit
+        The support plane's normal.
+    noise : NoiseEstimate
+        The frame's noise (``sigma(z)`` scales the bends from range to range).
+    """
+
+    points: NDArray[np.float64]
+    normal: NDArray[np.float64]
+    noise: NoiseEstimate
+
+    @cached_property
+    def _tree(self) -> cKDTree:
+        return cKDTree(self.points)
+
+    @cached_property
+    def _centres(self) -> NDArray[np.float64]:
+        rng = np.random.default_rng(NULL_SEED)
+        pick = rng.choice(len(self.points), size=min(NULL_PATCHES, len(self.points)),
+                          replace=False)
+        return self.points[np.sort(pick)]
+
+    def bound(self, radius: float, depth: float) -> SlowBend:
+        """Bend of flat patches as large in the image as a disc of ``radius`` at ``depth``.
+
+        Parameters
+        ----------
+        radius : float [m]
+            Radius of the face's region whose bend is tested.
+        depth : float [m]
+            Its range from the sensor.
+
+        Returns
+        -------
+        SlowBend
+            Heights scaled to ``depth`` by sigma(depth) / sigma(patch range).
+        """
+        if radius <= 0.0 or depth <= 0.0:
+            return SlowBend(math.inf, 0.0, 0)
+        heights, turns = [], []
+        sigma = self.noise.sigma(depth)
+        for c in self._centres:
+            at = float(np.linalg.norm(c))
+            r = radius * at / depth
+            idx = self._tree.query_ball_point(c, r)
+            if len(idx) < MIN_PATCH_POINTS:
+                continue
+            pts = self.points[np.sort(idx)[:: max(1, len(idx) // PATCH_MAX_POINTS)]]
+            if np.linalg.norm(centroid(pts) - c) > MAX_PATCH_OFFSET * r:
+                continue
+            bend = face_bend(pts, self.normal)
+            heights.append(bend.height * sigma / max(self.noise.sigma(at), np.finfo(float).tiny))
+            turns.append(bend.turn)
+        if len(heights) < MIN_NULL_PATCHES:
+            return SlowBend(math.inf, 0.0, len(heights))
+        return SlowBend(float(max(heights)), float(np.median(turns)), len(heights))
+
+
+def slow_bend_null(points: NDArray[np.float64], labels: NDArray[np.int64],
+                   supports: dict[int, tuple[NDArray[np.float64], float]] | None,
+                   noise: NoiseEstimate | None) -> SlowBendNull | None:
+    """Return the null of the frame's largest support plane, or None without one.
+
+    Parameters
+    ----------
+    points : (N, 3) float64 [m]
+        The frame's points, sensor at the origin.
+    labels : (N,) int64
+        Object id per point; the supports' ids label their points.
+    supports : dict id -> (normal (3,), d)
+        Support planes n . x + d = 0.
+    noise : NoiseEstimate or None
+        The frame's noise; None (or an empty estimate) gives no null.
+    """
+    if not supports or noise is None or noise.samples == 0:
+        return None
+    counts = {k: int(np.count_nonzero(labels == k)) for k in supports}
+    best = max(counts, key=lambda k: counts[k])
+    rows = np.flatnonzero(labels == best)
+    if len(rows) < MIN_PATCH_POINTS * MIN_NULL_PATCHES:
+        return None
+    rows = rows[:: max(1, len(rows) // NULL_SAMPLE)]
+    pts = points[rows]
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    normal = np.asarray(supports[best][0], dtype=np.float64)
+    return SlowBendNull(pts, normal / np.linalg.norm(normal), noise)
+
+
+def bends_beyond(bend: FaceBend, null: SlowBend, min_arc: float) -> bool:
+    """Whether a face's ``bend`` goes beyond the frame's errors (``null``) and ``min_arc``.
+
+    Its height must exceed every flat patch's, and its turn ``min_arc`` [rad] plus the
+    patches' median turn (the part of an observed turn the errors alone give a patch of
+    that size): the least arc a round side must span to be verified as one, after the
+    errors.
+    """
+    return bend.height > null.height and bend.turn > min_arc + null.turn
