@@ -213,7 +213,8 @@ def _bent(points: NDArray[np.float64], mass: NDArray[np.float64], normal: NDArra
         return False
     bend = face_bend(points[inner], normal, mass[inner])
     depth = float(np.median(np.linalg.norm(points[inner], axis=1)))
-    return bends_beyond(bend, slow_null.bound(float(feat.radii[-1]), depth), params.min_arc)
+    null = slow_null.bound(float(feat.radii[-1]), depth, int(np.count_nonzero(inner)))
+    return bends_beyond(bend, null, params.min_arc)
 
 
 def _central(points: NDArray[np.float64], feat: FaceFeature) -> NDArray[np.bool_]:

@@ -8,12 +8,15 @@ null hypothesis is independent noise calls flat faces curved
 (:func:`~geomodel_ros.core.surface_type.face_bend`). Here the null hypothesis is "a plane
 plus this frame's errors", measured on the frame itself: patches of its largest support
 plane (desk, table, floor: flat, and seen by the same sensor) as large in the image as the
-face under test. The bend each patch shows (the quadric's RMS height over the plane, and
-the turn of its normal) is what the frame's errors alone produce there; it is scaled to
-the face's range by the ratio of the depth noise sigma(z) there and at the patch. A face
-bends beyond the errors when its bend height exceeds every patch's (a Monte-Carlo test at
-level 1 / (patches + 1)) and its turn exceeds ``min_arc`` by the patches' median turn
-(:func:`bends_beyond`).
+face under test, each sampled to as many points as the face's region has (the bend that
+independent noise leaves in a quadric grows as the points get fewer, and a face's points
+are voxel centroids, quieter than the support's raw points: the patches' bends are then
+at least the face's share of it). The bend each patch shows (the quadric's RMS height
+over the plane, and the turn of its normal) is what the frame's errors alone produce
+there; it is scaled to the face's range by the ratio of the depth noise sigma(z) there
+and at the patch. A face bends beyond the errors when its bend height exceeds every
+patch's (a Monte-Carlo test at level 1 / (patches + 1)) and its turn exceeds ``min_arc``
+after the patches' median turn (:func:`bends_beyond`).
 
 The correlation length of the errors is fixed in pixels (the sensor's), so a patch of the
 same angular size (radius over range) meets the same part of the error field whatever its
@@ -47,14 +50,13 @@ MIN_NULL_PATCHES = 10
 #: The support is sampled to about this many points (every k-th): patches of a few
 #: hundred points down to a tenth of a 640 x 480 image's width keep 20 points or more.
 NULL_SAMPLE = 20000
-#: A patch's bend is fitted to at most about this many of its points (every k-th): the
-#: height of a quadric over a few hundred points is known to a few per cent.
-PATCH_MAX_POINTS = 400
 #: A patch needs this many points for its quadric (six terms) to say anything.
 MIN_PATCH_POINTS = 20
-#: A patch whose points' centroid lies more than this share of its radius from its centre
-#: is cut by the support's border (a half disc's centroid lies 0.42 radii off): left out.
-MAX_PATCH_OFFSET = 1.0 / 3.0
+#: A patch whose points spread about their centroid by less than this share of a full
+#: disc's RMS radius (r / sqrt 2) is cut by the support's border and left out: a disc cut
+#: by a chord half a radius from its centre (80 % of it left) keeps 0.93 of the spread, a
+#: half disc 0.80, a patch larger than the whole support less.
+MIN_PATCH_SPREAD = 0.9
 #: Fixed seed of the patch centres: the null of a frame does not depend on the order in
 #: which objects are modeled, nor on their random streams.
 NULL_SEED = 20261202
@@ -108,7 +110,7 @@ class SlowBendNull:
                           replace=False)
         return self.points[np.sort(pick)]
 
-    def bound(self, radius: float, depth: float) -> SlowBend:
+    def bound(self, radius: float, depth: float, count: int) -> SlowBend:
         """Bend of flat patches as large in the image as a disc of ``radius`` at ``depth``.
 
         Parameters
@@ -117,6 +119,9 @@ class SlowBendNull:
             Radius of the face's region whose bend is tested.
         depth : float [m]
             Its range from the sensor.
+        count : int
+            Points of the face's region: each patch is sampled to about as many (every
+            k-th point); patches with fewer (or fewer than MIN_PATCH_POINTS) are left out.
 
         Returns
         -------
@@ -131,10 +136,12 @@ class SlowBendNull:
             at = float(np.linalg.norm(c))
             r = radius * at / depth
             idx = self._tree.query_ball_point(c, r)
-            if len(idx) < MIN_PATCH_POINTS:
+            if len(idx) < max(MIN_PATCH_POINTS, count):
                 continue
-            pts = self.points[np.sort(idx)[:: max(1, len(idx) // PATCH_MAX_POINTS)]]
-            if np.linalg.norm(centroid(pts) - c) > MAX_PATCH_OFFSET * r:
+            pts = self.points[np.sort(idx)[:: max(1, len(idx) // max(count, 1))]]
+            q = pts - centroid(pts)
+            if math.sqrt(float(np.mean(np.einsum("ij,ij->i", q, q)))) < \
+                    MIN_PATCH_SPREAD * r / math.sqrt(2.0):
                 continue
             bend = face_bend(pts, self.normal)
             heights.append(bend.height * sigma / max(self.noise.sigma(at), np.finfo(float).tiny))
@@ -178,8 +185,10 @@ def bends_beyond(bend: FaceBend, null: SlowBend, min_arc: float) -> bool:
     """Whether a face's ``bend`` goes beyond the frame's errors (``null``) and ``min_arc``.
 
     Its height must exceed every flat patch's, and its turn ``min_arc`` [rad] plus the
-    patches' median turn (the part of an observed turn the errors alone give a patch of
-    that size): the least arc a round side must span to be verified as one, after the
-    errors.
+    patches' median turn: the errors turn a patch of that size by about as much, and
+    where they turn the face the same way as its shape does, they add to its turn; a
+    turn that exceeds ``min_arc`` (the least arc a round side must span to be verified as
+    one) only by the errors' share may be a flat face's. (Taking the two as independent,
+    squares adding, called the handle of the PCL mug and box faces at 1.5 m curved.)
     """
     return bend.height > null.height and bend.turn > min_arc + null.turn
