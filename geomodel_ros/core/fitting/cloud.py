@@ -41,7 +41,9 @@ PLANAR_RMSE_SHARE = 0.5
 #: dominant plane is at most sqrt(2) times its local noise. Measured: synthetic frames
 #: with per-pixel noise 1.00-1.11; every real frame 1.6-2.5 (osd_learn Kinect 1.64-2.45,
 #: the PCL mug stereo 2.17, the pcl_scenes 2.03 and 2.44), where flat faces of 30-150 mm
-#: bend by 45-135 deg within their noise and the bend test would call them curved.
+#: bend by 45-135 deg within their noise and the F-test would call them curved. Above it
+#: a bend is judged against the bends the frame's slow errors give flat patches of its
+#: support (:mod:`~.slow_bend`).
 MAX_NOISE_CORRELATION = math.sqrt(2.0)
 #: Smallest norm of a curved face's mean normal that is divided by (guards a face whose
 #: normals cancel, which no real face has).
