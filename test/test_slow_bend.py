@@ -231,8 +231,10 @@ def test_fixed_noise_model_keeps_the_previous_decisions():
 
 def test_a_box_side_bent_over_an_edge_by_slow_errors_stays_a_box():
     # End to end at 1.5 m (seed 1): one of the box's faces runs over an edge into its
-    # neighbour and bends beyond the slow errors; the curved faces' curvatures then fit
-    # no round primitive, and the box of the flat cores is fitted.
+    # neighbour and bends about as far as the slow errors allow (turn 57 deg against
+    # min_arc 45 + 12). Either way the box stays a box: not bent, its faces are a box's;
+    # bent, the curved faces' curvatures fit no round primitive and the box of the flat
+    # cores is fitted.
     from geomodel_ros.core.modeling import model_scene
     from geomodel_ros.tools.synth.suite import SuiteCase, render_case
 
@@ -242,7 +244,6 @@ def test_a_box_side_bent_over_an_edge_by_slow_errors_stays_a_box():
     seg = np.bincount(labels[(scene.labels == 1) & (labels >= 0)]).argmax()
     box = next(o for o in result.objects if o.id == seg)
     assert str(box.type) == "cuboid", box.reason
-    assert "no round model explains the points" in box.reason
     # Its sizes (100 x 70 x 60 mm) within two of the frame's noise sigmas at its range
     # (6.3 mm along the rays at 1.4 m, the slow errors included).
     dims = sorted(box.dimensions.values())

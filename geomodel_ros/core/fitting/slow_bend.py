@@ -31,11 +31,8 @@ from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
-
-from geomodel_ros.core.fastmath import centroid
 from geomodel_ros.core.noise import NoiseEstimate
-from geomodel_ros.core.surface_type import FaceBend, face_bend
+from geomodel_ros.core.surface_type import FaceBend, patch_bends
 
 __all__ = ["NULL_PATCHES", "NULL_SAMPLE", "MIN_NULL_PATCHES", "SlowBend", "SlowBendNull",
            "slow_bend_null", "bends_beyond"]
@@ -100,15 +97,19 @@ class SlowBendNull:
     noise: NoiseEstimate
 
     @cached_property
-    def _tree(self) -> cKDTree:
-        return cKDTree(self.points)
-
-    @cached_property
     def _centres(self) -> NDArray[np.float64]:
         rng = np.random.default_rng(NULL_SEED)
         pick = rng.choice(len(self.points), size=min(NULL_PATCHES, len(self.points)),
                           replace=False)
         return self.points[np.sort(pick)]
+
+    @cached_property
+    def _squared_distances(self) -> NDArray[np.float64]:
+        """(C, P) squared distances [m^2] from the patch centres to the sample's points."""
+        c, p = self._centres, self.points
+        d2 = np.einsum("ij,ij->i", c, c)[:, None] + np.einsum("ij,ij->i", p, p)[None, :] \
+            - 2.0 * (c @ p.T)
+        return np.maximum(d2, 0.0)
 
     def bound(self, radius: float, depth: float, count: int) -> SlowBend:
         """Bend of flat patches as large in the image as a disc of ``radius`` at ``depth``.
@@ -120,35 +121,35 @@ class SlowBendNull:
         depth : float [m]
             Its range from the sensor.
         count : int
-            Points of the face's region: each patch is sampled to about as many (every
-            k-th point); patches with fewer (or fewer than MIN_PATCH_POINTS) are left out.
+            Points of the face's region: each patch is sampled to as many (evenly over
+            its points); patches with fewer are left out, and a region of fewer than
+            MIN_PATCH_POINTS gets no bound (infinite: too few points to judge).
 
         Returns
         -------
         SlowBend
             Heights scaled to ``depth`` by sigma(depth) / sigma(patch range).
         """
-        if radius <= 0.0 or depth <= 0.0:
+        if radius <= 0.0 or depth <= 0.0 or count < MIN_PATCH_POINTS:
             return SlowBend(math.inf, 0.0, 0)
-        heights, turns = [], []
-        sigma = self.noise.sigma(depth)
-        for c in self._centres:
-            at = float(np.linalg.norm(c))
-            r = radius * at / depth
-            idx = self._tree.query_ball_point(c, r)
-            if len(idx) < max(MIN_PATCH_POINTS, count):
-                continue
-            pts = self.points[np.sort(idx)[:: max(1, len(idx) // max(count, 1))]]
-            q = pts - centroid(pts)
-            if math.sqrt(float(np.mean(np.einsum("ij,ij->i", q, q)))) < \
-                    MIN_PATCH_SPREAD * r / math.sqrt(2.0):
-                continue
-            bend = face_bend(pts, self.normal)
-            heights.append(bend.height * sigma / max(self.noise.sigma(at), np.finfo(float).tiny))
-            turns.append(bend.turn)
-        if len(heights) < MIN_NULL_PATCHES:
-            return SlowBend(math.inf, 0.0, len(heights))
-        return SlowBend(float(max(heights)), float(np.median(turns)), len(heights))
+        at = np.linalg.norm(self._centres, axis=1)
+        r = radius * at / depth
+        inside = self._squared_distances <= (r * r)[:, None]
+        keep = np.flatnonzero(inside.sum(axis=1) >= count)
+        patches = np.array([self.points[np.flatnonzero(inside[i])[
+            np.linspace(0, np.count_nonzero(inside[i]) - 1, count).astype(np.int64)]]
+            for i in keep]).reshape(len(keep), count, 3)
+        # Patches cut by the support's border spread less than a full disc.
+        q = patches - patches.mean(axis=1, keepdims=True)
+        spread = np.sqrt(np.mean(np.einsum("pki,pki->pk", q, q), axis=1))
+        full = spread >= MIN_PATCH_SPREAD * r[keep] / math.sqrt(2.0)
+        if np.count_nonzero(full) < MIN_NULL_PATCHES:
+            return SlowBend(math.inf, 0.0, int(np.count_nonzero(full)))
+        height, turn = patch_bends(patches[full], self.normal)
+        sigma_at = np.maximum([self.noise.sigma(float(z)) for z in at[keep][full]],
+                              np.finfo(float).tiny)
+        height = height * self.noise.sigma(depth) / sigma_at
+        return SlowBend(float(height.max()), float(np.median(turn)), len(height))
 
 
 def slow_bend_null(points: NDArray[np.float64], labels: NDArray[np.int64],
