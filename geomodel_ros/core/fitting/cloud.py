@@ -214,6 +214,8 @@ def _bent(points: NDArray[np.float64], mass: NDArray[np.float64], normal: NDArra
     if not inner.any():
         return False
     bend = face_bend(points[inner], normal, mass[inner])
+    if bend.turn <= params.min_arc:
+        return False   # the limit is min_arc plus the errors' turn: no null needed
     depth = float(np.median(np.linalg.norm(points[inner], axis=1)))
     null = slow_null.bound(float(feat.radii[-1]), depth, int(np.count_nonzero(inner)))
     return bends_beyond(bend, null, params.min_arc)
