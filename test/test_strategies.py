@@ -201,3 +201,15 @@ def test_the_box_of_flat_cores_needs_a_round_model_that_does_not_explain_the_poi
         Rejected(PrimitiveType.CONE, "scatter", misfit=True)])
     assert scattered.round_misfit
     assert scattered.box_rival is None and not BoxOfFlatCores().applies(scattered)
+
+
+def test_the_box_of_flat_cores_is_tried_when_the_curvatures_fit_no_round_shape():
+    # No round shape at all (the curved faces' curvatures fit no primitive) counts like a
+    # round model that does not explain the points; candidates left to try, or an object
+    # judged by its planar faces alone, do not.
+    cloud = cloud_of(plane_points())
+    assert Situation(cloud, decision("curved", [])).no_round_shape
+    assert not Situation(cloud, decision("curved", ["cylinder"])).no_round_shape
+    assert not Situation(cloud, decision("planar", [], 0)).no_round_shape
+    # The flat plate has no box rival: the strategy still needs one.
+    assert not BoxOfFlatCores().applies(Situation(cloud, decision("curved", [])))

@@ -25,7 +25,9 @@ from scipy.spatial import cKDTree
 from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, with_confidence
 from geomodel_ros.core.errors import InputError, as_points
 from geomodel_ros.core.fastmath import centroid, single_threaded_blas, take_rows
-from geomodel_ros.core.fitting.cloud import SUPPORT_END_FACTOR, ObjectCloud, Plane, build_faces
+from geomodel_ros.core.fitting.cloud import (SUPPORT_END_FACTOR, ObjectCloud, Plane, build_faces,
+                                             independent_noise)
+from geomodel_ros.core.fitting.slow_bend import SlowBendNull, slow_bend_null
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategies
 from geomodel_ros.core.input import downsample, in_range, working_params
@@ -124,7 +126,7 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
                  rng: np.random.Generator, spacing: float,
                  face_labels: NDArray[np.int64] | None = None,
                  supports: tuple[Plane, ...] = (), view: SceneView | None = None,
-                 correlation: float = 1.0) -> Primitive:
+                 correlation: float = 1.0, slow_null: SlowBendNull | None = None) -> Primitive:
     """Model one segmented object.
 
     Parameters
@@ -145,17 +147,20 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
     correlation : float, >= 1
         The frame's ratio of slow to local depth noise (``NoiseEstimate.scale``), which the
         surface-type bend test allows for; 1 without an estimate.
+    slow_null : SlowBendNull, optional
+        The bends the frame's slow errors give flat patches of its support, against which
+        the bend test judges faces where ``correlation`` is high.
 
     The result's ``confidence`` is measured with ``ransac_threshold`` as the noise scale.
     """
     why = _degenerate(points, params)
     if why:
         return _unknown(object_id, points, why)
-    wc, faces, adjacency = build_faces(points, params, face_labels, correlation)
+    wc, faces, adjacency = build_faces(points, params, face_labels, correlation, slow_null)
     if len(wc.points) < MIN_WORKING_POINTS or not faces:
         return _unknown(object_id, points, "too few distinct points after voxelization")
     cloud = ObjectCloud(object_id, points, wc, faces, adjacency, spacing, params, rng, supports,
-                        view, correlation)
+                        view, correlation, slow_null)
     prim, summaries, reasons = run_strategies(Situation(cloud, decide(cloud)))
     if prim is not None:
         prim = with_confidence(prim, points, params.ransac_threshold)
@@ -222,7 +227,8 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
                   flab: NDArray[np.int64] | None, params: ModelingParams,
                   rng: np.random.Generator, supports: dict[int, Plane] | None,
                   view: SceneView | None = None,
-                  noise: NoiseEstimate | None = None) -> list[Primitive]:
+                  noise: NoiseEstimate | None = None,
+                  slow_null: SlowBendNull | None = None) -> list[Primitive]:
     """Model each group ``order[starts[k]:ends[k]]`` as object ``ids[k]``, in parallel.
 
     With a ``noise`` estimate each object gets its tolerances at its own range
@@ -243,7 +249,7 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
         oparams = params if noise is None else object_params(params, noise, *object_range(opts))
         return model_object(opts, oid, oparams, orng, estimate_spacing(opts, orng),
                             None if flab is None else flab[sel], planes, view,
-                            1.0 if noise is None else max(noise.scale, 1.0))
+                            1.0 if noise is None else max(noise.scale, 1.0), slow_null)
 
     workers = min(len(ids), os.cpu_count() or 1)
     if workers <= 1:
@@ -319,8 +325,11 @@ def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArr
         # Hidden ends are completed only where the sensor sits at the origin.
         view = SceneView(pts, lab, params.max_range) if supports and \
             params.reproject_along_rays else None
+        # Slow sensor errors: the bend test's null from the frame's support (slow_bend).
+        null = None if noise is None or independent_noise(params, noise.scale) else \
+            slow_bend_null(pts, lab, supports, noise)
         objects = _model_groups(pts, order, ids, (starts, ends), flab, params, rng, supports,
-                                view, noise)
+                                view, noise, null)
     return ModelingResult(objects, {"modeling_s": time.perf_counter() - t0}, noise=noise)
 
 

@@ -13,6 +13,7 @@ from geomodel_ros.core.faces import (WorkingCloud, build_working_cloud, face_pla
                                      faces_from_labels, split_faces, split_plane_unions)
 from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.fitting.orient import toward_sensor
+from geomodel_ros.core.fitting.slow_bend import SlowBendNull, bends_beyond
 from geomodel_ros.core.model_graph import FaceInfo
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary
@@ -40,7 +41,9 @@ PLANAR_RMSE_SHARE = 0.5
 #: dominant plane is at most sqrt(2) times its local noise. Measured: synthetic frames
 #: with per-pixel noise 1.00-1.11; every real frame 1.6-2.5 (osd_learn Kinect 1.64-2.45,
 #: the PCL mug stereo 2.17, the pcl_scenes 2.03 and 2.44), where flat faces of 30-150 mm
-#: bend by 45-135 deg within their noise and the bend test would call them curved.
+#: bend by 45-135 deg within their noise and the F-test would call them curved. Above it
+#: a bend is judged against the bends the frame's slow errors give flat patches of its
+#: support (:mod:`~.slow_bend`).
 MAX_NOISE_CORRELATION = math.sqrt(2.0)
 #: Smallest norm of a curved face's mean normal that is divided by (guards a face whose
 #: normals cancel, which no real face has).
@@ -84,6 +87,8 @@ class ObjectCloud:
         hidden ends; None when unknown
     correlation : float, the frame's ratio of slow to local depth noise
         (``NoiseEstimate.scale``; 1 without an estimate)
+    slow_null : SlowBendNull or None, the bends the frame's slow errors give flat patches
+        of its support (:mod:`~.slow_bend`); None without a support or an estimate
     center : (3,) float64 [m], centroid of ``points``
     """
 
@@ -98,6 +103,7 @@ class ObjectCloud:
     supports: tuple[Plane, ...] = ()
     view: SceneView | None = None
     correlation: float = 1.0
+    slow_null: SlowBendNull | None = None
     center: NDArray[np.float64] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -179,25 +185,46 @@ def independent_noise(params: ModelingParams, correlation: float) -> bool:
 
 
 def _bent(points: NDArray[np.float64], mass: NDArray[np.float64], normal: NDArray[np.float64],
-          feat: FaceFeature, params: ModelingParams, correlation: float) -> bool:
+          feat: FaceFeature, params: ModelingParams, correlation: float,
+          slow_null: SlowBendNull | None = None) -> bool:
     """Whether a face (working points (m, 3), ``mass`` (m,)) bends beyond its noise.
 
-    Significantly (:func:`~geomodel_ros.core.surface_type.face_bend`) and with normals
-    turning across it by more than ``min_arc``, the least arc a round side must span to
-    be verified as one (a face that turns less cannot be a round side by itself; measured:
-    flat box faces of real Kinect frames (osd_learn) turn by up to 38 deg, synthetic ones
-    under Kinect-class noise by up to 12 deg, the sides of cylinders, cones, frustums and
-    spheres 60 mm across at 0.5-1.5 m mostly by 45-95 deg), judged like the CF (paper
-    3.1) on its points within the largest CF radius of the face centre (``feat``): a strip
-    of a neighbouring face or a rounded edge along the border does not bend a flat face.
-    ``correlation`` is the frame's ratio of slow to local noise (``NoiseEstimate.scale``).
-    Only where :func:`independent_noise` holds (never with ``noise_model = fixed``, which
-    keeps the previous decision exactly).
+    Significantly and with normals turning across it by more than ``min_arc``, the least
+    arc a round side must span to be verified as one (a face that turns less cannot be a
+    round side by itself; measured: flat box faces of real Kinect frames (osd_learn) turn
+    by up to 38 deg, synthetic ones under Kinect-class noise by up to 12 deg, the sides of
+    cylinders, cones, frustums and spheres 60 mm across at 0.5-1.5 m mostly by 45-95
+    deg), judged like the CF (paper 3.1) on its points within the largest CF radius of the
+    face centre (``feat``): a strip of a neighbouring face or a rounded edge along the
+    border does not bend a flat face. Significantly means: where the noise is independent
+    (:func:`independent_noise`), by the F-test of
+    :func:`~geomodel_ros.core.surface_type.face_bend`; where the frame's noise varies
+    slowly across the image (``correlation``, ``NoiseEstimate.scale``, above
+    MAX_NOISE_CORRELATION), beyond the bends those errors give flat patches of the frame's
+    support of the same size in the image (``slow_null``, :mod:`~.slow_bend`); without
+    such a null, or with ``noise_model = fixed`` (which keeps the previous decision
+    exactly), never.
     """
-    if not independent_noise(params, correlation):
+    if independent_noise(params, correlation):
+        bend = central_bend(points, mass, normal, feat, correlation)
+        return bend.significant and bend.turn > params.min_arc
+    if params.noise_model != "auto" or slow_null is None:
         return False
-    bend = central_bend(points, mass, normal, feat, correlation)
-    return bend.significant and bend.turn > params.min_arc
+    inner = _central(points, feat)
+    if not inner.any():
+        return False
+    bend = face_bend(points[inner], normal, mass[inner])
+    if bend.turn <= params.min_arc:
+        return False   # the limit is min_arc plus the errors' turn: no null needed
+    depth = float(np.median(np.linalg.norm(points[inner], axis=1)))
+    null = slow_null.bound(float(feat.radii[-1]), depth, int(np.count_nonzero(inner)))
+    return bends_beyond(bend, null, params.min_arc)
+
+
+def _central(points: NDArray[np.float64], feat: FaceFeature) -> NDArray[np.bool_]:
+    """Mask (m,) of a face's ``points`` (m, 3) within the largest CF radius of its centre."""
+    q = points - feat.center
+    return np.einsum("ij,ij->i", q, q) <= feat.radii[-1] ** 2
 
 
 def central_bend(points: NDArray[np.float64], mass: NDArray[np.float64],
@@ -208,16 +235,17 @@ def central_bend(points: NDArray[np.float64], mass: NDArray[np.float64],
     centre (``feat``, paper 3.1), so that a strip of a neighbouring face or a rounded edge
     along the border does not bend a flat face; ``normal`` is the face plane's.
     """
-    q = points - feat.center
-    inner = np.einsum("ij,ij->i", q, q) <= feat.radii[-1] ** 2
+    inner = _central(points, feat)
     return face_bend(points[inner], normal, mass[inner], correlation=correlation)
 
 
 def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.int64],
-                   params: ModelingParams, correlation: float = 1.0) -> ObjectFace:
+                   params: ModelingParams, correlation: float = 1.0,
+                   slow_null: SlowBendNull | None = None) -> ObjectFace:
     """Surface type, normal and plane of the face with working points ``widx``.
 
-    ``correlation``: the frame's ratio of slow to local noise (see :func:`_bent`).
+    ``correlation``: the frame's ratio of slow to local noise, ``slow_null`` the bends of
+    its slow errors (see :func:`_bent`).
     """
     # Eqs. 1-6 on the face's voxel centroids weighted by the points each stands for
     # (the full-resolution covariance at a fraction of the cost).
@@ -226,7 +254,7 @@ def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.i
     plane, plane_rmse = face_plane(wc.points[widx], wc.normals[widx], params.ransac_threshold)
     planar = _checked_planar(feat.planar, plane_rmse, params.ransac_threshold,
                              lambda: _bent(wc.points[widx], wc.counts[widx], plane.normal,
-                                           feat, params, correlation))
+                                           feat, params, correlation, slow_null))
     center = wc.counts[widx] @ wc.points[widx] / max(int(wc.counts[widx].sum()), 1)
     if planar:
         normal = toward_sensor(plane.normal, center)
@@ -248,13 +276,15 @@ def _grouped(labels: NDArray[np.int64], count: int) -> tuple[NDArray[np.int64],
 
 
 def build_faces(points: NDArray[np.float64], params: ModelingParams,
-                face_labels: NDArray[np.int64] | None, correlation: float = 1.0
+                face_labels: NDArray[np.int64] | None, correlation: float = 1.0,
+                slow_null: SlowBendNull | None = None
                 ) -> tuple[WorkingCloud, list[ObjectFace], NDArray[np.bool_]]:
     """Working cloud, described faces and face adjacency (F, F) of an object's ``points``.
 
     Faces come from ``face_labels`` (N,) when given, else from region growing.
     ``correlation`` (>= 1) is the frame's ratio of slow to local depth noise
-    (``NoiseEstimate.scale``; 1 without an estimate), which the bend test allows for.
+    (``NoiseEstimate.scale``; 1 without an estimate) and ``slow_null`` the bends its slow
+    errors give flat patches (:mod:`~.slow_bend`), which the bend test allows for.
     """
     wc = build_working_cloud(points, params.voxel_size, params.normal_neighbors, face_labels,
                              params.max_working_points)
@@ -268,7 +298,7 @@ def build_faces(points: NDArray[np.float64], params: ModelingParams,
     order, bounds = _grouped(fs.labels[wc.point_to_working], fs.count)
     worder, wbounds = _grouped(fs.labels, fs.count)
     faces = [_describe_face(wc, worder[wbounds[f]:wbounds[f + 1]],
-                            order[bounds[f]:bounds[f + 1]], params, correlation)
+                            order[bounds[f]:bounds[f + 1]], params, correlation, slow_null)
              for f in range(fs.count)]
     return wc, faces, fs.adjacency
 

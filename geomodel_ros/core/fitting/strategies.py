@@ -135,6 +135,12 @@ class Situation:
         return any(r.misfit and r.type in ROUND_TYPES for r in self.rejected)
 
     @property
+    def no_round_shape(self) -> bool:
+        """Whether the curved faces' curvatures fit no primitive (no candidate to fit)."""
+        d = self.fit_decision
+        return d.category == "curved" and not d.candidates
+
+    @property
     def mixed_without_rule(self) -> bool:
         """Whether the planar faces fit no rule with the curved ones (no candidate)."""
         return not self.decision.candidates and self.decision.category == "mixed"
@@ -486,16 +492,21 @@ class BoxOfFlatCores:
     A round fit that verifies competes with this box in :func:`prefer_box`. When no
     round fit verified and a round model was found that does not explain the points
     (``Rejected.misfit``: too few inliers, or a scatter beyond the measured noise; e.g. a
-    carton whose gable merged with a side into one curved face), the box is fitted on its
-    own and kept if it passes the cuboid unit's verification. Objects without such a
-    round model or without flat cores aligned as a box are not given a box this way.
+    carton whose gable merged with a side into one curved face), or the curved faces'
+    curvatures fit no round primitive at all (``Situation.no_round_shape``: e.g. a box
+    side bent over an edge into its neighbour by sensor errors, whose principal
+    curvatures are neither developable nor spherical), the box is fitted on its own and
+    kept if it passes the cuboid unit's verification. Objects with a round shape that
+    was not rejected as a misfit, or without flat cores aligned as a box, are not given a
+    box this way.
     """
 
     name = "box of the flat cores"
 
     def applies(self, situation: Situation) -> bool:
-        """Return True when a round model did not explain the points and a box rival exists."""
-        return situation.round_misfit and situation.box_rival is not None
+        """Return True when no round model explains the points and a box rival exists."""
+        return (situation.round_misfit or situation.no_round_shape) and \
+            situation.box_rival is not None
 
     def attempt(self, situation: Situation) -> Attempt:
         """Fit the cuboid to the box rival's sides."""
