@@ -111,17 +111,23 @@ def slow_taper(null: SlowBendNull, end_a: NDArray[np.float64], end_b: NDArray[np
     depth = float(np.linalg.norm((end_a + end_b) / 2.0))
     if radius <= 0.0 or depth <= 0.0:
         return math.inf
-    ua, ub = _unit(np.asarray(end_a, float)), _unit(np.asarray(end_b, float))
-    half = (ub - ua) / 2.0
+    half = (_unit(np.asarray(end_b, float)) - _unit(np.asarray(end_a, float))) / 2.0
     pick = np.random.default_rng(NULL_SEED).permutation(len(null.points))[:CANDIDATE_CENTRES]
-    centres = null.points[pick]
     u, err = _range_errors(null)
-    mean_a, ok_a = _end_means(u, err, _unit(_unit(centres) - half), radius / depth)
-    mean_b, ok_b = _end_means(u, err, _unit(_unit(centres) + half), radius / depth)
-    ok = np.flatnonzero(ok_a & ok_b)[:NULL_PATCHES]
-    if len(ok) < MIN_NULL_PATCHES:
+    at, delta = [], []
+    # Chunks of NULL_PATCHES candidates until as many pairs are usable: a (chunk, P) matrix
+    # at a time, and usually one or two chunks.
+    for start in range(0, len(pick), NULL_PATCHES):
+        centres = null.points[pick[start:start + NULL_PATCHES]]
+        mean_a, ok_a = _end_means(u, err, _unit(_unit(centres) - half), radius / depth)
+        mean_b, ok_b = _end_means(u, err, _unit(_unit(centres) + half), radius / depth)
+        ok = ok_a & ok_b
+        at.extend(np.linalg.norm(centres[ok], axis=1))
+        delta.extend(np.abs(mean_a[ok] - mean_b[ok]))
+        if len(delta) >= NULL_PATCHES:
+            break
+    if len(delta) < MIN_NULL_PATCHES:
         return math.inf
-    at = np.linalg.norm(centres[ok], axis=1)
+    at, delta = np.array(at[:NULL_PATCHES]), np.array(delta[:NULL_PATCHES])
     sigma_at = np.maximum([null.noise.sigma(float(z)) for z in at], np.finfo(float).tiny)
-    delta = np.abs(mean_a[ok] - mean_b[ok]) * null.noise.sigma(depth) / sigma_at
-    return float(delta.max())
+    return float(np.max(delta * null.noise.sigma(depth) / sigma_at))
