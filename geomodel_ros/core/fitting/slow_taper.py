@@ -78,7 +78,7 @@ def _end_means(u: NDArray[np.float64], err: NDArray[np.float64], ends: NDArray[n
     Returns the means (E,) and whether each disc is usable (MIN_PATCH_POINTS points or more,
     not cut by the support's border: :data:`MAX_END_OFFSET`).
     """
-    inside = (ends @ u.T) >= math.cos(width)
+    inside = ((ends @ u.T) >= math.cos(width)).astype(np.float64)   # BLAS products below
     count = inside.sum(axis=1)
     safe = np.maximum(count, 1)
     mean = (inside @ err) / safe
