@@ -117,7 +117,7 @@ def test_a_taper_of_at_most_two_thresholds_is_left_to_the_cylinder():
     assert FRUSTUM_MIN_TAPER == 2.0
     out = frustum_sizes(cone, 0.6, 1.0, 0.002)
     assert isinstance(out, Rejected) and out.reason == (
-        "frustum rejected: its radii differ by 4.0 mm only (a cylinder)")
+        "frustum rejected: its radii differ by 4.0 mm only, within 4.0 mm (a cylinder)")
     dims = frustum_sizes(cone, 0.6, 1.0, 0.0019)
     assert dims == pytest.approx({"radius": 0.01, "top_radius": 0.006, "height": 0.4})
 

@@ -21,7 +21,7 @@ from geomodel_ros.core.surface_type import FaceBend, FaceFeature, face_bend, fac
 from geomodel_ros.core.view import SceneView
 
 __all__ = ["Plane", "ObjectFace", "ObjectCloud", "build_faces", "as_planar",
-           "independent_noise", "central_bend", "MAX_NOISE_CORRELATION"]
+           "independent_noise", "central_bend", "bends_beyond_noise", "MAX_NOISE_CORRELATION"]
 
 #: A plane n . x + d = 0: (unit normal (3,), offset d [m]).
 Plane = tuple[NDArray[np.float64], float]
@@ -237,6 +237,33 @@ def central_bend(points: NDArray[np.float64], mass: NDArray[np.float64],
     """
     inner = _central(points, feat)
     return face_bend(points[inner], normal, mass[inner], correlation=correlation)
+
+
+def bends_beyond_noise(points: NDArray[np.float64], mass: NDArray[np.float64],
+                       normal: NDArray[np.float64], feat: FaceFeature, params: ModelingParams,
+                       correlation: float, slow_null: SlowBendNull | None) -> bool:
+    """Whether a face's central region bends beyond its noise, whatever its turn.
+
+    The working points (m, 3) with ``mass`` (m,) within the largest CF radius of the
+    face centre (``feat``); ``normal`` is the face plane's. Where the noise is independent
+    (:func:`independent_noise`), the F-test of
+    :func:`~geomodel_ros.core.surface_type.face_bend`; under slow sensor errors
+    (``correlation`` above MAX_NOISE_CORRELATION), a bend height above every flat patch's
+    of the frame's support as large in the image (``slow_null``,
+    :meth:`~.slow_bend.SlowBendNull.bound`); without that null, or with ``noise_model =
+    fixed``, never.
+    """
+    if independent_noise(params, correlation):
+        return central_bend(points, mass, normal, feat, correlation).significant
+    if params.noise_model != "auto" or slow_null is None:
+        return False
+    inner = _central(points, feat)
+    if not inner.any():
+        return False
+    bend = face_bend(points[inner], normal, mass[inner])
+    depth = float(np.median(np.linalg.norm(points[inner], axis=1)))
+    null = slow_null.bound(float(feat.radii[-1]), depth, int(np.count_nonzero(inner)))
+    return bend.height > null.height
 
 
 def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.int64],

@@ -6,6 +6,12 @@ of that cone's apex: their extent along the axis, from ``lo`` to ``hi`` measured
 apex, has ``lo > FRUSTUM_MIN_TOP_RATIO * hi``. Caps, supports and the edge correction
 close the ends as for cylinders and cones (:func:`~.axial.axial_extent`).
 
+Taper: the radii must differ by more than a cylinder's could appear to under the frame's
+noise (:func:`taper_minimum`): FRUSTUM_MIN_TAPER inlier bands where the noise is
+independent; under slow sensor errors that many bands of the local noise, and beyond the
+apparent taper those errors give a cylinder of the same size in the image, measured on
+the frame's support (:func:`~.slow_taper.slow_taper`).
+
 Sizes: ``radius`` of the base (the larger circle, at ``hi``), ``top_radius`` of the
 smaller circle (at ``lo``, nearer the apex) and ``height = hi - lo``; centre at the
 midpoint of the axis segment, rotation z from the base towards the top (towards the apex,
@@ -18,17 +24,19 @@ import dataclasses
 import math
 
 
-from geomodel_ros.core.fitting.cloud import ObjectCloud
+from geomodel_ros.core.fitting.cloud import ObjectCloud, independent_noise
 from geomodel_ros.core.fitting.cone import fit_cone_side
 from geomodel_ros.core.fitting.measure import bulk_extent, bulk_reach
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
+from geomodel_ros.core.fitting.slow_taper import slow_taper
 from geomodel_ros.core.fitting.verify import (CONE_APEX_REACH, check_bulk_length,
                                               check_bulk_reach, check_radius)
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.core.ransac import ConeModel
 
-__all__ = ["FRUSTUM_MIN_TOP_RATIO", "FRUSTUM_MIN_TAPER", "frustum_sizes", "fit_frustum"]
+__all__ = ["FRUSTUM_MIN_TOP_RATIO", "FRUSTUM_MIN_TAPER", "frustum_sizes", "taper_minimum",
+           "fit_frustum"]
 
 FRUSTUM = PrimitiveType.FRUSTUM
 #: A frustum's top radius is more than this share of its base radius: its points stop
@@ -46,14 +54,15 @@ FRUSTUM_MIN_TOP_RATIO = CONE_APEX_REACH
 FRUSTUM_MIN_TAPER = 2.0
 
 
-def frustum_sizes(model: ConeModel, lo: float, hi: float, threshold: float
-                  ) -> dict[str, float] | Rejected:
+def frustum_sizes(model: ConeModel, lo: float, hi: float, threshold: float,
+                  min_taper: float | None = None) -> dict[str, float] | Rejected:
     """Sizes [m] of the frustum of ``model`` between ``lo`` and ``hi`` [m] from its apex.
 
     Returns ``{"radius", "top_radius", "height"}`` (base = the circle at ``hi``), or the
     rejection when the points reach within FRUSTUM_MIN_TOP_RATIO of ``hi`` of the apex
     (a cone) or lie on both sides of it, or when the radii differ by at most
-    FRUSTUM_MIN_TAPER times ``threshold`` [m] (the RANSAC threshold: a cylinder).
+    ``min_taper`` [m] (default FRUSTUM_MIN_TAPER times ``threshold`` [m], the RANSAC
+    threshold; see :func:`taper_minimum`): a cylinder.
     """
     if hi <= 0 or lo <= FRUSTUM_MIN_TOP_RATIO * hi:
         return Rejected(FRUSTUM, f"frustum rejected: its points reach {max(lo, 0.0) * 1000:.0f}"
@@ -61,9 +70,10 @@ def frustum_sizes(model: ConeModel, lo: float, hi: float, threshold: float
                                  "(a cone)")
     slope = math.tan(model.half_angle)
     taper = (hi - lo) * slope
-    if taper <= FRUSTUM_MIN_TAPER * threshold:
+    least = FRUSTUM_MIN_TAPER * threshold if min_taper is None else min_taper
+    if taper <= least:
         return Rejected(FRUSTUM, f"frustum rejected: its radii differ by {taper * 1000:.1f} mm "
-                                 "only (a cylinder)")
+                                 f"only, within {least * 1000:.1f} mm (a cylinder)")
     return {"radius": hi * slope, "top_radius": lo * slope, "height": hi - lo}
 
 
@@ -80,13 +90,35 @@ def _own_stream(cloud: ObjectCloud) -> ObjectCloud:
     return dataclasses.replace(cloud, rng=child)
 
 
+def taper_minimum(cloud: ObjectCloud, model: ConeModel, lo: float, hi: float) -> float:
+    """Least taper [m] of a frustum of ``model`` from ``lo`` to ``hi`` [m] from its apex.
+
+    FRUSTUM_MIN_TAPER RANSAC thresholds where the noise is independent
+    (:func:`~.cloud.independent_noise`), with ``noise_model = fixed``, or without a
+    measured null of the frame's slow errors. Under slow errors the threshold is inflated
+    by their scale (``cloud.correlation``): the least taper is then FRUSTUM_MIN_TAPER
+    thresholds of the local noise (the threshold over that scale) or the apparent taper
+    the slow errors give a cylinder of this size in the image
+    (:func:`~.slow_taper.slow_taper`), whichever is larger.
+    """
+    params = cloud.params
+    band = FRUSTUM_MIN_TAPER * params.ransac_threshold
+    if independent_noise(params, cloud.correlation) or params.noise_model != "auto" or \
+            cloud.slow_null is None:
+        return band
+    ends = model.apex + model.axis * lo, model.apex + model.axis * hi
+    radius = (lo + hi) / 2.0 * math.tan(model.half_angle)
+    return max(band / cloud.correlation, slow_taper(cloud.slow_null, *ends, radius))
+
+
 def _sized(task: FitTask, model: ConeModel, lo: float, hi: float) -> dict[str, float] | Rejected:
     """Sizes [m] of the frustum whose points run from ``lo`` to ``hi`` from the apex, checked."""
     points = task.cloud.points
     bad = check_bulk_length(hi - lo, bulk_extent(points, model.axis), FRUSTUM)
     if bad:
         return bad
-    dims = frustum_sizes(model, lo, hi, task.cloud.params.ransac_threshold)
+    dims = frustum_sizes(model, lo, hi, task.cloud.params.ransac_threshold,
+                         taper_minimum(task.cloud, model, lo, hi))
     if isinstance(dims, Rejected):
         return dims
     bad = check_radius(dims["radius"], task.cloud.params, FRUSTUM) or \

@@ -23,8 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fastmath import centroid
-from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar, central_bend,
-                                             independent_noise)
+from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
+                                             bends_beyond_noise)
 from geomodel_ros.core.confidence import surface_distance
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.result import Rejected
@@ -440,10 +440,12 @@ class PlanarPatchesOfCurvedObjects:
     face bends significantly beyond the noise in its central region (``cloud.
     central_bend``; a face that does not is a true flat end, a lid or base, and the mixed
     rules stand). The fits' own
-    checks (inliers and scatter against the noise) still apply. Only where the noise is
-    measured and independent (:func:`~.cloud.independent_noise`: slow errors of real
-    sensors make flat patches look round as well; ``fixed`` keeps the previous
-    strategies exactly).
+    checks (inliers and scatter against the noise) still apply. The bend is judged
+    against the frame's noise as measured (:func:`~.cloud.bends_beyond_noise`): by its
+    significance where the noise is independent, and where slow sensor errors bend flat
+    patches as well, beyond the bends they give flat patches of the frame's support as
+    large in the image (:mod:`~.slow_bend`); ``fixed`` keeps the previous strategies
+    exactly.
     """
 
     name = "planar patches of a curved object"
@@ -452,8 +454,7 @@ class PlanarPatchesOfCurvedObjects:
         """Return True for a mixed object, mostly curved, whose planar faces all bend."""
         cloud = situation.cloud
         faces = cloud.faces
-        if situation.decision.category != "mixed" or \
-                not independent_noise(cloud.params, cloud.correlation):
+        if situation.decision.category != "mixed" or cloud.params.noise_model != "auto":
             return False
         curved = sum(f.info.size for f in faces if not f.info.planar)
         if curved <= CURVED_MAJORITY * sum(f.info.size for f in faces):
@@ -466,7 +467,8 @@ class PlanarPatchesOfCurvedObjects:
             pts, mass = wc.points[f.working], wc.counts[f.working]
             feat = face_feature(pts, params.cf_weights, params.cf_threshold,
                                 params.cf_radius_fraction, mass)
-            if not central_bend(pts, mass, f.info.normal, feat, cloud.correlation).significant:
+            if not bends_beyond_noise(pts, mass, f.info.normal, feat, params,
+                                      cloud.correlation, cloud.slow_null):
                 return False
         return True
 
