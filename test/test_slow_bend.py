@@ -23,6 +23,7 @@ from geomodel_ros.core.fitting.slow_bend import (MIN_NULL_PATCHES, MIN_PATCH_POI
 from geomodel_ros.core.noise import NoiseEstimate
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.surface_type import FaceBend, face_bend
+from suite_helpers import suite_true_labels
 
 MM = 1e-3
 DEPTH = 1.0
@@ -189,19 +190,9 @@ def test_the_null_comes_from_the_largest_support_and_needs_one():
 
 
 def _suite(layout, distance, seed=1, params=None):
-    from geomodel_ros.core.modeling import model_objects
-    from geomodel_ros.tools.synth.suite import SuiteCase, render_case
-
-    scene = render_case(SuiteCase(layout, distance, "kinect-real", seed))
-    ok = np.all(np.isfinite(scene.points), axis=1)
-    desk = scene.points[ok & (scene.labels == 0)]
-    c = desk.mean(axis=0)
-    n = np.linalg.svd(desk - c, full_matrices=False)[2][2]
-    n = -n if n @ c > 0 else n
-    result = model_objects(scene.points, np.where(ok, scene.labels, -1),
-                           params or ModelingParams(), supports={0: (n, float(-n @ c))})
-    return {o.id: str(o.type) for o in result.objects}, \
-        {g.id: g.type for g in scene.objects}, result
+    objects, truth, result = suite_true_labels(layout, distance, seed=seed, params=params)
+    return {i: str(o.type) for i, o in objects.items()}, \
+        {i: g.type for i, g in truth.items()}, result
 
 
 def test_correlated_noise_keeps_cone_and_lying_cylinder_round():

@@ -27,6 +27,7 @@ from geomodel_ros.core.fitting.slow_taper import slow_taper
 from geomodel_ros.core.noise import NoiseEstimate
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import ConeModel
+from suite_helpers import suite_true_labels
 
 MM = 1e-3
 DEPTH = 1.0
@@ -155,18 +156,7 @@ def test_a_taper_beyond_the_minimum_is_a_frustum_one_within_it_a_cylinder():
 
 
 def _suite(layout, distance, seed=1):
-    from geomodel_ros.core.modeling import model_objects
-    from geomodel_ros.tools.synth.suite import SuiteCase, render_case
-
-    scene = render_case(SuiteCase(layout, distance, "kinect-real", seed))
-    ok = np.all(np.isfinite(scene.points), axis=1)
-    desk = scene.points[ok & (scene.labels == 0)]
-    c = desk.mean(axis=0)
-    n = np.linalg.svd(desk - c, full_matrices=False)[2][2]
-    n = -n if n @ c > 0 else n
-    result = model_objects(scene.points, np.where(ok, scene.labels, -1), ModelingParams(),
-                           supports={0: (n, float(-n @ c))})
-    return {o.id: o for o in result.objects}, {g.id: g for g in scene.objects}, result
+    return suite_true_labels(layout, distance, seed=seed)
 
 
 def test_frustums_with_real_camera_errors_are_frustums():

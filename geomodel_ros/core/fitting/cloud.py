@@ -13,7 +13,7 @@ from geomodel_ros.core.faces import (WorkingCloud, build_working_cloud, face_pla
                                      faces_from_labels, split_faces, split_plane_unions)
 from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.fitting.orient import toward_sensor
-from geomodel_ros.core.fitting.slow_bend import SlowBendNull, bends_beyond
+from geomodel_ros.core.fitting.slow_bend import SlowBend, SlowBendNull, bends_beyond
 from geomodel_ros.core.model_graph import FaceInfo
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary
@@ -216,9 +216,18 @@ def _bent(points: NDArray[np.float64], mass: NDArray[np.float64], normal: NDArra
     bend = face_bend(points[inner], normal, mass[inner])
     if bend.turn <= params.min_arc:
         return False   # the limit is min_arc plus the errors' turn: no null needed
-    depth = float(np.median(np.linalg.norm(points[inner], axis=1)))
-    null = slow_null.bound(float(feat.radii[-1]), depth, int(np.count_nonzero(inner)))
-    return bends_beyond(bend, null, params.min_arc)
+    return bends_beyond(bend, _slow_bound(points[inner], feat, slow_null), params.min_arc)
+
+
+def _slow_bound(inner: NDArray[np.float64], feat: FaceFeature, slow_null: SlowBendNull
+                ) -> SlowBend:
+    """Return the slow-error null's bound for a face's central points ``inner`` (m, 3) [m].
+
+    Patches as large in the image as the face's largest CF radius at the points' median
+    range, sampled to their count (:meth:`~.slow_bend.SlowBendNull.bound`).
+    """
+    depth = float(np.median(np.linalg.norm(inner, axis=1)))
+    return slow_null.bound(float(feat.radii[-1]), depth, len(inner))
 
 
 def _central(points: NDArray[np.float64], feat: FaceFeature) -> NDArray[np.bool_]:
@@ -261,9 +270,7 @@ def bends_beyond_noise(points: NDArray[np.float64], mass: NDArray[np.float64],
     if not inner.any():
         return False
     bend = face_bend(points[inner], normal, mass[inner])
-    depth = float(np.median(np.linalg.norm(points[inner], axis=1)))
-    null = slow_null.bound(float(feat.radii[-1]), depth, int(np.count_nonzero(inner)))
-    return bend.height > null.height
+    return bend.height > _slow_bound(points[inner], feat, slow_null).height
 
 
 def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.int64],

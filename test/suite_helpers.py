@@ -1,0 +1,23 @@
+"""The sensor suite's scenes modeled from their true labels, for end-to-end modeling tests."""
+
+import numpy as np
+
+from geomodel_ros.core.modeling import model_objects
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.tools.synth.suite import SuiteCase, render_case
+
+
+def suite_true_labels(layout, distance, noise="kinect-real", seed=1, params=None):
+    """Model a suite case from its true labels, the desk's least-squares plane as support.
+
+    Returns the objects by id, the ground-truth objects by id and the ModelingResult.
+    """
+    scene = render_case(SuiteCase(layout, distance, noise, seed))
+    ok = np.all(np.isfinite(scene.points), axis=1)
+    desk = scene.points[ok & (scene.labels == 0)]
+    c = desk.mean(axis=0)
+    n = np.linalg.svd(desk - c, full_matrices=False)[2][2]
+    n = -n if n @ c > 0 else n
+    result = model_objects(scene.points, np.where(ok, scene.labels, -1),
+                           params or ModelingParams(), supports={0: (n, float(-n @ c))})
+    return {o.id: o for o in result.objects}, {g.id: g for g in scene.objects}, result
