@@ -208,15 +208,27 @@ def _bent(points: NDArray[np.float64], mass: NDArray[np.float64], normal: NDArra
     if independent_noise(params, correlation):
         bend = central_bend(points, mass, normal, feat, correlation)
         return bend.significant and bend.turn > params.min_arc
+    judged = _slow_face_bend(points, mass, normal, feat, params, slow_null)
+    if judged is None or judged[1].turn <= params.min_arc:
+        return False   # the limit is min_arc plus the errors' turn: no null needed
+    inner, bend = judged
+    return bends_beyond(bend, _slow_bound(inner, feat, slow_null), params.min_arc)
+
+
+def _slow_face_bend(points: NDArray[np.float64], mass: NDArray[np.float64],
+                    normal: NDArray[np.float64], feat: FaceFeature, params: ModelingParams,
+                    slow_null: SlowBendNull | None
+                    ) -> tuple[NDArray[np.float64], FaceBend] | None:
+    """Return a face's central points (m, 3) and their bend, or None (slow errors not judged).
+
+    None with ``noise_model = fixed``, without a slow-error null, or without central points.
+    """
     if params.noise_model != "auto" or slow_null is None:
-        return False
+        return None
     inner = _central(points, feat)
     if not inner.any():
-        return False
-    bend = face_bend(points[inner], normal, mass[inner])
-    if bend.turn <= params.min_arc:
-        return False   # the limit is min_arc plus the errors' turn: no null needed
-    return bends_beyond(bend, _slow_bound(points[inner], feat, slow_null), params.min_arc)
+        return None
+    return points[inner], face_bend(points[inner], normal, mass[inner])
 
 
 def _slow_bound(inner: NDArray[np.float64], feat: FaceFeature, slow_null: SlowBendNull
@@ -264,13 +276,11 @@ def bends_beyond_noise(points: NDArray[np.float64], mass: NDArray[np.float64],
     """
     if independent_noise(params, correlation):
         return central_bend(points, mass, normal, feat, correlation).significant
-    if params.noise_model != "auto" or slow_null is None:
+    judged = _slow_face_bend(points, mass, normal, feat, params, slow_null)
+    if judged is None:
         return False
-    inner = _central(points, feat)
-    if not inner.any():
-        return False
-    bend = face_bend(points[inner], normal, mass[inner])
-    return bend.height > _slow_bound(points[inner], feat, slow_null).height
+    inner, bend = judged
+    return bend.height > _slow_bound(inner, feat, slow_null).height
 
 
 def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.int64],
