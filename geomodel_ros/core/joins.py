@@ -585,6 +585,8 @@ def join_terraces(points: NDArray[np.float64], comp: NDArray[np.int64],
     if step is None or step <= 0.0 or not valid.any():
         return comp
     link = params.seg_max_edge_factor * params.seg_voxel_size
+    if step * float(np.abs(points[valid, 2]).max()) ** 2 <= link:
+        return comp  # every step is shorter than a link: the links cross them
     segs = _Segments(points, comp, valid)
     inv = 1.0 / np.maximum(np.abs(points[:, 2]), _TINY)
     terraces = [i for i, m in segs.members.items() if _is_terrace(inv[m], step, link)]
@@ -641,9 +643,9 @@ def _next_level_links(segs: _Segments, comp: NDArray[np.int64], inv: NDArray[np.
     keep = ((dist["v"] <= radius[dist["j"]]) & member[other] & (comp[other] != comp[mine])
             & (dinv >= NEXT_LEVEL_STEPS[0]) & (dinv <= NEXT_LEVEL_STEPS[1]))
     a, b = comp[mine[keep]], comp[other[keep]]
-    pairs, links = np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1), axis=0,
-                             return_counts=True)
-    return pairs.reshape(-1, 2), links
+    width = int(comp.max()) + 1
+    keys, links = np.unique(np.minimum(a, b) * width + np.maximum(a, b), return_counts=True)
+    return np.stack([keys // width, keys % width], axis=1), links
 
 
 def _one_plane(pts: NDArray[np.float64], step: float) -> bool:

@@ -522,9 +522,9 @@ def disparity_step(points: NDArray[np.float64]) -> float | None:
         The step in 1/z [1/m] (a depth step of ``step * z**2`` [m] at depth z), or None for
         a frame whose depths are not quantised (or too few points).
     """
-    z = np.abs(np.asarray(points, dtype=np.float64).reshape(-1, 3)[:, 2])
+    z = np.asarray(points, dtype=np.float64).reshape(-1, 3)[:, 2]
+    z = np.abs(z[::max(1, len(z) // DISPARITY_SAMPLE)])
     z = z[np.isfinite(z) & (z > 0.0)]
-    z = z[::max(1, len(z) // DISPARITY_SAMPLE)]
     inv = np.unique(np.round(1.0 / z, DISPARITY_DECIMALS))
     if len(inv) < 2 or len(inv) > DISPARITY_MAX_DISTINCT_SHARE * len(z):
         return None
