@@ -5,6 +5,8 @@
 - :func:`join_occluded_parts`: two visible parts of one surface cut by a nearer occluder.
 - :func:`join_contained_parts`: the inner wall of an open round container (bowl, cup, pot)
   and its outer wall, which meet only at the hidden back rim.
+- :func:`join_terraces`: the terraces of constant depth into which a camera's disparity
+  quantisation cuts a far surface.
 
 Each join loops over pairs of patches or segments (tens to hundreds), never over points.
 All three keep their groups in one :class:`DisjointSets`: the label a group carries is the
@@ -30,7 +32,8 @@ from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel
 
-__all__ = ["DisjointSets", "merge_patches", "join_occluded_parts", "join_contained_parts"]
+__all__ = ["DisjointSets", "merge_patches", "join_occluded_parts", "join_contained_parts",
+           "join_terraces"]
 
 #: Guard against division by a zero length.
 _TINY = 1e-12
@@ -521,3 +524,141 @@ def _turning_bins(n_xy: NDArray[np.float64]) -> int:
     hist = np.bincount(((azimuth + 180.0) // AZIMUTH_BIN_DEG).astype(int) % AZIMUTH_BINS,
                        minlength=AZIMUTH_BINS)
     return int(np.sum(hist >= AZIMUTH_BIN_MIN_SHARE * len(azimuth)))
+
+
+# ------------------------------------------------------------------------------------------
+# Terraces of one far surface cut by the disparity quantisation
+# ------------------------------------------------------------------------------------------
+#: A segment is one terrace when the 1/z of its points between these percentiles spans less
+#: than :data:`TERRACE_MAX_SPREAD_STEPS` steps: its points share one disparity level but a
+#: few working points at its border are voxel centroids of two levels.
+TERRACE_PERCENTILES = (5.0, 95.0)
+#: Half a step: a segment on two levels spans a whole step.
+TERRACE_MAX_SPREAD_STEPS = 0.5
+#: Neighbours on the next level differ by one step in 1/z: between half a step and one and
+#: a half (the working points' voxel centroids shift the levels by less than half a step).
+NEXT_LEVEL_STEPS = (0.5, 1.5)
+#: Two segments border along at least this many next-level links per sqrt(working points of
+#: the smaller) (its side, as :data:`JOIN_MIN_BORDER_VOTES`): terraces of one surface share
+#: an edge, a terrace touching a nearer object at a corner only a few links.
+TERRACE_MIN_BORDER_LINKS = 1.0
+#: The joined terraces are one plane when this percentile of their points' distances from
+#: their fitted plane, along the viewing ray, is within one disparity step (a plane seen
+#: through the quantisation lies within half a step of every level it crosses; the rest is
+#: voxel centroids and depth noise).
+TERRACE_PLANE_PERCENTILE = 95.0
+TERRACE_PLANE_STEPS = 1.0
+
+
+def join_terraces(points: NDArray[np.float64], comp: NDArray[np.int64],
+                  valid: NDArray[np.bool_], step: float | None,
+                  params: ModelingParams) -> NDArray[np.int64]:
+    """Join the terraces of constant depth into which disparity steps cut a far plane.
+
+    Parameters
+    ----------
+    points : (M, 3) float64 array
+        Working cloud [m], sensor at the origin, optical axis along +z or -z.
+    comp : (M,) int64 array
+        Segment id of every working point.
+    valid : (M,) bool array
+        Points of the segments that take part (the others keep their ids).
+    step : float or None
+        The frame's disparity step in 1/z [1/m] (:func:`geomodel_ros.core.noise.
+        disparity_step`); None (an unquantised frame) joins nothing.
+    params : ModelingParams
+        ``seg_voxel_size`` and ``seg_max_edge_factor`` (the link length) are used.
+
+    Returns
+    -------
+    (M,) int64 array
+        ``comp`` with each joined group labelled by its largest segment's root.
+
+    Notes
+    -----
+    Only where a depth step (``step * z**2``) is longer than a link does the quantisation
+    part a surface the links cannot cross. A segment is a terrace there when its points
+    share one level (:data:`TERRACE_MAX_SPREAD_STEPS`); a terrace and a segment it borders
+    on the next level (:func:`_next_level_links`) are joined, pairs with the most links
+    first, when the union of their groups is one plane within a step (:func:`_one_plane`).
+    """
+    if step is None or step <= 0.0 or not valid.any():
+        return comp
+    link = params.seg_max_edge_factor * params.seg_voxel_size
+    if step * float(np.abs(points[valid, 2]).max()) ** 2 <= link:
+        return comp  # every step is shorter than a link: the links cross them
+    segs = _Segments(points, comp, valid)
+    inv = 1.0 / np.maximum(np.abs(points[:, 2]), _TINY)
+    terraces = [i for i, m in segs.members.items() if _is_terrace(inv[m], step, link)]
+    if not terraces:
+        return comp
+    pairs, links = _next_level_links(segs, comp, inv, terraces, step, link)
+    sets = DisjointSets(segs.members)
+    for k in np.argsort(-links, kind="stable"):
+        a, b = (int(x) for x in pairs[k])
+        small = min(len(segs.members[a]), len(segs.members[b]))
+        if links[k] < TERRACE_MIN_BORDER_LINKS * math.sqrt(small) or \
+                sets.find(a) == sets.find(b):
+            continue
+        group = [i for i in segs.members if sets.find(i) in (sets.find(a), sets.find(b))]
+        if _one_plane(points[np.concatenate([segs.members[i] for i in group])], step):
+            big, other = (a, b) if len(segs.members[a]) >= len(segs.members[b]) else (b, a)
+            sets.union(big, other)
+    return sets.relabel(comp, valid)
+
+
+def _is_terrace(inv: NDArray[np.float64], step: float, link: float) -> bool:
+    """Whether points with 1/z ``inv`` (n,) [1/m] are one level whose step exceeds a link."""
+    lo, hi = np.percentile(inv, TERRACE_PERCENTILES)
+    return bool(hi - lo < TERRACE_MAX_SPREAD_STEPS * step
+                and step / float(np.median(inv)) ** 2 > link)
+
+
+def _next_level_links(segs: _Segments, comp: NDArray[np.int64], inv: NDArray[np.float64],
+                      terraces: list[int], step: float, link: float
+                      ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Count the links from each terrace to the other segments' points on the next level.
+
+    A link joins a terrace point and a point of another segment whose viewing rays are
+    within a link length at the terrace point's range (neighbours in the image) and whose
+    1/z differ by :data:`NEXT_LEVEL_STEPS`.
+
+    Returns
+    -------
+    pairs : (P, 2) int64 array
+        Segment pairs (lower id first) with at least one link.
+    links : (P,) int64 array
+        Links of each pair.
+    """
+    own = np.concatenate([segs.members[t] for t in terraces])
+    rays = segs.points / np.maximum(segs.depth, _TINY)[:, None]
+    radius = link / segs.depth[own]
+    dist = segs.ray_tree().sparse_distance_matrix(
+        cKDTree(rays[own]), float(radius.max()), output_type="ndarray")
+    other, mine = dist["i"].astype(np.int64), own[dist["j"]]
+    member = np.zeros(len(comp), dtype=bool)
+    for m in segs.members.values():
+        member[m] = True
+    dinv = np.abs(inv[other] - inv[mine]) / step
+    keep = ((dist["v"] <= radius[dist["j"]]) & member[other] & (comp[other] != comp[mine])
+            & (dinv >= NEXT_LEVEL_STEPS[0]) & (dinv <= NEXT_LEVEL_STEPS[1]))
+    a, b = comp[mine[keep]], comp[other[keep]]
+    width = int(comp.max()) + 1
+    keys, links = np.unique(np.minimum(a, b) * width + np.maximum(a, b), return_counts=True)
+    return np.stack([keys // width, keys % width], axis=1), links
+
+
+def _one_plane(pts: NDArray[np.float64], step: float) -> bool:
+    """Whether ``pts`` (n, 3) [m] lie on one plane within a disparity step along their rays.
+
+    A point at depth z and range r is one step (``step`` in 1/z [1/m]) off along its ray at
+    ``step * z * r`` [m]; the plane is the total-least-squares fit.
+    """
+    c = pts.mean(axis=0)
+    _, vecs = np.linalg.eigh((pts - c).T @ (pts - c))
+    n = vecs[:, 0]
+    r = row_norms(pts)
+    cos = np.abs(pts @ n) / np.maximum(r, _TINY)
+    along = np.abs((pts - c) @ n) / np.maximum(cos, _TINY)
+    one_step = step * np.abs(pts[:, 2]) * r
+    return bool(np.percentile(along / one_step, TERRACE_PLANE_PERCENTILE) <= TERRACE_PLANE_STEPS)

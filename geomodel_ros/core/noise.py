@@ -50,9 +50,9 @@ from geomodel_ros.core.fastmath import rows_finite
 from geomodel_ros.core.input import in_range
 from geomodel_ros.core.params import ModelingParams
 
-__all__ = ["NoiseEstimate", "estimate_noise", "frame_noise", "resolve_params", "object_params",
-           "is_fragment", "K_AMPLITUDE", "K_INLIER", "K_SUPPORT", "K_VOXEL", "VOXEL_SPACINGS",
-           "SEG_VOXEL_SPACINGS", "FRAGMENT_VOXELS"]
+__all__ = ["NoiseEstimate", "disparity_step", "estimate_noise", "frame_noise", "resolve_params",
+           "object_params", "is_fragment", "K_AMPLITUDE", "K_INLIER", "K_SUPPORT", "K_VOXEL",
+           "VOXEL_SPACINGS", "SEG_VOXEL_SPACINGS", "FRAGMENT_VOXELS"]
 
 #: Points the neighbourhoods are drawn from (a random subset of the cloud): building a
 #: KD-tree on 20k points takes a few milliseconds, and the subset spacing of a 300k-point
@@ -491,3 +491,41 @@ def is_fragment(point_count: int, depth: float, noise: NoiseEstimate | None,
     spacing = noise.spacing_at(depth)
     side = FRAGMENT_VOXELS * max(params.seg_voxel_size, SEG_VOXEL_SPACINGS * spacing)
     return point_count * spacing * spacing < side * side
+
+
+#: 1/z [1/m] is rounded to this many decimals before its distinct values are taken (as in
+#: ``tools.noise_calibration``): far finer than a disparity step (Kinect v1: 2.85e-3 1/m),
+#: coarser than the float32 storage of real frames (about 1e-7 at 1 m).
+DISPARITY_DECIMALS = 6
+#: The step is measured on at most this many points, taken at a fixed stride: a quantised
+#: frame has a few hundred levels (the office scene 317 over 0.8-3.8 m), each held by many
+#: points, so a sample this size still meets nearly all of them.
+DISPARITY_SAMPLE = 20000
+#: A frame is quantised in disparity when its sample takes at most this share of distinct
+#: 1/z values (on average two or more points per level); an unquantised frame's values are
+#: all distinct, and the median gap between them is only the sample's density, no step.
+DISPARITY_MAX_DISTINCT_SHARE = 0.5
+
+
+def disparity_step(points: NDArray[np.float64]) -> float | None:
+    """Disparity quantisation step of a frame: the median gap between its distinct 1/z.
+
+    Parameters
+    ----------
+    points : (N, 3) float array [m]
+        The frame in the sensor frame, optical axis along +z or -z; non-finite rows and
+        points at z = 0 are ignored.
+
+    Returns
+    -------
+    float or None
+        The step in 1/z [1/m] (a depth step of ``step * z**2`` [m] at depth z), or None for
+        a frame whose depths are not quantised (or too few points).
+    """
+    z = np.asarray(points, dtype=np.float64).reshape(-1, 3)[:, 2]
+    z = np.abs(z[::max(1, len(z) // DISPARITY_SAMPLE)])
+    z = z[np.isfinite(z) & (z > 0.0)]
+    inv = np.unique(np.round(1.0 / z, DISPARITY_DECIMALS))
+    if len(inv) < 2 or len(inv) > DISPARITY_MAX_DISTINCT_SHARE * len(z):
+        return None
+    return float(np.median(np.diff(inv)))

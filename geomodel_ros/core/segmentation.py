@@ -33,8 +33,9 @@ from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
                                      voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.fastmath import rows_finite, take_rows
-from geomodel_ros.core.noise import NoiseEstimate, resolve_params
-from geomodel_ros.core.joins import join_contained_parts, join_occluded_parts, merge_patches
+from geomodel_ros.core.noise import NoiseEstimate, disparity_step, resolve_params
+from geomodel_ros.core.joins import (join_contained_parts, join_occluded_parts, join_terraces,
+                                     merge_patches)
 from geomodel_ros.core.organized import GridCloud, grid_cloud
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import fit_plane_svd
@@ -175,7 +176,8 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     supports = support_planes(wp, wn, nbrs, sqdist, params, rng)
     t2 = time.perf_counter()
     timing["seg_supports_s"] = t2 - t1
-    labels[finite] = _working_labels(wp, wn, counts, supports, params, grid, noise)[inverse]
+    labels[finite] = _working_labels(wp, wn, counts, supports, params, grid, noise,
+                                     disparity_step(p))[inverse]
     planes = _claim_contact_rims(p, finite, labels, len(supports), params, rng)
     timing["seg_objects_s"] = time.perf_counter() - t2
     timing["segmentation_s"] = time.perf_counter() - t0
@@ -184,8 +186,8 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
 
 def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: NDArray[np.int64],
                     supports: list[NDArray[np.int64]], params: ModelingParams,
-                    grid: GridCloud | None = None, noise: DepthNoise | None = None
-                    ) -> NDArray[np.int64]:
+                    grid: GridCloud | None = None, noise: DepthNoise | None = None,
+                    step: float | None = None) -> NDArray[np.int64]:
     """Label of every working point: supports 0 .. S-1, objects S, S+1, ... by size, -1 noise.
 
     Parameters
@@ -201,6 +203,9 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
         The organized working cloud ``wp`` comes from (its neighbours are reused).
     noise : DepthNoise, optional
         Depth noise of the working points (:func:`working_noise`).
+    step : float, optional
+        The frame's disparity step in 1/z [1/m] (:func:`disparity_step`; None when its
+        depths are not quantised): far terraces of one plane are joined.
 
     Returns
     -------
@@ -212,6 +217,7 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     comp, comp_ok = _object_segments(wp, counts, wlabel < 0, params, grid, noise)
     if params.seg_max_occlusion_gap > 0:
         comp = join_occluded_parts(wp, wn, comp, comp_ok, params)
+    comp = join_terraces(wp, comp, comp_ok, step, params)
     if params.seg_join_contained and supports:
         comp = join_contained_parts(wp, wn, comp, comp_ok, fit_plane_svd(wp[supports[0]]))
     wlabel[comp_ok] = len(supports) + _size_ranks(comp[comp_ok], counts[comp_ok])
