@@ -98,8 +98,12 @@ class _Recorder:
             self.objects[stamp_ns(msg)] = msg
 
     def complete(self, frames: int) -> bool:
-        """Whether markers and typed objects arrived for ``frames`` frames (hold the lock)."""
-        return len(self.markers) >= frames and len(self.objects) >= frames
+        """Whether markers, typed objects and segments arrived for ``frames`` frames.
+
+        Hold the lock. The node publishes a frame's segments cloud after its markers and
+        objects, so a frame is complete only once that has arrived too (the pictures use it).
+        """
+        return min(len(self.markers), len(self.objects), len(self.segments)) >= frames
 
 
 def _match(truth: list[dict], detected) -> list[tuple[dict, object]]:
