@@ -183,8 +183,8 @@ class NoiseEstimate:
     plane_cos: float = 1.0
     plane_depth: float = 0.0
 
-    def sigma(self, z: float) -> float:
-        """Noise sigma [m] along the ray at range ``z`` [m]."""
+    def sigma(self, z: float | NDArray[np.float64]) -> float | NDArray[np.float64]:
+        """Noise sigma [m] along the ray at range ``z`` [m] (a float or an array of ranges)."""
         return self.a + self.b * z * z
 
     def spacing_at(self, z: float) -> float:

@@ -146,7 +146,7 @@ class SlowBendNull:
         if np.count_nonzero(full) < MIN_NULL_PATCHES:
             return SlowBend(math.inf, 0.0, int(np.count_nonzero(full)))
         height, turn = patch_bends(patches[full], self.normal)
-        sigma_at = np.maximum([self.noise.sigma(float(z)) for z in at[keep][full]],
+        sigma_at = np.maximum(self.noise.sigma(at[keep][full]),
                               np.finfo(float).tiny)
         height = height * self.noise.sigma(depth) / sigma_at
         return SlowBend(float(height.max()), float(np.median(turn)), len(height))

@@ -129,5 +129,5 @@ def slow_taper(null: SlowBendNull, end_a: NDArray[np.float64], end_b: NDArray[np
     if len(delta) < MIN_NULL_PATCHES:
         return math.inf
     at, delta = np.array(at[:NULL_PATCHES]), np.array(delta[:NULL_PATCHES])
-    sigma_at = np.maximum([null.noise.sigma(float(z)) for z in at], np.finfo(float).tiny)
+    sigma_at = np.maximum(null.noise.sigma(at), np.finfo(float).tiny)
     return float(np.max(delta * null.noise.sigma(depth) / sigma_at))
