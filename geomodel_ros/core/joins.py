@@ -220,19 +220,65 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
         joinable &= votes >= JOIN_MIN_BORDER_VOTES * np.sqrt(smaller)
     sets = DisjointSets(range(n))
     members: dict[int, set[int]] = {}
+    contact = _GroupContacts(a, b, votes, yes)
     order = np.argsort(-yes, kind="stable")
     for e in order[joinable[order]].tolist():
         ra, rb = sets.find(int(a[e])), sets.find(int(b[e]))
         if ra == rb:
             continue
         ma, mb = members.get(ra, {ra}), members.get(rb, {rb})
-        if any(creases.get(x, set()) & mb for x in ma):
+        if any(creases.get(x, set()) & mb for x in ma) or \
+                contact.share(ra, rb) < JOIN_MIN_CONVEX_SHARE:
             continue
         sets.union(ra, rb)
+        contact.union(ra, rb)
         members[ra] = ma | mb
         members.pop(rb, None)
     roots = np.array([sets.find(i) for i in range(n)])
     return np.unique(roots, return_inverse=True)[1].ravel()
+
+
+class _GroupContacts:
+    """Border votes summed over every pair of patch groups, kept up to date as groups join.
+
+    Two groups of patches may border along several patch borders (a cup's outer wall and
+    its rim both touch the box it stands against); the join of the two groups is decided
+    on all of them together, so a border that votes convex by a narrow majority cannot
+    join two groups whose other borders vote concave.
+
+    Parameters
+    ----------
+    a, b : (P,) int64 arrays
+        The two patches of each adjacent pair.
+    votes, yes : (P,) arrays
+        Links across each border and the flat or convex ones among them.
+    """
+
+    def __init__(self, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDArray,
+                 yes: NDArray) -> None:
+        self.tally: dict[int, dict[int, list[float]]] = {}
+        for x, y, v, w in zip(a.tolist(), b.tolist(), np.asarray(votes, float).tolist(),
+                              np.asarray(yes, float).tolist()):
+            self.tally.setdefault(x, {})[y] = [v, w]
+            self.tally.setdefault(y, {})[x] = [v, w]
+
+    def share(self, ra: int, rb: int) -> float:
+        """Return the share of flat or convex votes over all borders of groups ``ra``, ``rb``."""
+        v, w = self.tally.get(ra, {}).get(rb, (0.0, 0.0))
+        return w / v if v > 0 else 0.0
+
+    def union(self, keep: int, absorb: int) -> None:
+        """Fold group ``absorb``'s borders into group ``keep``'s (the roots of a join)."""
+        mine = self.tally.setdefault(keep, {})
+        for other, (v, w) in self.tally.pop(absorb, {}).items():
+            theirs = self.tally[other]
+            del theirs[absorb]
+            if other == keep:
+                continue
+            tv = mine.setdefault(other, [0.0, 0.0])
+            tv[0] += v
+            tv[1] += w
+            theirs[keep] = tv
 
 
 def _crease_partners(a: NDArray[np.int64], b: NDArray[np.int64], crease: NDArray[np.bool_]
