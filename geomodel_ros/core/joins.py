@@ -182,7 +182,8 @@ class DisjointSets:
 # ------------------------------------------------------------------------------------------
 
 def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDArray,
-                  yes: NDArray, sizes: NDArray | None = None) -> NDArray[np.int64]:
+                  yes: NDArray, sizes: NDArray | None = None,
+                  exact: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
     """Group patches into objects from their border votes.
 
     Parameters
@@ -220,6 +221,8 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
         joinable &= votes >= JOIN_MIN_BORDER_VOTES * np.sqrt(smaller)
     sets = DisjointSets(range(n))
     members: dict[int, set[int]] = {}
+    exact_pair = np.zeros(len(a), dtype=bool) if exact is None else \
+        np.take(exact, a) & np.take(exact, b)
     contact = _GroupContacts(a, b, votes, yes)
     order = np.argsort(-yes, kind="stable")
     for e in order[joinable[order]].tolist():
@@ -228,7 +231,7 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
             continue
         ma, mb = members.get(ra, {ra}), members.get(rb, {rb})
         if any(creases.get(x, set()) & mb for x in ma) or \
-                contact.share(ra, rb) < JOIN_MIN_CONVEX_SHARE:
+                (exact_pair[e] and contact.share(ra, rb) < JOIN_MIN_CONVEX_SHARE):
             continue
         sets.union(ra, rb)
         contact.union(ra, rb)
@@ -265,7 +268,7 @@ class _GroupContacts:
     def share(self, ra: int, rb: int) -> float:
         """Return the share of flat or convex votes over all borders of groups ``ra``, ``rb``."""
         v, w = self.tally.get(ra, {}).get(rb, (0.0, 0.0))
-        return w / v if v > 0 else 0.0
+        return w / v if v > 0 else 1.0
 
     def union(self, keep: int, absorb: int) -> None:
         """Fold group ``absorb``'s borders into group ``keep``'s (the roots of a join)."""
