@@ -197,6 +197,11 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     sizes : (n,) array, optional
         Points of every patch; with them a pair joins only across a border of at least
         :data:`JOIN_MIN_BORDER_VOTES` sqrt(points of the smaller patch) votes.
+    exact : (n,) bool array, optional
+        Patches whose links were tested exactly (every point's step at the fixed floor,
+        not set by its noise); a join across a border of two such patches also needs the
+        votes summed over every border of the two groups to hold the majority
+        (:class:`_GroupContacts`). Default: no patch.
 
     Returns
     -------
@@ -209,8 +214,12 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     joined, strongest evidence (most convex votes) first; a join is refused when the two
     groups already share a clear crease (:data:`CREASE_MIN_VOTES`,
     :data:`CREASE_MAX_CONVEX_SHARE`), so a weak convex contact cannot glue together two
-    objects that meet at a concave crease elsewhere. That refusal depends on the joins
-    made before it, so the pairs are joined one by one in order of evidence.
+    objects that meet at a concave crease elsewhere; and, between exact patches, when all
+    the borders of the two groups together hold less than that share of convex votes (a
+    narrow convex majority along one border, concave votes along the others: a cup's rim
+    against a box, whose wall meets the box at a crease cut into short borders). Both
+    refusals depend on the joins made before them, so the pairs are joined one by one in
+    order of evidence.
     """
     share = yes / np.maximum(votes, 1)
     creases = _crease_partners(a, b, (votes >= CREASE_MIN_VOTES)
@@ -219,10 +228,10 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     if sizes is not None:
         smaller = np.minimum(np.take(sizes, a), np.take(sizes, b))
         joinable &= votes >= JOIN_MIN_BORDER_VOTES * np.sqrt(smaller)
+    summed = np.zeros(len(a), dtype=bool) if exact is None else \
+        np.take(exact, a) & np.take(exact, b)
     sets = DisjointSets(range(n))
     members: dict[int, set[int]] = {}
-    exact_pair = np.zeros(len(a), dtype=bool) if exact is None else \
-        np.take(exact, a) & np.take(exact, b)
     contact = _GroupContacts(a, b, votes, yes)
     order = np.argsort(-yes, kind="stable")
     for e in order[joinable[order]].tolist():
@@ -231,7 +240,7 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
             continue
         ma, mb = members.get(ra, {ra}), members.get(rb, {rb})
         if any(creases.get(x, set()) & mb for x in ma) or \
-                (exact_pair[e] and contact.share(ra, rb) < JOIN_MIN_CONVEX_SHARE):
+                (summed[e] and contact.share(ra, rb) < JOIN_MIN_CONVEX_SHARE):
             continue
         sets.union(ra, rb)
         contact.union(ra, rb)
@@ -244,10 +253,16 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
 class _GroupContacts:
     """Border votes summed over every pair of patch groups, kept up to date as groups join.
 
-    Two groups of patches may border along several patch borders (a cup's outer wall and
-    its rim both touch the box it stands against); the join of the two groups is decided
-    on all of them together, so a border that votes convex by a narrow majority cannot
-    join two groups whose other borders vote concave.
+    Two groups of patches may border along several patch borders (a flared cup standing
+    against a box: its rim touches the box's side along one border that votes convex by a
+    narrow majority, 28 of 54 links in clutter scene 5, while its wall meets the box at a
+    concave crease that the patches cut into short borders, 7 convex of 23); the join of
+    the two groups is decided on all of them together (35 of 77: apart). Only where the
+    link tests are exact: where noise sets the step, a link on one surface fails its test
+    by chance (29-38 % of the links inside smooth patches on noisy synthetic frames), so the
+    sum over a long border of one surface falls to about half, and summing refused joins of
+    one box's faces under Kinect-class noise (clutter benchmark, Kinect row 89.2 -> 87.2 %
+    with IoU >= 0.8).
 
     Parameters
     ----------
