@@ -2,9 +2,10 @@
 
 :func:`geomodel_ros.core.joins.merge_patches` joins two patches across a border with a
 convex majority; between patches whose link tests are exact (``exact``: noise below the
-fixed step floor) the votes of *all* borders between the two groups must hold that
-majority too. Hand-made votes with the sums worked out in the comments, then the clutter
-scene where it matters (a flared cup whose rim touches a box).
+fixed step floor) the votes of *all* borders between the two groups must hold more than
+that share too (a tie is no evidence for the join). Hand-made votes with the sums worked
+out in the comments, then the clutter scene where it matters (a flared cup whose rim
+touches a box).
 """
 
 from __future__ import annotations
@@ -50,10 +51,10 @@ def test_without_exact_patches_the_strongest_border_alone_decides():
     assert merge_patches(3, A, B, votes, yes, sizes=SIZES, exact=noisy_b).tolist() == [0, 0, 0]
 
 
-@pytest.mark.parametrize("crease_yes, joined", [(7.0, True), (6.0, False)])
+@pytest.mark.parametrize("crease_yes, joined", [(8.0, True), (7.0, False), (6.0, False)])
 def test_the_groups_join_when_all_their_borders_together_hold_the_majority(crease_yes, joined):
-    # One object whose second border is noisier: 11 + 7 = 18 of 36 is half (joins, as a
-    # single border of 50 % does); 11 + 6 = 17 of 36 is less (apart).
+    # One object whose second border is noisier: 11 + 8 = 19 of 36 is a majority (joins);
+    # 11 + 7 = 18 of 36 is a tie, no evidence either way (apart); 17 of 36 is less.
     votes, yes = _votes(11.0, crease_yes)
     out = merge_patches(3, A, B, votes, yes, sizes=SIZES, exact=np.ones(3, dtype=bool))
     assert (out[0] == out[2]) == joined
