@@ -367,7 +367,9 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     normals = _patch_normals(points, normals, nbrs, patches, noise_w)
     a, b, votes, yes = _border_votes(points, normals, nbrs, sqdist, patches, n_p, max_edge,
                                      params.seg_concavity_tolerance, step, parallel)
-    obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p))
+    obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
+                        exact=None if noise is None else
+                        np.bincount(patches[step > floor], minlength=n_p) == 0)
     return obj[patches].astype(np.int64)
 
 
