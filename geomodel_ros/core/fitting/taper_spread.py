@@ -1,0 +1,143 @@
+"""How surely a round side's own points show a taper: its least-squares slope and spread.
+
+A frustum differs from a cylinder by its taper, the difference of its two radii. How well
+the side's points measure it does not follow from the inlier band (a band says where a
+point may lie, not how well many points fix a slope): it follows from the residuals the
+points leave about the fitted side. The side is taken as a surface of revolution whose
+radius is linear along its axis, ``rho(t) = r + k t`` (``t`` from the side's mid-height),
+linearised about the RANSAC cone: six parameters (the axis moved across itself, two; tilted
+about its mid-point, two; ``r``; ``k``), solved by least squares over the side's points.
+The slope's spread is the *cluster-robust* (sandwich) estimate over blocks of the side
+(:data:`SECTORS` around the axis times :data:`LAYERS` along it): residuals correlated
+within a block -- a sensor's slowly varying range error, mixed pixels along one
+silhouette, a dent -- count as one observation per block instead of one per point, so the
+spread grows with every structure of the residual larger than a point. The taper is
+significant when its estimate exceeds the one-sided Student quantile (G - 1 degrees of
+freedom for G blocks) at :data:`TAPER_LEVEL` times that spread.
+
+What a slow error common to the whole side does (one end of it nearer the camera than the
+other) no block structure shows; that part is measured on the frame's support instead
+(:mod:`~.slow_taper`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats
+
+from geomodel_ros.core.fitting.slow_bend import NULL_PATCHES
+from geomodel_ros.core.geometry import frame_with_z
+from geomodel_ros.core.ransac import ConeModel
+
+__all__ = ["SECTORS", "LAYERS", "TAPER_LEVEL", "MIN_BLOCK_POINTS", "taper_estimate",
+           "least_taper"]
+
+#: Blocks around the axis (equal shares of the side's points by angle). The taper is told
+#: from an axis tilt by the silhouettes against the front, so the blocks split the seen arc
+#: into its two flanks and its front (halved): four.
+SECTORS = 4
+#: Blocks along the axis (equal shares of the points by height): the slope is measured by
+#: the ends against the middle; three layers are the fewest that have a middle.
+LAYERS = 3
+#: One-sided level of the taper test: the slow-error nulls' (a Monte-Carlo test over
+#: NULL_PATCHES patches, level 1 / (NULL_PATCHES + 1)), so that the two terms of the
+#: frustum's least taper are judged alike.
+TAPER_LEVEL = 1.0 / (NULL_PATCHES + 1)
+#: Fewest points per block: fewer blocks than parameters leave the spread undetermined,
+#: so sides of fewer than SECTORS * LAYERS * MIN_BLOCK_POINTS points are not judged.
+MIN_BLOCK_POINTS = 10
+#: Parameters of the linearised side (axis offset 2, axis tilt 2, radius, slope).
+_PARAMS = 6
+
+
+def _design(points: NDArray[np.float64], model: ConeModel, mid: float
+            ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                       NDArray[np.float64]]:
+    """Jacobian (K, 6), residuals (K,) [m], heights (K,) [m] and angles (K,) [rad] of a side.
+
+    The side of ``model`` at ``mid`` [m] from its apex: ``rho = r + k t`` with ``k`` the
+    cone's slope and ``r`` its radius at ``mid``; residual ``rho_i - r - k t_i``.
+    """
+    frame = frame_with_z(model.axis)
+    e1, e2, a = frame[:, 0], frame[:, 1], frame[:, 2]
+    v = points - (model.apex + a * mid)
+    t = v @ a
+    radial = v - t[:, None] * a
+    rho = np.maximum(np.linalg.norm(radial, axis=1), np.finfo(float).tiny)
+    u1, u2 = (radial @ e1) / rho, (radial @ e2) / rho
+    k = math.tan(model.half_angle)
+    jac = np.stack([-u1, -u2, -t * u1 - k * (v @ e1), -t * u2 - k * (v @ e2),
+                    -np.ones_like(t), -t], axis=1)
+    return jac, rho - k * mid - k * t, t, np.arctan2(u2, u1)
+
+
+def _blocks(t: NDArray[np.float64], angle: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Block index (K,) of each point: SECTORS by angle around the axis times LAYERS by height.
+
+    Angles are measured from the middle of the largest gap of the seen arc, so that a
+    sector never straddles the unseen back of the side.
+    """
+    order = np.sort(angle)
+    gaps = np.diff(np.r_[order, order[0] + 2.0 * math.pi])
+    start = order[int(np.argmax(gaps))] + gaps.max() / 2.0
+    around = np.mod(angle - start, 2.0 * math.pi)
+    sector = np.minimum((np.argsort(np.argsort(around)) * SECTORS) // len(t), SECTORS - 1)
+    layer = np.minimum((np.argsort(np.argsort(t)) * LAYERS) // len(t), LAYERS - 1)
+    return sector * LAYERS + layer
+
+
+def taper_estimate(points: NDArray[np.float64], model: ConeModel, lo: float, hi: float
+                   ) -> tuple[float, float, int] | None:
+    """Least-squares taper [m] of a side, its cluster-robust spread [m] and its blocks.
+
+    Parameters
+    ----------
+    points : (K, 3) float64 [m]
+        The side's points.
+    model : ConeModel
+        The side's cone (RANSAC), apex and axis towards the base.
+    lo, hi : float [m]
+        The side's extent along the axis from the apex.
+
+    Returns
+    -------
+    (taper, spread, blocks) or None
+        ``taper = k (hi - lo)`` with the least-squares slope ``k`` (positive: widening
+        towards the base), the sandwich estimate of its standard deviation over the side's
+        blocks (:func:`_blocks`) with the small-sample factor G / (G - 1) (K - 1) / (K - 6),
+        and the number G of blocks; None when the side has too few points for every block.
+    """
+    if len(points) < SECTORS * LAYERS * MIN_BLOCK_POINTS or hi <= lo:
+        return None
+    jac, res, t, angle = _design(points, model, (lo + hi) / 2.0)
+    step, *_ = np.linalg.lstsq(jac, -res, rcond=None)
+    res = res + jac @ step
+    block = _blocks(t, angle)
+    n_blocks = SECTORS * LAYERS
+    # Per block, the sum of J_i r_i: the scores whose spread the sandwich takes.
+    scores = np.zeros((n_blocks, _PARAMS))
+    np.add.at(scores, block, jac * res[:, None])
+    bread = np.linalg.pinv(jac.T @ jac)
+    n = len(points)
+    factor = n_blocks / (n_blocks - 1) * (n - 1) / (n - _PARAMS)
+    cov = factor * bread @ (scores.T @ scores) @ bread
+    slope = math.tan(model.half_angle) + step[5]
+    return slope * (hi - lo), math.sqrt(max(cov[5, 5], 0.0)) * (hi - lo), n_blocks
+
+
+def least_taper(points: NDArray[np.float64], model: ConeModel, lo: float, hi: float
+                ) -> tuple[float, float] | None:
+    """Least-squares taper [m] of a side and the least [m] a significant taper exceeds.
+
+    The least taper is the one-sided Student quantile at TAPER_LEVEL (blocks - 1 degrees
+    of freedom) times the taper's spread (:func:`taper_estimate`); None when the side is
+    not judged (too few points).
+    """
+    est = taper_estimate(points, model, lo, hi)
+    if est is None:
+        return None
+    taper, spread, n_blocks = est
+    return taper, float(stats.t.ppf(1.0 - TAPER_LEVEL, n_blocks - 1)) * spread
