@@ -52,11 +52,12 @@ FRUSTUM = PrimitiveType.FRUSTUM
 #: of the apex, a frustum otherwise. Half the height is a clear truncation: noise and the
 #: edge lose a cone a few millimetres round its tip, never half of it.
 FRUSTUM_MIN_TOP_RATIO = CONE_APEX_REACH
-#: A frustum's radii differ by more than this many RANSAC thresholds. With a smaller
-#: taper a cylinder of the mean radius lies within one threshold of every point of the
-#: side: the points cannot tell the two apart, and the object is left to the cylinder
-#: unit (measured on osd_learn: tins the Kinect sees with a 10 mm taper and a tilted
-#: axis, real bowls and cups with 24-35 mm).
+#: Where the noise is not measured (``noise_model = fixed``) or a side has too few points
+#: for its own test (:mod:`~.taper_spread`), a frustum's radii differ by more than this
+#: many RANSAC thresholds. With a smaller taper a cylinder of the mean radius lies within
+#: one threshold of every point of the side: no single point tells the two apart, and the
+#: object is left to the cylinder unit (measured on osd_learn: tins the Kinect sees with a
+#: 10 mm taper and a tilted axis, real bowls and cups with 24-35 mm).
 FRUSTUM_MIN_TAPER = 2.0
 
 
