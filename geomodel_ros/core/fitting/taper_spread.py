@@ -125,10 +125,14 @@ def taper_estimate(points: NDArray[np.float64], model: ConeModel, lo: float, hi:
     # Normal equations of the whole side and of each block; a block's deletion is the
     # whole's minus its own. (The jackknife, not the sandwich of the residuals: a block
     # that pulls the fit leaves small residuals of its own, and the sandwich misses it.)
-    normal = np.zeros((n_blocks, _PARAMS, _PARAMS))
-    np.add.at(normal, block, jac[:, :, None] * jac[:, None, :])
-    rhs = np.zeros((n_blocks, _PARAMS))
-    np.add.at(rhs, block, -jac * res[:, None])
+    # Sums over each block's rows (every block holds points: equal shares, K >= G).
+    order = np.argsort(block, kind="stable")
+    starts = np.searchsorted(block[order], np.arange(n_blocks))
+    terms = np.concatenate([(jac[:, :, None] * jac[:, None, :]).reshape(len(jac), -1),
+                            -jac * res[:, None]], axis=1)
+    sums = np.add.reduceat(terms[order], starts, axis=0)
+    normal = sums[:, :_PARAMS * _PARAMS].reshape(n_blocks, _PARAMS, _PARAMS)
+    rhs = sums[:, _PARAMS * _PARAMS:]
     whole = np.linalg.lstsq(normal.sum(axis=0), rhs.sum(axis=0), rcond=None)[0]
     left = np.linalg.solve(normal.sum(axis=0) - normal, (rhs.sum(axis=0) - rhs)[..., None])
     slopes = left[:, 5, 0]
