@@ -24,8 +24,8 @@ from scipy import stats
 from geomodel_ros.core.fitting.frustum import taper_minimum
 from geomodel_ros.core.fitting.slow_bend import SlowBendNull
 from geomodel_ros.core.fitting.slow_taper import slow_taper
-from geomodel_ros.core.fitting.taper_spread import (LAYERS, SECTORS, TAPER_LEVEL, least_taper,
-                                                    taper_estimate)
+from geomodel_ros.core.fitting.taper_spread import (LAYERS, MIN_BLOCKS, SECTORS, TAPER_LEVEL,
+                                                    least_taper, taper_estimate)
 from geomodel_ros.core.noise import NoiseEstimate
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import PrimitiveType
@@ -182,3 +182,30 @@ def test_suite_frustums_at_one_metre_and_cylinders_stay_cylinders(noise):
     for layout, oid in (("set_a", 2), ("set_b", 1)):
         objs, _, _ = suite_true_labels(layout, 1.0, noise, seed=1)
         assert objs[oid].type == PrimitiveType.CYLINDER
+
+
+def test_a_side_partly_hidden_is_judged_on_the_blocks_that_hold_points():
+    # The quarter of the side at positive angle and height is hidden (an occluder). The
+    # blocks are equal shares of angle and of height, so the upper quarter by height holds
+    # only points of negative angle and the two eighths of largest angle only points of the
+    # lower half: the blocks of both are empty. The taper is measured on the others.
+    slope = (R_BASE - R_TOP) / HEIGHT
+    pts = side((R_BASE + R_TOP) / 2, slope)
+    exact = side((R_BASE + R_TOP) / 2, slope, sigma=0.0) - MID
+    hidden = (np.arctan2(exact[:, 0], -exact[:, 2]) > 0.0) & (exact[:, 1] > 0.0)
+    model, lo, hi = cone_of((R_BASE + R_TOP) / 2, slope)
+    taper, spread, blocks = taper_estimate(pts[~hidden], model, lo, hi)
+    assert MIN_BLOCKS <= blocks <= SECTORS * LAYERS - 2
+    assert taper == pytest.approx(R_BASE - R_TOP, abs=1.0 * MM)
+    assert taper > least_taper(pts[~hidden], model, lo, hi)[1]
+
+
+def test_a_sliver_of_few_blocks_is_not_judged():
+    # One point per row along the diagonal of the grid, noise-free: angle and height rise
+    # together, in the same order, so the sector of a point's rank fixes its layer: 8
+    # blocks hold points (two sectors to a layer), fewer than MIN_BLOCKS.
+    n = 400
+    pts = side(0.040, 0.0, rows=n, cols=n, sigma=0.0)
+    diagonal = np.arange(n) * (n + 1)
+    assert SECTORS < MIN_BLOCKS
+    assert taper_estimate(pts[diagonal], *cone_of(0.040, 1e-3)) is None

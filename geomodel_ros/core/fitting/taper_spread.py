@@ -34,7 +34,7 @@ from geomodel_ros.core.fitting.slow_bend import NULL_PATCHES
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.ransac import ConeModel
 
-__all__ = ["SECTORS", "LAYERS", "TAPER_LEVEL", "MIN_BLOCK_POINTS", "taper_estimate",
+__all__ = ["SECTORS", "LAYERS", "TAPER_LEVEL", "MIN_BLOCK_POINTS", "MIN_BLOCKS", "taper_estimate",
            "least_taper"]
 
 #: Blocks around the axis (equal shares of the side's points by angle). The taper is told
@@ -57,6 +57,10 @@ TAPER_LEVEL = 1.0 / (NULL_PATCHES + 1)
 MIN_BLOCK_POINTS = 10
 #: Parameters of the linearised side (axis offset 2, axis tilt 2, radius, slope).
 _PARAMS = 6
+#: Fewest blocks holding points for a judgement: twice the parameters, the jackknife's
+#: spread from G blocks being itself unsure by about 1 / sqrt(2 (G - 1)) (21 % at 12
+#: blocks). A side with fewer (seen as a sliver) is not judged.
+MIN_BLOCKS = 2 * _PARAMS
 
 
 def _design(points: NDArray[np.float64], model: ConeModel, mid: float
@@ -114,31 +118,48 @@ def taper_estimate(points: NDArray[np.float64], model: ConeModel, lo: float, hi:
         ``taper = k (hi - lo)`` with the least-squares slope ``k`` (positive: widening
         towards the base); the jackknife estimate of its standard deviation over the side's
         G blocks (:func:`_blocks`), ``sqrt((G - 1) / G sum_g (k_(-g) - mean k_(-g))^2)``
-        times ``hi - lo``, with ``k_(-g)`` the slope fitted without block g; and G. None
-        when the side has too few points for every block.
+        times ``hi - lo``, with ``k_(-g)`` the slope fitted without block g; and G, the
+        blocks holding points. None when the side has too few points or blocks, or when
+        leaving a block out leaves the side undetermined.
     """
     if len(points) < SECTORS * LAYERS * MIN_BLOCK_POINTS or hi <= lo:
         return None
     jac, res, t, angle = _design(points, model, (lo + hi) / 2.0)
-    block = _blocks(t, angle)
-    n_blocks = SECTORS * LAYERS
-    # Normal equations of the whole side and of each block; a block's deletion is the
-    # whole's minus its own. (The jackknife, not the sandwich of the residuals: a block
-    # that pulls the fit leaves small residuals of its own, and the sandwich misses it.)
-    # Sums over each block's rows (every block holds points: equal shares, K >= G).
-    order = np.argsort(block, kind="stable")
-    starts = np.searchsorted(block[order], np.arange(n_blocks))
-    terms = np.concatenate([(jac[:, :, None] * jac[:, None, :]).reshape(len(jac), -1),
-                            -jac * res[:, None]], axis=1)
-    sums = np.add.reduceat(terms[order], starts, axis=0)
-    normal = sums[:, :_PARAMS * _PARAMS].reshape(n_blocks, _PARAMS, _PARAMS)
+    sums = _block_sums(jac, res, _blocks(t, angle))
+    if len(sums) < MIN_BLOCKS:
+        return None
+    normal = sums[:, :_PARAMS * _PARAMS].reshape(len(sums), _PARAMS, _PARAMS)
     rhs = sums[:, _PARAMS * _PARAMS:]
+    # A block's deletion is the whole's normal equations minus its own. (The jackknife,
+    # not the sandwich of the residuals: a block that pulls the fit leaves small residuals
+    # of its own, and the sandwich misses it.)
     whole = np.linalg.lstsq(normal.sum(axis=0), rhs.sum(axis=0), rcond=None)[0]
-    left = np.linalg.solve(normal.sum(axis=0) - normal, (rhs.sum(axis=0) - rhs)[..., None])
+    try:
+        left = np.linalg.solve(normal.sum(axis=0) - normal,
+                               (rhs.sum(axis=0) - rhs)[..., None])
+    except np.linalg.LinAlgError:   # a block alone fixes the side: no spread to measure
+        return None
     slopes = left[:, 5, 0]
+    n_blocks = len(sums)
     spread = math.sqrt((n_blocks - 1) / n_blocks * float(np.sum((slopes - slopes.mean()) ** 2)))
     slope = math.tan(model.half_angle) + whole[5]
     return slope * (hi - lo), spread * (hi - lo), n_blocks
+
+
+def _block_sums(jac: NDArray[np.float64], res: NDArray[np.float64], block: NDArray[np.int64]
+                ) -> NDArray[np.float64]:
+    """Per block holding points, the sums (G, 42) of ``J_i^T J_i`` (36) and ``-J_i r_i`` (6).
+
+    ``jac`` (K, 6), ``res`` (K,) [m], ``block`` (K,) in [0, SECTORS * LAYERS): the angle
+    and height shares are equal, but a block of both may be empty (a flank seen only
+    along part of the height).
+    """
+    terms = np.concatenate([(jac[:, :, None] * jac[:, None, :]).reshape(len(jac), -1),
+                            -jac * res[:, None]], axis=1)
+    held = np.bincount(block, minlength=SECTORS * LAYERS) > 0
+    sums = np.stack([np.bincount(block, weights=terms[:, j], minlength=SECTORS * LAYERS)
+                     for j in range(terms.shape[1])], axis=1)
+    return sums[held]
 
 
 def least_taper(points: NDArray[np.float64], model: ConeModel, lo: float, hi: float
