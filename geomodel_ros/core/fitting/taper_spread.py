@@ -94,9 +94,16 @@ def _blocks(t: NDArray[np.float64], angle: NDArray[np.float64]) -> NDArray[np.in
     gaps = np.diff(np.r_[order, order[0] + 2.0 * math.pi])
     start = order[int(np.argmax(gaps))] + gaps.max() / 2.0
     around = np.mod(angle - start, 2.0 * math.pi)
-    sector = np.minimum((np.argsort(np.argsort(around)) * SECTORS) // len(t), SECTORS - 1)
-    layer = np.minimum((np.argsort(np.argsort(t)) * LAYERS) // len(t), LAYERS - 1)
+    sector = np.minimum((_ranks(around) * SECTORS) // len(t), SECTORS - 1)
+    layer = np.minimum((_ranks(t) * LAYERS) // len(t), LAYERS - 1)
     return sector * LAYERS + layer
+
+
+def _ranks(values: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Rank (K,) of each of ``values`` (K,) in ascending order, 0 .. K - 1."""
+    ranks = np.empty(len(values), dtype=np.int64)
+    ranks[np.argsort(values)] = np.arange(len(values))
+    return ranks
 
 
 def taper_estimate(points: NDArray[np.float64], model: ConeModel, lo: float, hi: float
@@ -156,10 +163,10 @@ def _block_sums(jac: NDArray[np.float64], res: NDArray[np.float64], block: NDArr
     """
     terms = np.concatenate([(jac[:, :, None] * jac[:, None, :]).reshape(len(jac), -1),
                             -jac * res[:, None]], axis=1)
-    held = np.bincount(block, minlength=SECTORS * LAYERS) > 0
-    sums = np.stack([np.bincount(block, weights=terms[:, j], minlength=SECTORS * LAYERS)
-                     for j in range(terms.shape[1])], axis=1)
-    return sums[held]
+    order = np.argsort(block, kind="stable")
+    # The first row of each block holding points, in the sorted order.
+    _, starts = np.unique(block[order], return_index=True)
+    return np.add.reduceat(terms[order], starts, axis=0)
 
 
 def least_taper(points: NDArray[np.float64], model: ConeModel, lo: float, hi: float
