@@ -47,12 +47,13 @@ def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | 
 
 
 def fit_cone_side(task: FitTask, kind: PrimitiveType
-                  ) -> tuple[CurvedFit, float, float] | FitOutcome:
+                  ) -> tuple[CurvedFit, float, float, NDArray[np.float64]] | FitOutcome:
     """Fit and verify the conical side of ``task.cloud`` for a cone or a frustum (``kind``).
 
     The axis follows ``task.axis_prior`` or else the main planar face's normal, if any.
-    Returns the side's fit and its extent ``lo``, ``hi`` [m] along the axis from the apex
-    (caps and supports closing the ends, :func:`~.axial.axial_extent`), or the rejection.
+    Returns the side's fit, its extent ``lo``, ``hi`` [m] along the axis from the apex
+    (caps and supports closing the ends, :func:`~.axial.axial_extent`) and the side's
+    points (K, 3) [m], or the rejection.
     """
     cloud = task.cloud
     prior = axis_prior(task)
@@ -66,7 +67,7 @@ def fit_cone_side(task: FitTask, kind: PrimitiveType
         return checked
     caps, nearest, side_points = checked
     lo, hi = axial_extent(cloud, side_points, caps, nearest, side.model.apex, side.model.axis)
-    return side, lo, hi
+    return side, lo, hi, side_points
 
 
 def _sized(task: FitTask, model: ConeModel, lo: float, hi: float) -> float | Rejected:
@@ -94,7 +95,7 @@ def fit_cone(task: FitTask) -> FitOutcome:
     fitted = fit_cone_side(task, CONE)
     if not isinstance(fitted, tuple):
         return fitted
-    side, lo, hi = fitted
+    side, lo, hi, _ = fitted
     model = side.model
     radius = _sized(task, model, lo, hi)
     if isinstance(radius, Rejected):

@@ -7,10 +7,13 @@ apex, has ``lo > FRUSTUM_MIN_TOP_RATIO * hi``. Caps, supports and the edge corre
 close the ends as for cylinders and cones (:func:`~.axial.axial_extent`).
 
 Taper: the radii must differ by more than a cylinder's could appear to under the frame's
-noise (:func:`taper_minimum`): FRUSTUM_MIN_TAPER inlier bands where the noise is
-independent; under slow sensor errors that many bands of the local noise, and beyond the
+noise (:func:`taper_minimum`). With a measured noise (``noise_model = auto``) the side's
+own points decide: their least-squares taper must be significant against its spread over
+blocks of the side (:mod:`~.taper_spread`), and under slow sensor errors also exceed the
 apparent taper those errors give a cylinder of the same size in the image, measured on
-the frame's support (:func:`~.slow_taper.slow_taper`).
+the frame's support (:func:`~.slow_taper.slow_taper`). With fixed noise values (or a side
+too small to judge) the minimum is FRUSTUM_MIN_TAPER inlier bands (of the local noise
+under slow errors).
 
 Sizes: ``radius`` of the base (the larger circle, at ``hi``), ``top_radius`` of the
 smaller circle (at ``lo``, nearer the apex) and ``height = hi - lo``; centre at the
@@ -23,12 +26,15 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
+from numpy.typing import NDArray
 
 from geomodel_ros.core.fitting.cloud import ObjectCloud, independent_noise
 from geomodel_ros.core.fitting.cone import fit_cone_side
 from geomodel_ros.core.fitting.measure import bulk_extent, bulk_reach
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
 from geomodel_ros.core.fitting.slow_taper import slow_taper
+from geomodel_ros.core.fitting.taper_spread import least_taper
 from geomodel_ros.core.fitting.verify import (CONE_APEX_REACH, check_bulk_length,
                                               check_bulk_reach, check_radius)
 from geomodel_ros.core.geometry import frame_with_z
@@ -46,11 +52,12 @@ FRUSTUM = PrimitiveType.FRUSTUM
 #: of the apex, a frustum otherwise. Half the height is a clear truncation: noise and the
 #: edge lose a cone a few millimetres round its tip, never half of it.
 FRUSTUM_MIN_TOP_RATIO = CONE_APEX_REACH
-#: A frustum's radii differ by more than this many RANSAC thresholds. With a smaller
-#: taper a cylinder of the mean radius lies within one threshold of every point of the
-#: side: the points cannot tell the two apart, and the object is left to the cylinder
-#: unit (measured on osd_learn: tins the Kinect sees with a 10 mm taper and a tilted
-#: axis, real bowls and cups with 24-35 mm).
+#: Where the noise is not measured (``noise_model = fixed``) or a side has too few points
+#: for its own test (:mod:`~.taper_spread`), a frustum's radii differ by more than this
+#: many RANSAC thresholds. With a smaller taper a cylinder of the mean radius lies within
+#: one threshold of every point of the side: no single point tells the two apart, and the
+#: object is left to the cylinder unit (measured on osd_learn: tins the Kinect sees with a
+#: 10 mm taper and a tilted axis, real bowls and cups with 24-35 mm).
 FRUSTUM_MIN_TAPER = 2.0
 
 
@@ -90,37 +97,54 @@ def _own_stream(cloud: ObjectCloud) -> ObjectCloud:
     return dataclasses.replace(cloud, rng=child)
 
 
-def taper_minimum(cloud: ObjectCloud, model: ConeModel, lo: float, hi: float) -> float:
+def taper_minimum(cloud: ObjectCloud, model: ConeModel, lo: float, hi: float,
+                  significant: float | None = None) -> float:
     """Least taper [m] of a frustum of ``model`` from ``lo`` to ``hi`` [m] from its apex.
 
-    FRUSTUM_MIN_TAPER RANSAC thresholds where the noise is independent
-    (:func:`~.cloud.independent_noise`), with ``noise_model = fixed``, or without a
-    measured null of the frame's slow errors. Under slow errors the threshold is inflated
-    by their scale (``cloud.correlation``): the least taper is then FRUSTUM_MIN_TAPER
-    thresholds of the local noise (the threshold over that scale) or the apparent taper
-    the slow errors give a cylinder of this size in the image
-    (:func:`~.slow_taper.slow_taper`), whichever is larger.
+    ``significant`` [m] is the least taper the side's own points make significant
+    (:func:`~.taper_spread.least_taper`); without it (a side too small to judge, or
+    ``noise_model = fixed``) FRUSTUM_MIN_TAPER RANSAC thresholds stand for it. Where the
+    noise is independent (:func:`~.cloud.independent_noise`), with ``noise_model =
+    fixed`` or without a measured null of the frame's slow errors, that is the minimum.
+    Under slow errors the threshold is inflated by their scale (``cloud.correlation``):
+    the bands are then taken of the local noise (the threshold over that scale), and the
+    minimum is the larger of that term and the apparent taper the slow errors give a
+    cylinder of this size in the image (:func:`~.slow_taper.slow_taper`).
     """
     params = cloud.params
     band = FRUSTUM_MIN_TAPER * params.ransac_threshold
-    if independent_noise(params, cloud.correlation) or params.noise_model != "auto" or \
-            cloud.slow_null is None:
-        return band
+    fixed = params.noise_model != "auto"
+    own = band if significant is None or fixed else significant
+    if independent_noise(params, cloud.correlation) or fixed or cloud.slow_null is None:
+        return own
+    if significant is None:
+        own = band / cloud.correlation
     ends = model.apex + model.axis * lo, model.apex + model.axis * hi
     radius = (lo + hi) / 2.0 * math.tan(model.half_angle)
-    return max(band / cloud.correlation, slow_taper(cloud.slow_null, *ends, radius))
+    return max(own, slow_taper(cloud.slow_null, *ends, radius))
 
 
-def _sized(task: FitTask, model: ConeModel, lo: float, hi: float) -> dict[str, float] | Rejected:
-    """Sizes [m] of the frustum whose points run from ``lo`` to ``hi`` from the apex, checked."""
+def _sized(task: FitTask, model: ConeModel, lo: float, hi: float,
+           side_points: NDArray[np.float64]) -> dict[str, float] | Rejected:
+    """Sizes [m] of the frustum whose points run from ``lo`` to ``hi`` from the apex, checked.
+
+    With a measured noise the side's least-squares taper (:mod:`~.taper_spread`) must also
+    exceed the least taper: the RANSAC cone's slope is only the sizes' estimate.
+    """
     points = task.cloud.points
     bad = check_bulk_length(hi - lo, bulk_extent(points, model.axis), FRUSTUM)
     if bad:
         return bad
-    dims = frustum_sizes(model, lo, hi, task.cloud.params.ransac_threshold,
-                         taper_minimum(task.cloud, model, lo, hi))
+    judged = None if task.cloud.params.noise_model != "auto" else \
+        least_taper(side_points, model, lo, hi)
+    least = taper_minimum(task.cloud, model, lo, hi, None if judged is None else judged[1])
+    dims = frustum_sizes(model, lo, hi, task.cloud.params.ransac_threshold, least)
     if isinstance(dims, Rejected):
         return dims
+    if judged is not None and judged[0] <= least:
+        return Rejected(FRUSTUM, f"frustum rejected: its side's least-squares taper "
+                                 f"{judged[0] * 1000:.1f} mm is within {least * 1000:.1f} mm "
+                                 "(a cylinder)")
     bad = check_radius(dims["radius"], task.cloud.params, FRUSTUM) or \
         check_bulk_reach(dims["radius"], bulk_reach(points, model.apex, model.axis), FRUSTUM)
     return bad if bad else dims
@@ -138,9 +162,9 @@ def fit_frustum(task: FitTask) -> FitOutcome:
     fitted = fit_cone_side(task, FRUSTUM)
     if not isinstance(fitted, tuple):
         return fitted
-    side, lo, hi = fitted
+    side, lo, hi, side_points = fitted
     model = side.model
-    dims = _sized(task, model, lo, hi)
+    dims = _sized(task, model, lo, hi, side_points)
     if isinstance(dims, Rejected):
         return dims
     prim = Primitive(cloud.oid, FRUSTUM, model.apex + model.axis * (lo + hi) / 2,

@@ -1,12 +1,12 @@
 """How much a frame's slow sensor errors taper a cylinder: the null of the frustum's taper.
 
-A frustum differs from a cylinder by its taper, the difference of its two radii. Where the
-noise is independent from point to point, a taper within two inlier bands cannot be told
-from a cylinder (:data:`~.frustum.FRUSTUM_MIN_TAPER`). A real depth camera adds a range
+A frustum differs from a cylinder by its taper, the difference of its two radii. The
+side's own points say how surely they show it (:mod:`~.taper_spread`: the least-squares
+taper against its spread over blocks of the side). A real depth camera adds a range
 error that varies slowly across the image (``NoiseEstimate.scale`` 1.6-2.5 on real
-frames), and the inlier band is inflated by that scale: two inflated bands (26 mm at 1 m
-under Kinect-class errors) reject the real 12-18 mm tapers of cups and pots. What the slow
-errors do to a cylinder is measured on the frame instead, as the bend test's null is
+frames); the part of it common to the whole side (one end nearer than the other) no block
+structure shows. What the slow errors do to a cylinder is measured on the frame instead,
+as the bend test's null is
 (:mod:`~.slow_bend`): where the error along the rays at one end of the side differs from
 the other end's by ``delta``, the front of one end's cross-section moves along the rays by
 ``delta`` more than the other's while the silhouette lines (grazing rays) do not move
