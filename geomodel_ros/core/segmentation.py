@@ -76,6 +76,14 @@ STEP_NOISE_SIGMAS = 1.0
 #: cut of about 1 in 700 borders of one surface (a frame has tens to hundreds of borders),
 #: while a consistent offset stands out by sqrt(independent votes) local sigmas.
 BORDER_STEP_SIGMAS = 3.0
+#: The border points of one side of a border lie in a strip about this many point spacings
+#: deep (links reach ``seg_max_edge_factor`` = 2.5 voxels across), so the border is about
+#: their number over this long, and its votes count once per point spacing along it: the
+#: i.i.d. noise of the points dominates a link's statistic, the shared errors of
+#: neighbouring normals do not. Measured on a 10 cm border of one plane (50 border points
+#: a side, i.i.d. noise plus a shared slow error of twice its size, 100 seeds): the
+#: medians' spread implies 27-29 independent votes, this count gives 25.
+BORDER_STRIP_POINTS = 2.0
 #: Standard error of the median of n Gaussian samples over sigma / sqrt(n): sqrt(pi / 2).
 MEDIAN_STANDARD_ERROR = math.sqrt(math.pi / 2.0)
 #: 1.4826 MAD is the standard deviation of a Gaussian.
@@ -369,12 +377,13 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                          min_piece=params.min_face_points,
                          noisy=STEP_NOISE_SIGMAS * noise_w > floor, parallel_cos=parallel)
     n_p = int(patches.max()) + 1
-    normals = _patch_normals(points, normals, nbrs, patches, noise_w)
+    normals, own = _patch_normals(points, normals, nbrs, patches, noise_w, return_own=True)
     scale = _slow_scale(noise)
     a, b, votes, yes, stepped = _border_votes(
         points, normals, nbrs, sqdist, patches, n_p, max_edge,
         params.seg_concavity_tolerance, step, parallel,
-        local=None if noise is None else noise_w / scale, floor=floor / scale)
+        local=None if noise is None else noise_w / scale, floor=floor / scale,
+        own_normals=own)
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
                         stepped=stepped)
     return obj[patches].astype(np.int64)
@@ -394,7 +403,8 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
                   nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
                   patches: NDArray[np.int64], n_p: int, max_edge: float, tolerance: float,
                   step: NDArray[np.float64], parallel_cos: float = 1.0,
-                  local: NDArray[np.float64] | None = None, floor: float = 0.0
+                  local: NDArray[np.float64] | None = None, floor: float = 0.0,
+                  own_normals: NDArray[np.float64] | None = None
                   ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray, NDArray,
                              NDArray[np.bool_] | None]:
     """Convexity votes of the neighbour links across each border of two patches.
@@ -435,13 +445,15 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     yes = np.bincount(inv, weights=good, minlength=len(pairs))
     stepped = None
     if local is not None:
+        own = normals if own_normals is None else own_normals
         inner = within & ~ok
-        null = _step_statistic(points, normals, i[inner], j[inner], local)
+        null = _step_statistic(points, own, i[inner], j[inner], local)
         spread = [MAD_TO_SIGMA * float(np.median(np.abs(t - np.median(t)))) if len(t) else 0.0
                   for t in null]
+        below = _step_free(points, own, i[ok], j[ok], step)[:2]
         stepped = _stepped_borders(inv, len(pairs), i[ok], np.where(pi < pj, 1.0, -1.0),
-                                   (below_i, below_j), local[i[ok]], local[j[ok]],
-                                   float(np.hypot(*spread)), floor, k)
+                                   below, local[i[ok]], local[j[ok]],
+                                   float(np.hypot(*spread)), floor)
     return pairs // n_p, pairs % n_p, votes, yes, stepped
 
 
@@ -475,7 +487,7 @@ def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
 def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
                      sign: NDArray[np.float64], below: tuple[NDArray, NDArray],
                      noise_i: NDArray[np.float64], noise_j: NDArray[np.float64],
-                     spread: float, floor: float, k: int) -> NDArray[np.bool_]:
+                     spread: float, floor: float) -> NDArray[np.bool_]:
     """Tell which patch borders hold a step or a crease, from the median of their links.
 
     The per-link step test (:func:`_step_free`) asks min(below_i, below_j) = fold -
@@ -487,11 +499,9 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
     when median fold - |median offset| < -max(``floor``, :data:`BORDER_STEP_SIGMAS` x the
     median's standard error), the error being ``spread`` (the per-link statistic's robust
     sigma, in local noise units, measured inside the patches) x the border's median local
-    noise x :data:`MEDIAN_STANDARD_ERROR` / sqrt(votes). Links of neighbouring points share
-    most of their normals' neighbourhoods (``k`` points, a disc of radius sqrt(k / pi)
-    point spacings): the border points of one side lie in a strip about that deep and
-    their votes are independent about every neighbourhood diameter along it, so the
-    independent votes are pi x (border points of the side with fewer) / (2 k), at least 1.
+    noise x :data:`MEDIAN_STANDARD_ERROR` / sqrt(votes), with one independent vote per
+    point spacing along the border: (border points of the side with fewer) /
+    :data:`BORDER_STRIP_POINTS`, at least 1.
 
     Parameters
     ----------
@@ -510,8 +520,6 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
         Robust sigma of the per-link statistic in local noise units.
     floor : float
         Smallest step [m].
-    k : int
-        Neighbours per point.
 
     Returns
     -------
@@ -522,7 +530,7 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
     noise = _group_median(inv, np.minimum(noise_i, noise_j), n_pairs)
     ends = np.unique(np.c_[inv, i, sign > 0], axis=0)
     side = np.bincount(ends[:, 0] * 2 + ends[:, 2], minlength=2 * n_pairs).reshape(-1, 2)
-    independent = np.maximum(math.pi * side.min(axis=1) / (2.0 * k), 1.0)
+    independent = np.maximum(side.min(axis=1) / BORDER_STRIP_POINTS, 1.0)
     bound = np.maximum(floor, BORDER_STEP_SIGMAS * MEDIAN_STANDARD_ERROR * spread * noise
                        / np.sqrt(independent))
     return fold - np.abs(offset) < -bound
@@ -530,7 +538,8 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
 
 def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
                    nbrs: NDArray[np.int64], patches: NDArray[np.int64],
-                   noise: NDArray[np.float64]) -> NDArray[np.float64]:
+                   noise: NDArray[np.float64], return_own: bool = False
+                   ) -> NDArray[np.float64] | tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Re-estimate the normals of points next to a crease from their own patch.
 
     Near a crease a point's neighbourhood straddles both surfaces and its normal blends
@@ -554,10 +563,13 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
         Noise [m] of the surface along its normal at each point (e.g.
         :func:`working_noise`; 0 where unknown: every border point takes its own patch's
         normal).
+    return_own : bool
+        Also return every point's normal from its own patch alone (where it has
+        :data:`PATCH_NORMAL_MIN_NEIGHBORS` neighbours there; ``normals`` elsewhere).
 
     Returns
     -------
-    (M, 3) float64 array
+    (M, 3) float64 array, or two of them with ``return_own``
         Unit normals oriented towards the sensor.
     """
     same = patches[nbrs] == patches[:, None]
@@ -565,9 +577,12 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
     own = np.where(same, nbrs, np.arange(len(points))[:, None])
     _, refined = smallest_eigenpairs_sym(*neighborhood_moments(points, own))
     refined[np.einsum("ij,ij->i", refined, points) > 0] *= -1
-    keep = (same.sum(axis=1) < PATCH_NORMAL_MIN_NEIGHBORS) | (off_plane <= noise * noise)
+    few = same.sum(axis=1) < PATCH_NORMAL_MIN_NEIGHBORS
+    refined[few] = normals[few]
+    own_normals = refined.copy()
+    keep = off_plane <= noise * noise
     refined[keep] = normals[keep]
-    return refined
+    return (refined, own_normals) if return_own else refined
 
 
 def _step_free(points: NDArray[np.float64], normals: NDArray[np.float64], i: NDArray[np.int64],
