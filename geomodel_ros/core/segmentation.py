@@ -448,27 +448,27 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
         own = normals if own_normals is None else own_normals
         inner = within & ~ok
         null = _step_statistic(points, own, i[inner], j[inner], local)
-        spread = [MAD_TO_SIGMA * float(np.median(np.abs(t - np.median(t)))) if len(t) else 0.0
-                  for t in null]
+        spread = MAD_TO_SIGMA * float(np.median(np.abs(null))) if len(null) else 0.0
         below = _step_free(points, own, i[ok], j[ok], step)[:2]
+        cos = np.einsum("ij,ij->i", take_rows(own, i[ok]), take_rows(own, j[ok]))
         stepped = _stepped_borders(inv, len(pairs), i[ok], np.where(pi < pj, 1.0, -1.0),
-                                   below, local[i[ok]], local[j[ok]],
-                                   float(np.hypot(*spread)), floor)
+                                   below, cos > parallel_cos, local[i[ok]], local[j[ok]],
+                                   spread, floor)
     return pairs // n_p, pairs % n_p, votes, yes, stepped
 
 
 def _step_statistic(points: NDArray[np.float64], normals: NDArray[np.float64],
                     i: NDArray[np.int64], j: NDArray[np.int64], local: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Fold and offset of the links i -> j in local noise units (links with noise only).
+                    ) -> NDArray[np.float64]:
+    """Return the offsets of the links i -> j in local noise units (links with noise only).
 
-    The fold is (below_i + below_j) / 2 and the offset (below_i - below_j) / 2
-    (:func:`_step_free`), both over the smaller local noise of the link's two ends.
+    The offset is (below_i - below_j) / 2 (:func:`_step_free`) over the smaller local
+    noise of the link's two ends; it changes sign with the link's direction.
     """
     noise = np.minimum(local[i], local[j])
     has = noise > 0
     below_i, below_j, _ = _step_free(points, normals, i[has], j[has], np.zeros(len(points)))
-    return 0.5 * (below_i + below_j) / noise[has], 0.5 * (below_i - below_j) / noise[has]
+    return 0.5 * (below_i - below_j) / noise[has]
 
 
 def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
@@ -486,7 +486,8 @@ def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
 
 def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
                      sign: NDArray[np.float64], below: tuple[NDArray, NDArray],
-                     noise_i: NDArray[np.float64], noise_j: NDArray[np.float64],
+                     parallel: NDArray[np.bool_], noise_i: NDArray[np.float64],
+                     noise_j: NDArray[np.float64],
                      spread: float, floor: float) -> NDArray[np.bool_]:
     """Tell which patch borders hold a step or a crease, from the median of their links.
 
@@ -525,7 +526,8 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
     -------
     (n_pairs,) bool array
     """
-    fold = _group_median(inv, 0.5 * (below[0] + below[1]), n_pairs)
+    parallel = np.bincount(inv, weights=parallel, minlength=n_pairs) \
+        > 0.5 * np.bincount(inv, minlength=n_pairs)
     offset = _group_median(inv, 0.5 * (below[0] - below[1]) * sign, n_pairs)
     noise = _group_median(inv, np.minimum(noise_i, noise_j), n_pairs)
     ends = np.unique(np.c_[inv, i, sign > 0], axis=0)
@@ -533,7 +535,7 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
     independent = np.maximum(side.min(axis=1) / BORDER_STRIP_POINTS, 1.0)
     bound = np.maximum(floor, BORDER_STEP_SIGMAS * MEDIAN_STANDARD_ERROR * spread * noise
                        / np.sqrt(independent))
-    return fold - np.abs(offset) < -bound
+    return parallel & (np.abs(offset) > bound)
 
 
 def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
