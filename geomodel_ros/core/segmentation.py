@@ -378,12 +378,10 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                          noisy=STEP_NOISE_SIGMAS * noise_w > floor, parallel_cos=parallel)
     n_p = int(patches.max()) + 1
     normals, own = _patch_normals(points, normals, nbrs, patches, noise_w, return_own=True)
-    scale = _slow_scale(noise)
     a, b, votes, yes, stepped = _border_votes(
         points, normals, nbrs, sqdist, patches, n_p, max_edge,
         params.seg_concavity_tolerance, step, parallel,
-        local=None if noise is None else noise_w / scale, floor=floor / scale,
-        own_normals=own)
+        whole=None if noise is None else (own, noise_w, _slow_scale(noise), floor))
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
                         stepped=stepped)
     return obj[patches].astype(np.int64)
@@ -403,8 +401,7 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
                   nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
                   patches: NDArray[np.int64], n_p: int, max_edge: float, tolerance: float,
                   step: NDArray[np.float64], parallel_cos: float = 1.0,
-                  local: NDArray[np.float64] | None = None, floor: float = 0.0,
-                  own_normals: NDArray[np.float64] | None = None
+                  whole: tuple[NDArray, NDArray, float, float] | None = None
                   ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray, NDArray,
                              NDArray[np.bool_] | None]:
     """Convexity votes of the neighbour links across each border of two patches.
@@ -416,10 +413,9 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     step (:func:`_step_free` with ``step`` (M,) [m] and ``parallel_cos``: two parallel faces
     at different heights have a convexity of 0 but are no continuation of one surface).
 
-    With ``local`` (M,) [m], the noise of the working points that neighbours do not share
-    (:func:`working_noise` over the frame's slowly varying part), each border is also
-    tested as a whole for a step (:func:`_stepped_borders`, ``floor`` [m] its smallest
-    step).
+    With ``whole`` = (own-patch normals (M, 3), working-point noise (M,) [m]
+    (:func:`working_noise`), the frame's slow-error scale, smallest step [m]) each border
+    is also tested as a whole for a crease or a step (:func:`_stepped_borders`).
 
     Returns
     -------
@@ -428,7 +424,7 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     votes, yes : (P,) arrays
         Number of links across each pair's border, and of yes votes among them.
     stepped : (P,) bool array or None
-        Borders with a step or crease along their whole length (None without ``local``).
+        Borders with a step or crease along their whole length (None without ``whole``).
     """
     m, k = nbrs.shape
     i = np.repeat(np.arange(m), k)
@@ -444,31 +440,42 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     votes = np.bincount(inv, minlength=len(pairs))
     yes = np.bincount(inv, weights=good, minlength=len(pairs))
     stepped = None
-    if local is not None:
-        own = normals if own_normals is None else own_normals
+    if whole is not None:
         inner = within & ~ok
-        null = _step_statistic(points, own, i[inner], j[inner], local)
-        spread = MAD_TO_SIGMA * float(np.median(np.abs(null))) if len(null) else 0.0
-        below = _step_free(points, own, i[ok], j[ok], step)[:2]
-        cos = np.einsum("ij,ij->i", take_rows(own, i[ok]), take_rows(own, j[ok]))
+        fold, offset, parallel = _link_statistics(points, normals, whole[0], i[ok], j[ok],
+                                                  parallel_cos)
+        null = _link_statistics(points, normals, whole[0], i[inner], j[inner])[:2]
+        noise = (np.minimum(whole[1][i], whole[1][j]), )
+        noise += (noise[0] / whole[2], )
+        spread = [MAD_TO_SIGMA * _median_abs_dev(t / n[inner]) for t, n in zip(null, noise)]
         stepped = _stepped_borders(inv, len(pairs), i[ok], np.where(pi < pj, 1.0, -1.0),
-                                   below, cos > parallel_cos, local[i[ok]], local[j[ok]],
-                                   spread, floor)
+                                   (fold, offset, parallel),
+                                   (noise[0][ok], noise[1][ok]), spread,
+                                   (whole[3], whole[3] / whole[2]))
     return pairs // n_p, pairs % n_p, votes, yes, stepped
 
 
-def _step_statistic(points: NDArray[np.float64], normals: NDArray[np.float64],
-                    i: NDArray[np.int64], j: NDArray[np.int64], local: NDArray[np.float64]
-                    ) -> NDArray[np.float64]:
-    """Return the offsets of the links i -> j in local noise units (links with noise only).
+def _link_statistics(points: NDArray[np.float64], normals: NDArray[np.float64],
+                     own: NDArray[np.float64], i: NDArray[np.int64], j: NDArray[np.int64],
+                     parallel_cos: float = 1.0) -> tuple[NDArray, NDArray, NDArray]:
+    """Fold, offset and parallelism of the links i -> j (:func:`_step_free`).
 
-    The offset is (below_i - below_j) / 2 (:func:`_step_free`) over the smaller local
-    noise of the link's two ends; it changes sign with the link's direction.
+    The fold (below_i + below_j) / 2 [m] is taken with ``normals`` (those of the votes),
+    the offset (below_i - below_j) / 2 [m] with ``own`` (each point's own-patch normal: at
+    a step the full normals tilt towards the other level and see it smaller); the offset
+    changes sign with the link's direction. A link is parallel where its two own-patch
+    normals agree within ``parallel_cos``.
     """
-    noise = np.minimum(local[i], local[j])
-    has = noise > 0
-    below_i, below_j, _ = _step_free(points, normals, i[has], j[has], np.zeros(len(points)))
-    return 0.5 * (below_i - below_j) / noise[has]
+    below_i, below_j, _ = _step_free(points, normals, i, j, np.zeros(len(points)))
+    own_i, own_j, _ = _step_free(points, own, i, j, np.zeros(len(points)))
+    cos = np.einsum("ij,ij->i", take_rows(own, i), take_rows(own, j))
+    return 0.5 * (below_i + below_j), 0.5 * (own_i - own_j), cos > parallel_cos
+
+
+def _median_abs_dev(values: NDArray[np.float64]) -> float:
+    """Return the median absolute deviation of ``values`` from their median (0 if empty)."""
+    values = values[np.isfinite(values)]
+    return float(np.median(np.abs(values - np.median(values)))) if len(values) else 0.0
 
 
 def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
@@ -485,24 +492,31 @@ def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
 
 
 def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
-                     sign: NDArray[np.float64], below: tuple[NDArray, NDArray],
-                     parallel: NDArray[np.bool_], noise_i: NDArray[np.float64],
-                     noise_j: NDArray[np.float64],
-                     spread: float, floor: float) -> NDArray[np.bool_]:
-    """Tell which patch borders hold a step or a crease, from the median of their links.
+                     sign: NDArray[np.float64], links: tuple[NDArray, NDArray, NDArray],
+                     noise: tuple[NDArray, NDArray], spread: list[float],
+                     floor: tuple[float, float]) -> NDArray[np.bool_]:
+    """Tell which patch borders hold a crease or a step, from the medians of their links.
 
-    The per-link step test (:func:`_step_free`) asks min(below_i, below_j) = fold -
-    |offset| >= -step of each link alone, against the frame's noise: one link's excursion
-    is no evidence, so a small step (a can's top 2.5 mm above a box's top beside it) passes
-    it under noise, link by link. Along a whole border the fold and the signed offset
-    (oriented from the lower patch id to the higher) keep their values, while the noise
-    of their medians shrinks like 1 / sqrt(independent votes). The border holds a step
-    when median fold - |median offset| < -max(``floor``, :data:`BORDER_STEP_SIGMAS` x the
-    median's standard error), the error being ``spread`` (the per-link statistic's robust
-    sigma, in local noise units, measured inside the patches) x the border's median local
-    noise x :data:`MEDIAN_STANDARD_ERROR` / sqrt(votes), with one independent vote per
-    point spacing along the border: (border points of the side with fewer) /
-    :data:`BORDER_STRIP_POINTS`, at least 1.
+    The per-link tests (:func:`_step_free`) judge each link alone against the frame's
+    noise: one link's excursion is no evidence, so under noise a small step (a can's top
+    2.5 mm above a box's top beside it) or a shallow contact crease passes them link by
+    link. Along a whole border the fold and the signed offset (oriented from the lower
+    patch id to the higher) keep their values while the noise of their medians shrinks
+    like 1 / sqrt(independent votes): one vote per point spacing along the border,
+    (border points of the side with fewer) / :data:`BORDER_STRIP_POINTS`, at least 1.
+    A border holds
+
+    - a crease where its median fold < -max(``floor[0]``, E ``spread[0]`` x its median
+      frame noise): the fold carries the normals' error times the link length, and the
+      frame's slowly varying error bends the surface, so it is judged against the frame's
+      noise (``noise[0]``);
+    - a step where most of its links are parallel and |median offset| > max(``floor[1]``,
+      E ``spread[1]`` x its median local noise): two neighbours share the slowly varying
+      error, so an offset between them is seen against the local noise (``noise[1]``).
+
+    E is :data:`BORDER_STEP_SIGMAS` x :data:`MEDIAN_STANDARD_ERROR` / sqrt(votes); the
+    spreads are the robust sigmas of the statistics in those noise units, measured on the
+    links inside the patches (one smooth surface each).
 
     Parameters
     ----------
@@ -513,29 +527,31 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
         The link's first point.
     sign : (L,) float64 array
         +1 where that point is in the pair's lower patch, -1 otherwise.
-    below : ((L,), (L,)) float64 arrays
-        below_i and below_j of every link [m] (:func:`_step_free`).
-    noise_i, noise_j : (L,) float64 arrays
-        Local noise [m] of the two ends.
-    spread : float
-        Robust sigma of the per-link statistic in local noise units.
-    floor : float
-        Smallest step [m].
+    links : ((L,), (L,), (L,)) arrays
+        Fold [m], offset [m] and parallel (bool) of every link (:func:`_link_statistics`).
+    noise : ((L,), (L,)) float64 arrays
+        Frame and local noise [m] of every link (the smaller of its two ends').
+    spread : [float, float]
+        Robust sigma of the fold in frame noise units and of the offset in local ones.
+    floor : (float, float)
+        Smallest crease and step [m].
 
     Returns
     -------
     (n_pairs,) bool array
     """
-    parallel = np.bincount(inv, weights=parallel, minlength=n_pairs) \
-        > 0.5 * np.bincount(inv, minlength=n_pairs)
-    offset = _group_median(inv, 0.5 * (below[0] - below[1]) * sign, n_pairs)
-    noise = _group_median(inv, np.minimum(noise_i, noise_j), n_pairs)
+    fold, offset, parallel = links
     ends = np.unique(np.c_[inv, i, sign > 0], axis=0)
     side = np.bincount(ends[:, 0] * 2 + ends[:, 2], minlength=2 * n_pairs).reshape(-1, 2)
-    independent = np.maximum(side.min(axis=1) / BORDER_STRIP_POINTS, 1.0)
-    bound = np.maximum(floor, BORDER_STEP_SIGMAS * MEDIAN_STANDARD_ERROR * spread * noise
-                       / np.sqrt(independent))
-    return parallel & (np.abs(offset) > bound)
+    error = BORDER_STEP_SIGMAS * MEDIAN_STANDARD_ERROR \
+        / np.sqrt(np.maximum(side.min(axis=1) / BORDER_STRIP_POINTS, 1.0))
+    crease = _group_median(inv, fold, n_pairs) < -np.maximum(
+        floor[0], error * spread[0] * _group_median(inv, noise[0], n_pairs))
+    step = np.abs(_group_median(inv, offset * sign, n_pairs)) > np.maximum(
+        floor[1], error * spread[1] * _group_median(inv, noise[1], n_pairs))
+    mostly = np.bincount(inv, weights=parallel, minlength=n_pairs) \
+        > 0.5 * np.bincount(inv, minlength=n_pairs)
+    return crease | (mostly & step)
 
 
 def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
