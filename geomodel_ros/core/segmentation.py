@@ -451,7 +451,7 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
         stepped = _stepped_borders(inv, len(pairs), i[ok], np.where(pi < pj, 1.0, -1.0),
                                    (fold, offset, parallel),
                                    (noise[0][ok], noise[1][ok]), spread,
-                                   (whole[3], whole[3] / whole[2]))
+                                   (0.5 * tolerance * dist, whole[3] / whole[2]))
     return pairs // n_p, pairs % n_p, votes, yes, stepped
 
 
@@ -468,7 +468,7 @@ def _link_statistics(points: NDArray[np.float64], normals: NDArray[np.float64],
     """
     below_i, below_j, _ = _step_free(points, normals, i, j, np.zeros(len(points)))
     own_i, own_j, _ = _step_free(points, own, i, j, np.zeros(len(points)))
-    cos = np.einsum("ij,ij->i", take_rows(own, i), take_rows(own, j))
+    cos = np.einsum("ij,ij->i", take_rows(normals, i), take_rows(normals, j))
     return 0.5 * (below_i + below_j), 0.5 * (own_i - own_j), cos > parallel_cos
 
 
@@ -546,7 +546,8 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
     error = BORDER_STEP_SIGMAS * MEDIAN_STANDARD_ERROR \
         / np.sqrt(np.maximum(side.min(axis=1) / BORDER_STRIP_POINTS, 1.0))
     crease = _group_median(inv, fold, n_pairs) < -np.maximum(
-        floor[0], error * spread[0] * _group_median(inv, noise[0], n_pairs))
+        _group_median(inv, floor[0], n_pairs),
+        error * spread[0] * _group_median(inv, noise[0], n_pairs))
     step = np.abs(_group_median(inv, offset * sign, n_pairs)) > np.maximum(
         floor[1], error * spread[1] * _group_median(inv, noise[1], n_pairs))
     mostly = np.bincount(inv, weights=parallel, minlength=n_pairs) \
