@@ -442,34 +442,31 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     stepped = None
     if whole is not None:
         inner = within & ~ok
-        fold, offset, parallel = _link_statistics(points, normals, whole[0], i[ok], j[ok],
-                                                  parallel_cos)
-        null = _link_statistics(points, normals, whole[0], i[inner], j[inner])[:2]
+        fold, offset = _link_statistics(points, normals, whole[0], i[ok], j[ok])
+        null = _link_statistics(points, normals, whole[0], i[inner], j[inner])
         noise = (np.minimum(whole[1][i], whole[1][j]), )
         noise += (noise[0] / whole[2], )
         spread = [MAD_TO_SIGMA * _median_abs_dev(t / n[inner]) for t, n in zip(null, noise)]
         stepped = _stepped_borders(inv, len(pairs), i[ok], np.where(pi < pj, 1.0, -1.0),
-                                   (fold, offset, parallel),
+                                   (fold, offset, whole[0][i[ok]]),
                                    (noise[0][ok], noise[1][ok]), spread,
-                                   (0.5 * tolerance * dist, whole[3] / whole[2]))
+                                   (0.5 * tolerance * dist, whole[3] / whole[2]), parallel_cos)
     return pairs // n_p, pairs % n_p, votes, yes, stepped
 
 
 def _link_statistics(points: NDArray[np.float64], normals: NDArray[np.float64],
-                     own: NDArray[np.float64], i: NDArray[np.int64], j: NDArray[np.int64],
-                     parallel_cos: float = 1.0) -> tuple[NDArray, NDArray, NDArray]:
-    """Fold, offset and parallelism of the links i -> j (:func:`_step_free`).
+                     own: NDArray[np.float64], i: NDArray[np.int64], j: NDArray[np.int64]
+                     ) -> tuple[NDArray, NDArray]:
+    """Fold and offset [m] of the links i -> j (:func:`_step_free`).
 
-    The fold (below_i + below_j) / 2 [m] is taken with ``normals`` (those of the votes),
-    the offset (below_i - below_j) / 2 [m] with ``own`` (each point's own-patch normal: at
-    a step the full normals tilt towards the other level and see it smaller); the offset
-    changes sign with the link's direction. A link is parallel where its two own-patch
-    normals agree within ``parallel_cos``.
+    The fold (below_i + below_j) / 2 is taken with ``normals`` (those of the votes), the
+    offset (below_i - below_j) / 2 with ``own`` (each point's own-patch normal: at a step
+    the full normals tilt towards the other level and see it smaller); the offset changes
+    sign with the link's direction.
     """
     below_i, below_j, _ = _step_free(points, normals, i, j, np.zeros(len(points)))
     own_i, own_j, _ = _step_free(points, own, i, j, np.zeros(len(points)))
-    cos = np.einsum("ij,ij->i", take_rows(normals, i), take_rows(normals, j))
-    return 0.5 * (below_i + below_j), 0.5 * (own_i - own_j), cos > parallel_cos
+    return 0.5 * (below_i + below_j), 0.5 * (own_i - own_j)
 
 
 def _median_abs_dev(values: NDArray[np.float64]) -> float:
@@ -494,7 +491,8 @@ def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
 def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
                      sign: NDArray[np.float64], links: tuple[NDArray, NDArray, NDArray],
                      noise: tuple[NDArray, NDArray], spread: list[float],
-                     floor: tuple[float, float]) -> NDArray[np.bool_]:
+                     floor: tuple[NDArray, float], parallel_cos: float = 1.0
+                     ) -> NDArray[np.bool_]:
     """Tell which patch borders hold a crease or a step, from the medians of their links.
 
     The per-link tests (:func:`_step_free`) judge each link alone against the frame's
@@ -510,7 +508,8 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
       frame noise): the fold carries the normals' error times the link length, and the
       frame's slowly varying error bends the surface, so it is judged against the frame's
       noise (``noise[0]``);
-    - a step where most of its links are parallel and |median offset| > max(``floor[1]``,
+    - a step where its two sides are parallel (their mean own-patch normals along the
+      border agree within ``parallel_cos``) and |median offset| > max(``floor[1]``,
       E ``spread[1]`` x its median local noise): two neighbours share the slowly varying
       error, so an offset between them is seen against the local noise (``noise[1]``).
 
@@ -527,22 +526,30 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
         The link's first point.
     sign : (L,) float64 array
         +1 where that point is in the pair's lower patch, -1 otherwise.
-    links : ((L,), (L,), (L,)) arrays
-        Fold [m], offset [m] and parallel (bool) of every link (:func:`_link_statistics`).
+    links : ((L,), (L,), (L, 3)) arrays
+        Fold [m] and offset [m] of every link (:func:`_link_statistics`), and the
+        own-patch normal of its first point.
     noise : ((L,), (L,)) float64 arrays
         Frame and local noise [m] of every link (the smaller of its two ends').
     spread : [float, float]
         Robust sigma of the fold in frame noise units and of the offset in local ones.
-    floor : (float, float)
-        Smallest crease and step [m].
+    floor : ((L,), float)
+        Smallest fold [m] of a crease at every link (the per-link concavity tolerance), and
+        smallest step [m].
+    parallel_cos : float
 
     Returns
     -------
     (n_pairs,) bool array
     """
-    fold, offset, parallel = links
-    ends = np.unique(np.c_[inv, i, sign > 0], axis=0)
-    side = np.bincount(ends[:, 0] * 2 + ends[:, 2], minlength=2 * n_pairs).reshape(-1, 2)
+    fold, offset, own = links
+    ends, first = np.unique(np.c_[inv, i, sign > 0], axis=0, return_index=True)
+    cell = ends[:, 0] * 2 + ends[:, 2]
+    side = np.bincount(cell, minlength=2 * n_pairs).reshape(-1, 2)
+    mean = np.stack([np.bincount(cell, weights=own[first, c], minlength=2 * n_pairs)
+                     for c in range(3)], axis=1).reshape(-1, 2, 3)
+    mean /= np.maximum(np.linalg.norm(mean, axis=2, keepdims=True), 1e-12)
+    parallel = np.einsum("ij,ij->i", mean[:, 0], mean[:, 1]) > parallel_cos
     error = BORDER_STEP_SIGMAS * MEDIAN_STANDARD_ERROR \
         / np.sqrt(np.maximum(side.min(axis=1) / BORDER_STRIP_POINTS, 1.0))
     crease = _group_median(inv, fold, n_pairs) < -np.maximum(
@@ -550,9 +557,7 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
         error * spread[0] * _group_median(inv, noise[0], n_pairs))
     step = np.abs(_group_median(inv, offset * sign, n_pairs)) > np.maximum(
         floor[1], error * spread[1] * _group_median(inv, noise[1], n_pairs))
-    mostly = np.bincount(inv, weights=parallel, minlength=n_pairs) \
-        > 0.5 * np.bincount(inv, minlength=n_pairs)
-    return crease | (mostly & step)
+    return crease | (parallel & step)
 
 
 def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
