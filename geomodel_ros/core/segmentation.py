@@ -8,7 +8,9 @@
    smooth patches are joined where most neighbour links across their common border are
    flat or convex, not across a concave crease (object on object, object against object),
    a step (parallel faces at different heights) nor a depth jump (occlusion boundary);
-   tiny objects are noise. Two further joins
+   tiny objects are noise; a border whose links show a crease or a step at their median
+   (the evidence of the whole border against the noise of that median) is never joined.
+   Two further joins
    (:mod:`geomodel_ros.core.joins`) put together the parts of one surface cut by an
    occluder and the inner and outer walls of an open round container.
 4. Objects are numbered by size, largest first, after the supports; labels go back to every
@@ -34,7 +36,7 @@ from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
                                      voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.fastmath import rows_finite, take_rows
-from geomodel_ros.core.noise import NoiseEstimate, resolve_params
+from geomodel_ros.core.noise import MAD_TO_SIGMA, NoiseEstimate, resolve_params
 from geomodel_ros.core.joins import join_contained_parts, join_occluded_parts, merge_patches
 from geomodel_ros.core.organized import GridCloud, grid_cloud
 from geomodel_ros.core.params import ModelingParams
@@ -69,12 +71,12 @@ STEP_SHARE = 0.25
 #: scenes): 1 sigma leaves 4.0 % of the objects under-segmented, 3 sigma 20.8 % (a step
 #: that large no longer parts objects that touch tangentially: whole scenes merge).
 STEP_NOISE_SIGMAS = 1.0
-#: A border of two patches holds a step (or a crease) when the per-link step statistic
-#: (:func:`_stepped_borders`), taken at its median over the border's links, lies below 0
-#: by more than this many standard errors of that median under the null of one smooth
-#: surface (measured on the links inside the frame's patches). Three: a one-sided false
-#: cut of about 1 in 700 borders of one surface (a frame has tens to hundreds of borders),
-#: while a consistent offset stands out by sqrt(independent votes) local sigmas.
+#: A border of two patches holds a crease or a step when the median of its links' fold or
+#: offset (:func:`_stepped_borders`) departs from one smooth surface by more than this many
+#: standard errors of that median (the per-link spread measured on the links inside the
+#: frame's patches). Three: a one-sided false cut of 0.13 % of the borders of one surface
+#: under Gaussian noise (a frame has tens to hundreds of borders); none of 12 seeds of the
+#: hand-made borders in ``test/test_segmentation_border_step.py`` is cut without a step.
 BORDER_STEP_SIGMAS = 3.0
 #: The border points of one side of a border lie in a strip about this many point spacings
 #: deep (links reach ``seg_max_edge_factor`` = 2.5 voxels across), so the border is about
@@ -86,8 +88,6 @@ BORDER_STEP_SIGMAS = 3.0
 BORDER_STRIP_POINTS = 2.0
 #: Standard error of the median of n Gaussian samples over sigma / sqrt(n): sqrt(pi / 2).
 MEDIAN_STANDARD_ERROR = math.sqrt(math.pi / 2.0)
-#: 1.4826 MAD is the standard deviation of a Gaussian.
-MAD_TO_SIGMA = 1.4826
 
 
 class DepthNoise(Protocol):
@@ -413,9 +413,12 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     step (:func:`_step_free` with ``step`` (M,) [m] and ``parallel_cos``: two parallel faces
     at different heights have a convexity of 0 but are no continuation of one surface).
 
-    With ``whole`` = (own-patch normals (M, 3), working-point noise (M,) [m]
-    (:func:`working_noise`), the frame's slow-error scale, smallest step [m]) each border
-    is also tested as a whole for a crease or a step (:func:`_stepped_borders`).
+    With ``whole`` = (own-patch normals (M, 3) (:func:`_patch_normals`), working-point
+    noise (M,) [m] (:func:`working_noise`), the frame's slow-error scale (>= 1), the
+    per-link step floor [m]) each border is also tested as a whole for a crease or a step
+    (:func:`_stepped_borders`): the floor of a crease is the per-link concavity tolerance,
+    that of a step the per-link floor over the scale (the quarter of the band of the local
+    noise, which two neighbours do not share).
 
     Returns
     -------
@@ -537,6 +540,7 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
         Smallest fold [m] of a crease at every link (the per-link concavity tolerance), and
         smallest step [m].
     parallel_cos : float
+        The two sides of a step are parallel: their mean normals agree within this cosine.
 
     Returns
     -------
