@@ -447,15 +447,16 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     pairs, inv = np.unique(key, return_inverse=True)
     votes = np.bincount(inv, minlength=len(pairs))
     yes = np.bincount(inv, weights=good, minlength=len(pairs))
-    stepped = None
-    if whole is not None:
+    stepped = None if whole is None else np.zeros(len(pairs), dtype=bool)
+    if whole is not None and len(pairs):
         inner = np.flatnonzero(within & ~ok)
         inner = inner[::max(1, len(inner) // NULL_LINKS)]
         fold, offset = _link_statistics(points, normals, whole[0], i[ok], j[ok])
         null = _link_statistics(points, normals, whole[0], i[inner], j[inner])
         noise_in = np.minimum(whole[1][i[inner]], whole[1][j[inner]])
-        spread = [MAD_TO_SIGMA * _median_abs_dev(null[0] / noise_in),
-                  MAD_TO_SIGMA * _median_abs_dev(null[1] * whole[2] / noise_in)]
+        has = noise_in > 0  # no noise unit where the noise is unknown (0)
+        spread = [MAD_TO_SIGMA * _median_abs_dev(null[0][has] / noise_in[has]),
+                  MAD_TO_SIGMA * _median_abs_dev(null[1][has] * whole[2] / noise_in[has])]
         noise = np.minimum(whole[1][i[ok]], whole[1][j[ok]])
         stepped = _stepped_borders(inv, len(pairs), i[ok], np.where(pi < pj, 1.0, -1.0),
                                    (fold, offset, whole[0][i[ok]]),
