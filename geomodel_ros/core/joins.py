@@ -182,7 +182,8 @@ class DisjointSets:
 # ------------------------------------------------------------------------------------------
 
 def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDArray,
-                  yes: NDArray, sizes: NDArray | None = None) -> NDArray[np.int64]:
+                  yes: NDArray, sizes: NDArray | None = None,
+                  stepped: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
     """Group patches into objects from their border votes.
 
     Parameters
@@ -196,6 +197,10 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     sizes : (n,) array, optional
         Points of every patch; with them a pair joins only across a border of at least
         :data:`JOIN_MIN_BORDER_VOTES` sqrt(points of the smaller patch) votes.
+    stepped : (P,) bool array, optional
+        Borders found to hold a step or crease along their whole length (e.g. from the
+        median of their links, :func:`geomodel_ros.core.segmentation._stepped_borders`):
+        never joined, whatever their votes, and clear creases for the test below.
 
     Returns
     -------
@@ -212,9 +217,12 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     made before it, so the pairs are joined one by one in order of evidence.
     """
     share = yes / np.maximum(votes, 1)
-    creases = _crease_partners(a, b, (votes >= CREASE_MIN_VOTES)
-                               & (share < CREASE_MAX_CONVEX_SHARE))
+    crease = (votes >= CREASE_MIN_VOTES) & (share < CREASE_MAX_CONVEX_SHARE)
     joinable = share >= JOIN_MIN_CONVEX_SHARE
+    if stepped is not None:
+        crease |= stepped
+        joinable &= ~stepped
+    creases = _crease_partners(a, b, crease)
     if sizes is not None:
         smaller = np.minimum(np.take(sizes, a), np.take(sizes, b))
         joinable &= votes >= JOIN_MIN_BORDER_VOTES * np.sqrt(smaller)
