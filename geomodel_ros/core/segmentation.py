@@ -94,6 +94,25 @@ BORDER_STRIP_POINTS = 2.0
 NULL_LINKS = 4000
 #: Standard error of the median of n Gaussian samples over sigma / sqrt(n): sqrt(pi / 2).
 MEDIAN_STANDARD_ERROR = math.sqrt(math.pi / 2.0)
+#: A working point holds one disparity level when the depths of its input points spread
+#: (standard deviation) less than this share of a depth step: two levels mixed in any
+#: proportion p spread by sqrt(p (1 - p)) steps, at least 0.19 for one point in 25 of the
+#: other level (a working point holds at most a few tens of input points).
+LEVEL_SPREAD = 0.1
+#: Where the depths are quantised and a working point holds one disparity level
+#: (:func:`level_quantum`), its error is the level's, shared by its neighbours on the same
+#: terrace: along a border that follows a terrace edge the votes are not independent, and
+#: the median carries the staircase whole. Its offset between two parallel sides is then a
+#: whole number of depth steps: a step is seen only beyond this many (midway between one
+#: step, the quantisation, and two, as the terrace join's next level, 0.5-1.5 steps).
+QUANTUM_OFFSET_STEPS = 1.5
+#: ... and its fold (the mean of the two ends' distances below each other's tangent plane,
+#: :func:`_link_statistics`) can reach half a depth step: a link from a tread to the next
+#: level seen from a normal tilted by the riser. A crease is seen only beyond it. Measured
+#: on the office scene (``python -m geomodel_ros.tools.depth_levels``): the folds of the
+#: borders a plane at 2.3-2.8 m was cut along were 0.03-0.3 steps (0.5-4.9 mm, steps
+#: 15-20 mm), the per-link floor 0.5-0.8 mm.
+QUANTUM_FOLD_STEPS = 0.5
 
 
 class DepthNoise(Protocol):
@@ -201,8 +220,9 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     supports = support_planes(wp, wn, nbrs, sqdist, params, rng)
     t2 = time.perf_counter()
     timing["seg_supports_s"] = t2 - t1
-    labels[finite] = _working_labels(wp, wn, counts, supports, params, grid, noise,
-                                     disparity_step(p))[inverse]
+    step = disparity_step(p)
+    labels[finite] = _working_labels(wp, wn, counts, supports, params, grid, noise, step,
+                                     level_quantum(p, inverse, counts, step))[inverse]
     planes = _claim_contact_rims(p, finite, labels, len(supports), params, rng)
     timing["seg_objects_s"] = time.perf_counter() - t2
     timing["segmentation_s"] = time.perf_counter() - t0
@@ -212,7 +232,8 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
 def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: NDArray[np.int64],
                     supports: list[NDArray[np.int64]], params: ModelingParams,
                     grid: GridCloud | None = None, noise: DepthNoise | None = None,
-                    step: float | None = None) -> NDArray[np.int64]:
+                    step: float | None = None, quantum: NDArray[np.float64] | None = None
+                    ) -> NDArray[np.int64]:
     """Label of every working point: supports 0 .. S-1, objects S, S+1, ... by size, -1 noise.
 
     Parameters
@@ -231,6 +252,8 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     step : float, optional
         The frame's disparity step in 1/z [1/m] (:func:`disparity_step`; None when its
         depths are not quantised): far terraces of one plane are joined.
+    quantum : (M,) float64 array, optional
+        Depth quantisation [m] left in every working point (:func:`level_quantum`).
 
     Returns
     -------
@@ -239,7 +262,7 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     wlabel = np.full(len(wp), -1, dtype=np.int64)
     for sid, sel in enumerate(supports):
         wlabel[sel] = sid
-    comp, comp_ok = _object_segments(wp, counts, wlabel < 0, params, grid, noise)
+    comp, comp_ok = _object_segments(wp, counts, wlabel < 0, params, grid, noise, quantum)
     if params.seg_max_occlusion_gap > 0:
         comp = join_occluded_parts(wp, wn, comp, comp_ok, params)
     comp = join_terraces(wp, comp, comp_ok, step, params)
@@ -251,13 +274,15 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
 
 def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
                      free: NDArray[np.bool_], params: ModelingParams,
-                     grid: GridCloud | None = None, noise: DepthNoise | None = None
+                     grid: GridCloud | None = None, noise: DepthNoise | None = None,
+                     quantum: NDArray[np.float64] | None = None
                      ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
     """Convex objects among the ``free`` (M,) working points (not in a support).
 
     With the organized ``grid`` of ``wp`` the free points' normals come from its neighbour
     lists (:meth:`GridCloud.restricted`) instead of a kNN search among them. ``noise`` is
-    the depth noise (:func:`working_noise`).
+    the depth noise (:func:`working_noise`), ``quantum`` (M,) the depth quantisation [m]
+    left in each working point (:func:`level_quantum`).
 
     Returns
     -------
@@ -272,7 +297,8 @@ def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
     if len(rest_idx) >= MIN_WORKING_POINTS:
         # Normals recomputed without the supports, so they do not blend into the desk.
         comp[rest_idx] = _convex_objects(wp[rest_idx], counts[rest_idx], params, noise,
-                                         None if grid is None else grid.restricted(rest_idx))
+                                         None if grid is None else grid.restricted(rest_idx),
+                                         None if quantum is None else quantum[rest_idx])
     rest = comp >= 0
     size = np.bincount(comp[rest], weights=counts[rest], minlength=int(comp.max()) + 1)
     comp_ok = rest.copy()
@@ -345,7 +371,8 @@ def working_noise(points: NDArray[np.float64], counts: NDArray[np.int64],
 
 def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                     params: ModelingParams, noise: DepthNoise | None = None,
-                    neighbourhood: tuple[NDArray, ...] | None = None) -> NDArray[np.int64]:
+                    neighbourhood: tuple[NDArray, ...] | None = None,
+                    quantum: NDArray[np.float64] | None = None) -> NDArray[np.int64]:
     """Object label of every point of a support-free working cloud (local convexity).
 
     Parameters
@@ -392,10 +419,48 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     a, b, votes, yes, stepped = _border_votes(
         points, normals, nbrs, sqdist, patches, n_p, max_edge,
         params.seg_concavity_tolerance, step, parallel,
-        whole=None if noise is None else (own, noise_w, _slow_scale(noise), floor))
+        whole=None if noise is None else (own, noise_w, _slow_scale(noise), floor,
+                                          np.zeros(m) if quantum is None else quantum))
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
                         stepped=stepped)
     return obj[patches].astype(np.int64)
+
+
+def level_quantum(points: NDArray[np.float64], inverse: NDArray[np.int64],
+                  counts: NDArray[np.int64], step: float | None) -> NDArray[np.float64]:
+    """Depth quantisation [m] left in every working point after the averaging.
+
+    A working point whose input points all lie on one disparity level (their depths spread
+    less than :data:`LEVEL_SPREAD` of a depth step) keeps the level's whole error, up to
+    one depth step ``step * z**2`` between two such points, and so do its neighbours on the
+    same terrace: the error is shared along a terrace edge, not averaged. A working point
+    averaging points of several levels has its quantisation spread into noise, which the
+    frame's noise already holds (0 there).
+
+    Parameters
+    ----------
+    points : (N, 3) float64 array [m]
+        Finite input points, optical axis along +z or -z.
+    inverse : (N,) int64 array
+        Working point of every input point.
+    counts : (M,) int64 array
+        Input points per working point.
+    step : float or None
+        The frame's disparity step in 1/z [1/m] (:func:`disparity_step`); None for a frame
+        whose depths are not quantised (all 0).
+
+    Returns
+    -------
+    (M,) float64 array [m]
+    """
+    if step is None:
+        return np.zeros(len(counts))
+    z = np.abs(points[:, 2])
+    n = np.maximum(counts, 1)
+    mean = np.bincount(inverse, weights=z, minlength=len(counts)) / n
+    var = np.bincount(inverse, weights=np.square(z - mean[inverse]), minlength=len(counts)) / n
+    depth_step = step * np.square(mean)
+    return np.where(var < np.square(LEVEL_SPREAD * depth_step), depth_step, 0.0)
 
 
 def _slow_scale(noise: DepthNoise | None) -> float:
@@ -412,7 +477,7 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
                   nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
                   patches: NDArray[np.int64], n_p: int, max_edge: float, tolerance: float,
                   step: NDArray[np.float64], parallel_cos: float = 1.0,
-                  whole: tuple[NDArray, NDArray, float, float] | None = None
+                  whole: tuple[NDArray, NDArray, float, float, NDArray] | None = None
                   ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray, NDArray,
                              NDArray[np.bool_] | None]:
     """Convexity votes of the neighbour links across each border of two patches.
@@ -426,10 +491,11 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
 
     With ``whole`` = (own-patch normals (M, 3) (:func:`_patch_normals`), working-point
     noise (M,) [m] (:func:`working_noise`), the frame's slow-error scale (>= 1), the
-    per-link step floor [m]) each border is also tested as a whole for a crease or a step
+    per-link step floor [m], the depth quantisation left in each working point (M,) [m]
+    (:func:`level_quantum`)) each border is also tested as a whole for a crease or a step
     (:func:`_stepped_borders`): the floor of a crease is the per-link concavity tolerance,
     that of a step the per-link floor over the scale (the quarter of the band of the local
-    noise, which two neighbours do not share).
+    noise, which two neighbours do not share); both at least the quantisation's share.
 
     Returns
     -------
@@ -464,10 +530,12 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
         spread = [MAD_TO_SIGMA * _median_abs_dev(null[0][has] / noise_in[has]),
                   MAD_TO_SIGMA * _median_abs_dev(null[1][has] * whole[2] / noise_in[has])]
         noise = np.minimum(whole[1][i[ok]], whole[1][j[ok]])
+        quantum = 0.5 * (whole[4][i[ok]] + whole[4][j[ok]])
         stepped = _stepped_borders(inv, len(pairs), i[ok], np.where(pi < pj, 1.0, -1.0),
                                    (fold, offset, whole[0][i[ok]]),
                                    (noise, whole[2]), spread,
-                                   (0.5 * tolerance * dist, whole[3] / whole[2]), parallel_cos)
+                                   (0.5 * tolerance * dist, whole[3] / whole[2], quantum),
+                                   parallel_cos)
     return pairs // n_p, pairs % n_p, votes, yes, stepped
 
 
@@ -522,14 +590,19 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
     A border holds
 
     - a crease where its median fold < -max(``floor[0]``, E ``spread[0]`` x its mean
-      frame noise): the fold carries the normals' error times the link length, and the
-      frame's slowly varying error bends the surface, so it is judged against the frame's
-      noise (``noise[0]``);
+      frame noise, :data:`QUANTUM_FOLD_STEPS` x its mean quantum ``floor[2]``): the fold
+      carries the normals' error times the link length, and the frame's slowly varying
+      error bends the surface, so it is judged against the frame's noise (``noise[0]``);
     - a step where its two sides are parallel (their mean own-patch normals along the
       border agree within ``parallel_cos``) and |median offset| > max(``floor[1]``,
-      E ``spread[1]`` x its mean local noise, the frame noise over ``noise[1]``): two
-      neighbours share the slowly varying error, so an offset between them is seen
-      against the local noise.
+      E ``spread[1]`` x its mean local noise (the frame noise over ``noise[1]``),
+      :data:`QUANTUM_OFFSET_STEPS` x its mean quantum): two neighbours share the slowly
+      varying error, so an offset between them is seen against the local noise.
+
+    The quantum (the depth step where a working point holds one disparity level, 0
+    elsewhere) does not shrink with the votes: a terrace's error is shared along it. On
+    such terraces most links inside a patch have a fold and offset of exactly 0, so the
+    measured spreads vanish and would leave the floors alone against the staircase.
 
     E is :data:`BORDER_STEP_SIGMAS` x :data:`MEDIAN_STANDARD_ERROR` / sqrt(votes); the
     spreads are the robust sigmas of the statistics in those noise units, measured on the
@@ -552,9 +625,10 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
         slow-error scale: the local noise is the frame noise over it.
     spread : [float, float]
         Robust sigma of the fold in frame noise units and of the offset in local ones.
-    floor : ((L,), float)
-        Smallest fold [m] of a crease at every link (the per-link concavity tolerance), and
-        smallest step [m].
+    floor : ((L,), float, (L,))
+        Smallest fold [m] of a crease at every link (the per-link concavity tolerance),
+        smallest step [m], and the depth quantisation [m] of every link (the mean of its
+        two ends' :func:`level_quantum`).
     parallel_cos : float
         The two sides of a step are parallel: their mean normals agree within this cosine.
 
@@ -574,11 +648,13 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
     error = BORDER_STEP_SIGMAS * MEDIAN_STANDARD_ERROR \
         / np.sqrt(np.maximum(side.min(axis=1) / BORDER_STRIP_POINTS, 1.0))
     links_per = np.maximum(np.bincount(inv, minlength=n_pairs), 1)
-    frame, tol = (np.bincount(inv, weights=w, minlength=n_pairs) / links_per
-                  for w in (noise[0], floor[0]))
-    crease = _group_median(inv, fold, n_pairs) < -np.maximum(tol, error * spread[0] * frame)
+    frame, tol, quantum = (np.bincount(inv, weights=w, minlength=n_pairs) / links_per
+                           for w in (noise[0], floor[0], floor[2]))
+    crease = _group_median(inv, fold, n_pairs) < -np.maximum(
+        np.maximum(tol, error * spread[0] * frame), QUANTUM_FOLD_STEPS * quantum)
     step = np.abs(_group_median(inv, offset * sign, n_pairs)) > np.maximum(
-        floor[1], error * spread[1] * frame / noise[1])
+        np.maximum(floor[1], error * spread[1] * frame / noise[1]),
+        QUANTUM_OFFSET_STEPS * quantum)
     return crease | (parallel & step)
 
 
