@@ -12,7 +12,11 @@ shared by neighbours (a smooth field of 2 mm amplitude over 5 cm); the frame's e
   median offset of its links between parallel sides, or the median fold, departs from one
   smooth surface by more than the median's standard error allows;
 - :func:`geomodel_ros.core.joins.merge_patches` never joins a stepped border and treats it
-  as a crease.
+  as a crease;
+- where the depths are quantised (a disparity step 1/z), a working point that holds one
+  level keeps the level's error (:func:`geomodel_ros.core.segmentation.level_quantum`), and
+  a border of such points is cut only beyond what the staircase gives: an offset of more
+  than 1.5 depth steps, a fold of more than half a step.
 """
 
 from __future__ import annotations
@@ -21,12 +25,12 @@ import math
 
 import numpy as np
 
-from geomodel_ros.core.faces import estimate_normals
+from geomodel_ros.core.faces import WorkingCloud, estimate_normals, split_faces, voxelize
 from geomodel_ros.core.joins import merge_patches
 from geomodel_ros.core.noise import NoiseEstimate, object_params
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.segmentation import (STEP_SHARE, _border_votes, _patch_normals,
-                                            working_noise)
+                                            level_quantum, working_noise)
 
 MM = 1e-3
 SPACING = 4 * MM
@@ -48,14 +52,16 @@ def _field(x, y, rng, amplitude, wavelength):
 
 
 def _border(rng, step=0.0, fold=0.0, length=0.10, local_sigma=LOCAL_SIGMA, slow=2 * MM,
-            outliers=0.0):
+            outliers=0.0, disparity=None):
     """Votes of the one border between the halves y < 0 and y > 0 of a plane at 1 m.
 
     The half y > 0 is raised towards the sensor by ``step`` [m] and bent about the
     border by ``fold`` [rad] (positive: concave, the two halves rise towards each other
     when seen from the sensor; negative: convex). Within a link's reach of the border
     (1 cm) every other working point is displaced by ``outliers`` [m] along the ray, a
-    random sign each (random per-link excursions).
+    random sign each (random per-link excursions). With ``disparity`` [1/m] the depths are
+    then quantised to whole multiples of it in 1/z, and every working point is one input
+    point (so holds one level).
 
     Returns
     -------
@@ -74,13 +80,18 @@ def _border(rng, step=0.0, fold=0.0, length=0.10, local_sigma=LOCAL_SIGMA, slow=
     z += rng.normal(0.0, local_sigma / math.sqrt(COUNT), len(x))
     near = (np.abs(y) < 0.01) & (rng.random(len(x)) < 0.5)
     z[near] += outliers * rng.choice([-1.0, 1.0], int(near.sum()))
+    count = COUNT
+    if disparity is not None:
+        z, count = 1.0 / (np.round(1.0 / z / disparity) * disparity), 1
     points = np.c_[x, y, z]
     patches = upper.astype(np.int64)
     noise = NoiseEstimate(a=SCALE * local_sigma, b=0.0, scale=SCALE, samples=1)
     params = object_params(ModelingParams(), noise, depth=1.0)
     normals, _, nbrs, sqdist = estimate_normals(points, params.normal_neighbors,
                                                 return_sqdist=True)
-    noise_w = working_noise(points, np.full(len(points), COUNT), noise)
+    counts = np.full(len(points), count)
+    noise_w = working_noise(points, counts, noise)
+    quantum = level_quantum(points, np.arange(len(points)), counts, disparity)
     floor = STEP_SHARE * params.seg_plane_threshold
     step_w = np.maximum(floor, noise_w)
     normals, own = _patch_normals(points, normals, nbrs, patches, noise_w, return_own=True)
@@ -88,7 +99,7 @@ def _border(rng, step=0.0, fold=0.0, length=0.10, local_sigma=LOCAL_SIGMA, slow=
     parallel = math.cos(params.face_angle_threshold)
     _, _, votes, yes, stepped = _border_votes(
         points, normals, nbrs, sqdist, patches, 2, max_edge, params.seg_concavity_tolerance,
-        step_w, parallel, whole=(own, noise_w, SCALE, floor))
+        step_w, parallel, whole=(own, noise_w, SCALE, floor, quantum))
     assert len(votes) == 1
     return int(votes[0]), float(yes[0]), bool(stepped[0])
 
@@ -178,3 +189,106 @@ def test_without_a_noise_estimate_no_border_is_tested_as_a_whole():
     out = _border_votes(points, normals, nbrs, sqdist, patches, 2, 0.01, 0.1,
                         np.full(200, 1 * MM))
     assert out[4] is None
+
+
+# ------------------------------------------------------------------ quantised depths
+#: A Kinect's disparity step in 1/z [1/m]: one depth step is 2.9 mm at 1 m, 11.6 mm at 2 m.
+DISPARITY = 2.9e-3
+
+
+def test_level_quantum_is_a_depth_step_where_a_working_point_holds_one_level():
+    # Working point 0: three input points at z = 2 m (one level): it keeps the level's
+    # error, one depth step 2.9e-3 x 2^2 = 11.6 mm. Working point 1: two points at 2 m and
+    # two on the next level (1/z = 0.5 - 2.9e-3: z = 2.01167 m), their depths spread by
+    # 5.8 mm (half the gap), far beyond a tenth of a step: the averaging has spread the
+    # quantisation into noise (0). Working point 2: one point at z = -1 m (an optical axis
+    # along -z): 2.9 mm. An unquantised frame (no disparity step): 0 everywhere.
+    far = 1.0 / (0.5 - DISPARITY)
+    points = np.array([[0, 0, 2.0], [0.001, 0, 2.0], [0, 0.001, 2.0],
+                       [0.1, 0, 2.0], [0.1, 0.001, 2.0], [0.101, 0, far], [0.101, 0.001, far],
+                       [0.2, 0, -1.0]])
+    inverse = np.array([0, 0, 0, 1, 1, 1, 1, 2])
+    counts = np.array([3, 4, 1])
+    quantum = level_quantum(points, inverse, counts, DISPARITY)
+    np.testing.assert_allclose(quantum, [11.6 * MM, 0.0, 2.9 * MM], rtol=1e-3, atol=1e-12)
+    assert not level_quantum(points, inverse, counts, None).any()
+
+
+def test_one_disparity_step_between_terraces_is_not_cut_three_are():
+    # Depths quantised at 1 m (one step 2.9 mm); every working point one input point, so on
+    # one level. The two halves of a plane one level apart, or on the same one, are what
+    # the quantisation makes of a smooth surface: their offset (one step) is within the
+    # 1.5 steps allowed. Three levels apart (8.7 mm, still shorter than a link of 10 mm)
+    # is a step: cut on every seed.
+    for seed in SEEDS:
+        for levels in (0, 1):
+            assert not _border(np.random.default_rng(seed), step=levels * DISPARITY,
+                               disparity=DISPARITY)[2], (seed, levels)
+        assert _border(np.random.default_rng(seed), step=3 * DISPARITY,
+                       disparity=DISPARITY)[2], seed
+
+
+def test_a_steep_concave_crease_on_quantised_sides_is_still_cut():
+    # Two faces meeting concave at 45 degrees each side of the border, depths quantised at
+    # 1 m: a link 4-10 mm across sees a fold of about -tan(45 deg) x 3 mm = -3 mm, beyond
+    # half a depth step (1.45 mm): cut on every seed; convex by the same angle never.
+    fold = math.radians(45.0)
+    for seed in SEEDS:
+        assert _border(np.random.default_rng(seed), fold=fold, disparity=DISPARITY)[2], seed
+        assert not _border(np.random.default_rng(seed), fold=-fold, disparity=DISPARITY)[2], \
+            seed
+
+
+def _staircase_borders(depth, tilt, seed, quantised):
+    """Whole-border verdicts on the patch borders of one quantised plane.
+
+    A plane ``depth`` [m] in front of the sensor, tilted by ``tilt`` [rad] about the x
+    axis, seen by a Kinect-like camera (pixels 2.2 mm apart at 1 m, a tenth of a depth
+    step of noise before the quantisation), reduced to working points (voxels of 1.2
+    pixels) and split into smooth patches as the segmentation does (its terraces' edges
+    turn the normals). With ``quantised`` False the test is told nothing about the
+    quantisation (as before it was known).
+    """
+    rng = np.random.default_rng(seed)
+    pixel = 2.2e-3 * depth
+    ray = np.arange(-0.1, 0.1, pixel)
+    x, y = (g.ravel() for g in np.meshgrid(ray, ray))
+    z = depth + y * math.tan(tilt) + rng.normal(0.0, 0.1 * DISPARITY * depth ** 2, len(x))
+    z = 1.0 / (np.round(1.0 / z / DISPARITY) * DISPARITY)
+    points, inverse, counts = voxelize(np.c_[x * z / depth, y * z / depth, z], 1.2 * pixel)
+    params = ModelingParams(seg_voxel_size=1.2 * pixel)
+    noise = NoiseEstimate(a=0.2 * DISPARITY * depth ** 2, b=0.0, scale=2.0, samples=1)
+    normals, variation, nbrs, sqdist = estimate_normals(points, params.normal_neighbors,
+                                                        return_sqdist=True)
+    max_edge = params.seg_max_edge_factor * params.seg_voxel_size
+    patches = split_faces(WorkingCloud(points, normals, variation, nbrs, counts,
+                                       np.arange(len(points)), sqdist),
+                          params.face_angle_threshold, params.edge_variation_threshold,
+                          params.min_face_points, max_edge).labels
+    noise_w = working_noise(points, counts, noise)
+    floor = STEP_SHARE * params.seg_plane_threshold
+    normals, own = _patch_normals(points, normals, nbrs, patches, noise_w, return_own=True)
+    quantum = level_quantum(np.c_[x, y, z], inverse, counts, DISPARITY) if quantised \
+        else np.zeros(len(points))
+    return _border_votes(points, normals, nbrs, sqdist, patches, int(patches.max()) + 1,
+                         max_edge, params.seg_concavity_tolerance,
+                         np.maximum(floor, noise_w), math.cos(params.face_angle_threshold),
+                         whole=(own, noise_w, 2.0, floor, quantum))[4]
+
+
+def test_the_terraces_of_one_quantised_plane_are_never_cut():
+    # One plane at 1.5-2.5 m (depth steps 6.5-18 mm, beyond the local noise: a staircase of
+    # flat treads), tilted by 30-60 degrees. Its patches meet along terrace edges, where
+    # the median offset between two sides reaches about one depth step and the median fold
+    # about half of one: none of its borders is a step or crease. Told nothing about the
+    # quantisation, the test cuts this plane along some of them (the per-link spreads
+    # measured inside the patches are ~0 there: most links lie on one tread).
+    cut_without = 0
+    for depth in (1.5, 2.0, 2.5):
+        for tilt in (30.0, 45.0, 60.0):
+            for seed in range(2):
+                stepped = _staircase_borders(depth, math.radians(tilt), seed, True)
+                assert not stepped.any(), (depth, tilt, seed)
+                cut_without += int(_staircase_borders(depth, math.radians(tilt), seed,
+                                                      False).sum())
+    assert cut_without > 0
