@@ -183,7 +183,7 @@ class DisjointSets:
 
 def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDArray,
                   yes: NDArray, sizes: NDArray | None = None,
-                  stepped: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
+                  creased: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
     """Group patches into objects from their border votes.
 
     Parameters
@@ -197,10 +197,10 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     sizes : (n,) array, optional
         Points of every patch; with them a pair joins only across a border of at least
         :data:`JOIN_MIN_BORDER_VOTES` sqrt(points of the smaller patch) votes.
-    stepped : (P,) bool array, optional
-        Borders found to hold a step or crease along their whole length (e.g. from the
-        median of their links, :func:`geomodel_ros.core.segmentation._stepped_borders`):
-        never joined, whatever their votes, and clear creases for the test below.
+    creased : (P,) bool array, optional
+        Borders found to hold a crease along their whole length (e.g. from the median of
+        their links, :func:`geomodel_ros.core.segmentation._creased_borders`): never
+        joined, whatever their votes, and clear creases for the test below.
 
     Returns
     -------
@@ -219,9 +219,9 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     share = yes / np.maximum(votes, 1)
     crease = (votes >= CREASE_MIN_VOTES) & (share < CREASE_MAX_CONVEX_SHARE)
     joinable = share >= JOIN_MIN_CONVEX_SHARE
-    if stepped is not None:
-        crease |= stepped
-        joinable &= ~stepped
+    if creased is not None:
+        crease |= creased
+        joinable &= ~creased
     creases = _crease_partners(a, b, crease)
     if sizes is not None:
         smaller = np.minimum(np.take(sizes, a), np.take(sizes, b))

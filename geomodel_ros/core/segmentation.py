@@ -8,8 +8,8 @@
    smooth patches are joined where most neighbour links across their common border are
    flat or convex, not across a concave crease (object on object, object against object),
    a step (parallel faces at different heights) nor a depth jump (occlusion boundary);
-   tiny objects are noise; a border whose links show a crease or a step at their median
-   (the evidence of the whole border against the noise of that median) is never joined.
+   tiny objects are noise; a border whose links show a crease at their median (the
+   evidence of the whole border against the noise of that median) is never joined.
    Two further joins
    (:mod:`geomodel_ros.core.joins`) put together the parts of one surface cut by an
    occluder and the inner and outer walls of an open round container.
@@ -72,13 +72,13 @@ STEP_SHARE = 0.25
 #: scenes): 1 sigma leaves 4.0 % of the objects under-segmented, 3 sigma 20.8 % (a step
 #: that large no longer parts objects that touch tangentially: whole scenes merge).
 STEP_NOISE_SIGMAS = 1.0
-#: A border of two patches holds a crease or a step when the median of its links' fold or
-#: offset (:func:`_stepped_borders`) departs from one smooth surface by more than this many
-#: standard errors of that median (the per-link spread measured on the links inside the
-#: frame's patches). Three: a one-sided false cut of 0.13 % of the borders of one surface
-#: under Gaussian noise (a frame has tens to hundreds of borders); none of 12 seeds of the
-#: hand-made borders in ``test/test_segmentation_border_step.py`` is cut without a step.
-BORDER_STEP_SIGMAS = 3.0
+#: A border of two patches holds a crease when the median of its links' fold
+#: (:func:`_creased_borders`) is concave by more than this many standard errors of that
+#: median (the per-link spread measured on the links inside the frame's patches). Three: a
+#: one-sided false cut of 0.13 % of the borders of one surface under Gaussian noise (a
+#: frame has tens to hundreds of borders); none of 12 seeds of the hand-made borders in
+#: ``test/test_segmentation_border_step.py`` is cut without a crease.
+BORDER_CREASE_SIGMAS = 3.0
 #: The border points of one side of a border lie in a strip about this many point spacings
 #: deep (links reach ``seg_max_edge_factor`` = 2.5 voxels across), so the border is about
 #: their number over this long, and its votes count once per point spacing along it: the
@@ -90,7 +90,7 @@ BORDER_STRIP_POINTS = 2.0
 #: The per-link spreads are measured on at most about this many links inside the patches
 #: (evenly strided; a Kinect frame holds about 10^5): the relative standard error of a
 #: MAD-based sigma is about 1.1 / sqrt(n), 2 % for 4000 links, well below the margin of
-#: :data:`BORDER_STEP_SIGMAS`; all of them cost 5-6 ms a frame.
+#: :data:`BORDER_CREASE_SIGMAS`; all of them cost 5-6 ms a frame.
 NULL_LINKS = 4000
 #: Standard error of the median of n Gaussian samples over sigma / sqrt(n): sqrt(pi / 2).
 MEDIAN_STANDARD_ERROR = math.sqrt(math.pi / 2.0)
@@ -102,16 +102,12 @@ LEVEL_SPREAD = 0.1
 #: Where the depths are quantised and a working point holds one disparity level
 #: (:func:`level_quantum`), its error is the level's, shared by its neighbours on the same
 #: terrace: along a border that follows a terrace edge the votes are not independent, and
-#: the median carries the staircase whole. Its offset between two parallel sides is then a
-#: whole number of depth steps: a step is seen only beyond this many (midway between one
-#: step, the quantisation, and two, as the terrace join's next level, 0.5-1.5 steps).
-QUANTUM_OFFSET_STEPS = 1.5
-#: ... and its fold (the mean of the two ends' distances below each other's tangent plane,
-#: :func:`_link_statistics`) can reach half a depth step: a link from a tread to the next
-#: level seen from a normal tilted by the riser. A crease is seen only beyond it. Measured
-#: on the office scene (``python -m geomodel_ros.tools.depth_levels``): the folds of the
-#: borders a plane at 2.3-2.8 m was cut along were 0.03-0.3 steps (0.5-4.9 mm, steps
-#: 15-20 mm), the per-link floor 0.5-0.8 mm.
+#: the median fold carries the staircase whole. A link from a tread to the next level
+#: seen from a normal tilted by the riser folds by up to about half a depth step: a crease
+#: is seen only beyond it. Hand geometry (quantised planes at 1-3 m tilted by 0-70 deg,
+#: patches split as the segmentation does, 2536 borders): median folds down to -0.49 of
+#: the border's mean quantum. The office scene's plane at 2.3-2.8 m was cut along borders
+#: of median fold -0.5 to -4.9 mm where a step is 15-20 mm.
 QUANTUM_FOLD_STEPS = 0.5
 
 
@@ -415,14 +411,14 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                          min_piece=params.min_face_points,
                          noisy=STEP_NOISE_SIGMAS * noise_w > floor, parallel_cos=parallel)
     n_p = int(patches.max()) + 1
-    normals, own = _patch_normals(points, normals, nbrs, patches, noise_w, return_own=True)
-    a, b, votes, yes, stepped = _border_votes(
+    normals = _patch_normals(points, normals, nbrs, patches, noise_w)
+    a, b, votes, yes, creased = _border_votes(
         points, normals, nbrs, sqdist, patches, n_p, max_edge,
         params.seg_concavity_tolerance, step, parallel,
-        whole=None if noise is None else (own, noise_w, _slow_scale(noise), floor,
+        whole=None if noise is None else (noise_w,
                                           np.zeros(m) if quantum is None else quantum))
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
-                        stepped=stepped)
+                        creased=creased)
     return obj[patches].astype(np.int64)
 
 
@@ -463,21 +459,11 @@ def level_quantum(points: NDArray[np.float64], inverse: NDArray[np.int64],
     return np.where(var < np.square(LEVEL_SPREAD * depth_step), depth_step, 0.0)
 
 
-def _slow_scale(noise: DepthNoise | None) -> float:
-    """Return the factor (>= 1) by which a frame's noise exceeds its local noise.
-
-    A :class:`~geomodel_ros.core.noise.NoiseEstimate` carries it as ``scale`` (the slowly
-    varying error across the frame that neighbouring points share: 1.6-2.5 on every real
-    frame measured); any other noise model has none (1).
-    """
-    return max(float(getattr(noise, "scale", 1.0)), 1.0)
-
-
 def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
                   nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
                   patches: NDArray[np.int64], n_p: int, max_edge: float, tolerance: float,
                   step: NDArray[np.float64], parallel_cos: float = 1.0,
-                  whole: tuple[NDArray, NDArray, float, float, NDArray] | None = None
+                  whole: tuple[NDArray, NDArray] | None = None
                   ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray, NDArray,
                              NDArray[np.bool_] | None]:
     """Convexity votes of the neighbour links across each border of two patches.
@@ -489,13 +475,10 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     step (:func:`_step_free` with ``step`` (M,) [m] and ``parallel_cos``: two parallel faces
     at different heights have a convexity of 0 but are no continuation of one surface).
 
-    With ``whole`` = (own-patch normals (M, 3) (:func:`_patch_normals`), working-point
-    noise (M,) [m] (:func:`working_noise`), the frame's slow-error scale (>= 1), the
-    per-link step floor [m], the depth quantisation left in each working point (M,) [m]
-    (:func:`level_quantum`)) each border is also tested as a whole for a crease or a step
-    (:func:`_stepped_borders`): the floor of a crease is the per-link concavity tolerance,
-    that of a step the per-link floor over the scale (the quarter of the band of the local
-    noise, which two neighbours do not share); both at least the quantisation's share.
+    With ``whole`` = (working-point noise (M,) [m] (:func:`working_noise`), the depth
+    quantisation left in each working point (M,) [m] (:func:`level_quantum`)) each border
+    is also tested as a whole for a crease (:func:`_creased_borders`), its floor the
+    per-link concavity tolerance.
 
     Returns
     -------
@@ -503,8 +486,8 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
         The two patches of each adjacent pair, ``a < b``, pairs in increasing order.
     votes, yes : (P,) arrays
         Number of links across each pair's border, and of yes votes among them.
-    stepped : (P,) bool array or None
-        Borders with a step or crease along their whole length (None without ``whole``).
+    creased : (P,) bool array or None
+        Borders with a crease along their whole length (None without ``whole``).
     """
     m, k = nbrs.shape
     i = np.repeat(np.arange(m), k)
@@ -519,39 +502,26 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     pairs, inv = np.unique(key, return_inverse=True)
     votes = np.bincount(inv, minlength=len(pairs))
     yes = np.bincount(inv, weights=good, minlength=len(pairs))
-    stepped = None if whole is None else np.zeros(len(pairs), dtype=bool)
+    creased = None if whole is None else np.zeros(len(pairs), dtype=bool)
     if whole is not None and len(pairs):
+        noise_w, quantum = whole
         inner = np.flatnonzero(within & ~ok)
         inner = inner[::max(1, len(inner) // NULL_LINKS)]
-        fold, offset = _link_statistics(points, normals, whole[0], i[ok], j[ok])
-        null = _link_statistics(points, normals, whole[0], i[inner], j[inner])
-        noise_in = np.minimum(whole[1][i[inner]], whole[1][j[inner]])
+        null = _link_folds(points, normals, i[inner], j[inner])
+        noise_in = np.minimum(noise_w[i[inner]], noise_w[j[inner]])
         has = noise_in > 0  # no noise unit where the noise is unknown (0)
-        spread = [MAD_TO_SIGMA * _median_abs_dev(null[0][has] / noise_in[has]),
-                  MAD_TO_SIGMA * _median_abs_dev(null[1][has] * whole[2] / noise_in[has])]
-        noise = np.minimum(whole[1][i[ok]], whole[1][j[ok]])
-        quantum = 0.5 * (whole[4][i[ok]] + whole[4][j[ok]])
-        stepped = _stepped_borders(inv, len(pairs), i[ok], np.where(pi < pj, 1.0, -1.0),
-                                   (fold, offset, whole[0][i[ok]]),
-                                   (noise, whole[2]), spread,
-                                   (0.5 * tolerance * dist, whole[3] / whole[2], quantum),
-                                   parallel_cos)
-    return pairs // n_p, pairs % n_p, votes, yes, stepped
+        spread = MAD_TO_SIGMA * _median_abs_dev(null[has] / noise_in[has])
+        links = np.stack([0.5 * (below_i + below_j), np.minimum(noise_w[i[ok]], noise_w[j[ok]]),
+                          0.5 * tolerance * dist, 0.5 * (quantum[i[ok]] + quantum[j[ok]])])
+        creased = _creased_borders(inv, len(pairs), i[ok], pi < pj, links, spread)
+    return pairs // n_p, pairs % n_p, votes, yes, creased
 
 
-def _link_statistics(points: NDArray[np.float64], normals: NDArray[np.float64],
-                     own: NDArray[np.float64], i: NDArray[np.int64], j: NDArray[np.int64]
-                     ) -> tuple[NDArray, NDArray]:
-    """Fold and offset [m] of the links i -> j (:func:`_step_free`).
-
-    The fold (below_i + below_j) / 2 is taken with ``normals`` (those of the votes), the
-    offset (below_i - below_j) / 2 with ``own`` (each point's own-patch normal: at a step
-    the full normals tilt towards the other level and see it smaller); the offset changes
-    sign with the link's direction.
-    """
+def _link_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
+                i: NDArray[np.int64], j: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Fold [m] of the links i -> j: (below_i + below_j) / 2 (:func:`_step_free`)."""
     below_i, below_j, _ = _step_free(points, normals, i, j, np.zeros(len(points)))
-    own_i, own_j, _ = _step_free(points, own, i, j, np.zeros(len(points)))
-    return 0.5 * (below_i + below_j), 0.5 * (own_i - own_j)
+    return 0.5 * (below_i + below_j)
 
 
 def _median_abs_dev(values: NDArray[np.float64]) -> float:
@@ -573,40 +543,24 @@ def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
     return 0.5 * (v[start + (counts - 1) // 2] + v[start + counts // 2])
 
 
-def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
-                     sign: NDArray[np.float64], links: tuple[NDArray, NDArray, NDArray],
-                     noise: tuple[NDArray, float], spread: list[float],
-                     floor: tuple[NDArray, float], parallel_cos: float = 1.0
+def _creased_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
+                     lower: NDArray[np.bool_], links: NDArray[np.float64], spread: float
                      ) -> NDArray[np.bool_]:
-    """Tell which patch borders hold a crease or a step, from the medians of their links.
+    """Tell which patch borders hold a crease, from the median fold of their links.
 
-    The per-link tests (:func:`_step_free`) judge each link alone against the frame's
-    noise: one link's excursion is no evidence, so under noise a small step (a can's top
-    2.5 mm above a box's top beside it) or a shallow contact crease passes them link by
-    link. Along a whole border the fold and the signed offset (oriented from the lower
-    patch id to the higher) keep their values while the noise of their medians shrinks
-    like 1 / sqrt(independent votes): one vote per point spacing along the border,
-    (border points of the side with fewer) / :data:`BORDER_STRIP_POINTS`, at least 1.
-    A border holds
-
-    - a crease where its median fold < -max(``floor[0]``, E ``spread[0]`` x its mean
-      frame noise, :data:`QUANTUM_FOLD_STEPS` x its mean quantum ``floor[2]``): the fold
-      carries the normals' error times the link length, and the frame's slowly varying
-      error bends the surface, so it is judged against the frame's noise (``noise[0]``);
-    - a step where its two sides are parallel (their mean own-patch normals along the
-      border agree within ``parallel_cos``) and |median offset| > max(``floor[1]``,
-      E ``spread[1]`` x its mean local noise (the frame noise over ``noise[1]``),
-      :data:`QUANTUM_OFFSET_STEPS` x its mean quantum): two neighbours share the slowly
-      varying error, so an offset between them is seen against the local noise.
-
-    The quantum (the depth step where a working point holds one disparity level, 0
-    elsewhere) does not shrink with the votes: a terrace's error is shared along it. On
-    such terraces most links inside a patch have a fold and offset of exactly 0, so the
-    measured spreads vanish and would leave the floors alone against the staircase.
-
-    E is :data:`BORDER_STEP_SIGMAS` x :data:`MEDIAN_STANDARD_ERROR` / sqrt(votes); the
-    spreads are the robust sigmas of the statistics in those noise units, measured on the
-    links inside the patches (one smooth surface each).
+    The per-link votes judge each link alone: under noise a shallow contact crease (two
+    objects touching) lets 30-50 % of them pass, and a majority may join the two. Along a
+    whole border the fold keeps its value while the noise of its median shrinks like
+    1 / sqrt(independent votes): one vote per point spacing along the border, (border
+    points of the side with fewer) / :data:`BORDER_STRIP_POINTS`, at least 1. A border
+    holds a crease where its median fold < -max(its mean floor, E ``spread`` x its mean
+    frame noise, :data:`QUANTUM_FOLD_STEPS` x its mean quantum), E =
+    :data:`BORDER_CREASE_SIGMAS` x :data:`MEDIAN_STANDARD_ERROR` / sqrt(votes). The fold
+    carries the normals' error times the link length, and the frame's slowly varying error
+    bends the surface, so it is judged against the frame's noise. The quantum (a depth
+    step where a working point holds one disparity level, 0 elsewhere) does not shrink
+    with the votes: a terrace's error is shared along it; and on such terraces most links
+    inside a patch have a fold of exactly 0, so the measured spread vanishes there.
 
     Parameters
     ----------
@@ -615,53 +569,35 @@ def _stepped_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
     n_pairs : int
     i : (L,) int64 array
         The link's first point.
-    sign : (L,) float64 array
-        +1 where that point is in the pair's lower patch, -1 otherwise.
-    links : ((L,), (L,), (L, 3)) arrays
-        Fold [m] and offset [m] of every link (:func:`_link_statistics`), and the
-        own-patch normal of its first point.
-    noise : ((L,) float64 array, float)
-        Frame noise [m] of every link (the smaller of its two ends'), and the frame's
-        slow-error scale: the local noise is the frame noise over it.
-    spread : [float, float]
-        Robust sigma of the fold in frame noise units and of the offset in local ones.
-    floor : ((L,), float, (L,))
-        Smallest fold [m] of a crease at every link (the per-link concavity tolerance),
-        smallest step [m], and the depth quantisation [m] of every link (the mean of its
-        two ends' :func:`level_quantum`).
-    parallel_cos : float
-        The two sides of a step are parallel: their mean normals agree within this cosine.
+    lower : (L,) bool array
+        That point is in the pair's lower patch (it counts on that side of the border).
+    links : (4, L) float64 array
+        Per link: fold [m] (:func:`_link_folds`), frame noise [m] (the smaller of its two
+        ends'), smallest fold of a crease [m] (the per-link concavity tolerance), depth
+        quantisation [m] (the mean of its two ends' :func:`level_quantum`).
+    spread : float
+        Robust sigma of the fold in frame noise units, measured on the links inside the
+        patches (one smooth surface each).
 
     Returns
     -------
     (n_pairs,) bool array
     """
-    fold, offset, own = links
-    cell = inv * 2 + (sign > 0)
+    cell = inv * 2 + lower
     _, first = np.unique(cell * (int(i.max(initial=0)) + 1) + i, return_index=True)
-    cell = cell[first]
-    side = np.bincount(cell, minlength=2 * n_pairs).reshape(-1, 2)
-    mean = np.stack([np.bincount(cell, weights=own[first, c], minlength=2 * n_pairs)
-                     for c in range(3)], axis=1).reshape(-1, 2, 3)
-    mean /= np.maximum(np.linalg.norm(mean, axis=2, keepdims=True), 1e-12)
-    parallel = np.einsum("ij,ij->i", mean[:, 0], mean[:, 1]) > parallel_cos
-    error = BORDER_STEP_SIGMAS * MEDIAN_STANDARD_ERROR \
+    side = np.bincount(cell[first], minlength=2 * n_pairs).reshape(-1, 2)
+    error = BORDER_CREASE_SIGMAS * MEDIAN_STANDARD_ERROR \
         / np.sqrt(np.maximum(side.min(axis=1) / BORDER_STRIP_POINTS, 1.0))
     links_per = np.maximum(np.bincount(inv, minlength=n_pairs), 1)
     frame, tol, quantum = (np.bincount(inv, weights=w, minlength=n_pairs) / links_per
-                           for w in (noise[0], floor[0], floor[2]))
-    crease = _group_median(inv, fold, n_pairs) < -np.maximum(
-        np.maximum(tol, error * spread[0] * frame), QUANTUM_FOLD_STEPS * quantum)
-    step = np.abs(_group_median(inv, offset * sign, n_pairs)) > np.maximum(
-        np.maximum(floor[1], error * spread[1] * frame / noise[1]),
-        QUANTUM_OFFSET_STEPS * quantum)
-    return crease | (parallel & step)
+                           for w in links[1:])
+    return _group_median(inv, links[0], n_pairs) < -np.maximum(
+        np.maximum(tol, error * spread * frame), QUANTUM_FOLD_STEPS * quantum)
 
 
 def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
                    nbrs: NDArray[np.int64], patches: NDArray[np.int64],
-                   noise: NDArray[np.float64], return_own: bool = False
-                   ) -> NDArray[np.float64] | tuple[NDArray[np.float64], NDArray[np.float64]]:
+                   noise: NDArray[np.float64]) -> NDArray[np.float64]:
     """Re-estimate the normals of points next to a crease from their own patch.
 
     Near a crease a point's neighbourhood straddles both surfaces and its normal blends
@@ -685,13 +621,10 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
         Noise [m] of the surface along its normal at each point (e.g.
         :func:`working_noise`; 0 where unknown: every border point takes its own patch's
         normal).
-    return_own : bool
-        Also return every point's normal from its own patch alone (where it has
-        :data:`PATCH_NORMAL_MIN_NEIGHBORS` neighbours there; ``normals`` elsewhere).
 
     Returns
     -------
-    (M, 3) float64 array, or two of them with ``return_own``
+    (M, 3) float64 array
         Unit normals oriented towards the sensor.
     """
     same = patches[nbrs] == patches[:, None]
@@ -699,12 +632,9 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
     own = np.where(same, nbrs, np.arange(len(points))[:, None])
     _, refined = smallest_eigenpairs_sym(*neighborhood_moments(points, own))
     refined[np.einsum("ij,ij->i", refined, points) > 0] *= -1
-    few = same.sum(axis=1) < PATCH_NORMAL_MIN_NEIGHBORS
-    refined[few] = normals[few]
-    own_normals = refined.copy()
-    keep = off_plane <= noise * noise
+    keep = (same.sum(axis=1) < PATCH_NORMAL_MIN_NEIGHBORS) | (off_plane <= noise * noise)
     refined[keep] = normals[keep]
-    return (refined, own_normals) if return_own else refined
+    return refined
 
 
 def _step_free(points: NDArray[np.float64], normals: NDArray[np.float64], i: NDArray[np.int64],
