@@ -89,7 +89,7 @@ def _border(rng, step=0.0, fold=0.0, length=0.10, local_sigma=LOCAL_SIGMA, slow=
                                                 return_sqdist=True)
     counts = np.full(len(points), count)
     noise_w = working_noise(points, counts, noise)
-    quantum = level_quantum(points, np.arange(len(points)), counts, disparity)
+    quantum = level_quantum(points, np.arange(len(points)), counts, disparity, SPACING)
     floor = STEP_SHARE * params.seg_plane_threshold
     step_w = np.maximum(floor, noise_w)
     normals = _patch_normals(points, normals, nbrs, patches, noise_w)
@@ -168,8 +168,11 @@ def test_without_a_noise_estimate_no_border_is_tested_as_a_whole():
 
 
 # ------------------------------------------------------------------ quantised depths
-#: A Kinect's disparity step in 1/z [1/m]: one depth step is 2.9 mm at 1 m, 11.6 mm at 2 m.
+#: A Kinect's disparity step in 1/z [1/m]: one depth step is 2.9 mm at 1 m (less than the
+#: 4 mm grid: the terraces are not resolved), 11.6 mm at 2 m.
 DISPARITY = 2.9e-3
+#: A camera with twice that step: 5.8 mm at 1 m, beyond the grid's spacing.
+COARSE_DISPARITY = 2 * DISPARITY
 
 
 def test_level_quantum_is_a_depth_step_where_a_working_point_holds_one_level():
@@ -178,7 +181,8 @@ def test_level_quantum_is_a_depth_step_where_a_working_point_holds_one_level():
     # two on the next level (1/z = 0.5 - 2.9e-3: z = 2.01167 m), their depths spread by
     # 5.8 mm (half the gap), far beyond a tenth of a step: the averaging has spread the
     # quantisation into noise (0). Working point 2: one point at z = -1 m (an optical axis
-    # along -z): 2.9 mm. An unquantised frame (no disparity step): 0 everywhere.
+    # along -z): 2.9 mm. An unquantised frame (no disparity step): 0 everywhere. On a grid
+    # of 4 mm only the first keeps its quantum: a 2.9 mm step is finer than the grid.
     far = 1.0 / (0.5 - DISPARITY)
     points = np.array([[0, 0, 2.0], [0.001, 0, 2.0], [0, 0.001, 2.0],
                        [0.1, 0, 2.0], [0.1, 0.001, 2.0], [0.101, 0, far], [0.101, 0.001, far],
@@ -188,28 +192,37 @@ def test_level_quantum_is_a_depth_step_where_a_working_point_holds_one_level():
     quantum = level_quantum(points, inverse, counts, DISPARITY)
     np.testing.assert_allclose(quantum, [11.6 * MM, 0.0, 2.9 * MM], rtol=1e-3, atol=1e-12)
     assert not level_quantum(points, inverse, counts, None).any()
+    np.testing.assert_allclose(level_quantum(points, inverse, counts, DISPARITY, 4 * MM),
+                               [11.6 * MM, 0.0, 0.0], rtol=1e-3, atol=1e-12)
 
 
 def test_terraces_one_disparity_step_apart_are_not_cut():
-    # Depths quantised at 1 m (one step 2.9 mm); every working point one input point, so on
-    # one level. The two halves of a plane one level apart, or on the same one, are what
-    # the quantisation makes of a smooth surface: the normals at the riser tilt, but the
-    # median fold stays within half a step.
-    for seed in SEEDS:
-        for levels in (0, 1):
-            assert not _border(np.random.default_rng(seed), step=levels * DISPARITY,
-                               disparity=DISPARITY)[2], (seed, levels)
+    # Depths quantised at 1 m; every working point one input point, so on one level. The
+    # two halves of a plane one level apart, or on the same one, are what the quantisation
+    # makes of a smooth surface. With a Kinect's step (2.9 mm, finer than the grid) the
+    # normals see one slope; with twice that (5.8 mm, resolved) the normals at the riser
+    # tilt, but the median fold stays within half a step.
+    for disparity in (DISPARITY, COARSE_DISPARITY):
+        for seed in SEEDS:
+            for levels in (0, 1):
+                assert not _border(np.random.default_rng(seed), step=levels * disparity,
+                                   disparity=disparity)[2], (disparity, seed, levels)
 
 
-def test_a_steep_concave_crease_on_quantised_sides_is_still_cut():
-    # Two faces meeting concave at 45 degrees each side of the border, depths quantised at
-    # 1 m: a link 4-10 mm across sees a fold of about -tan(45 deg) x 3 mm = -3 mm, beyond
-    # half a depth step (1.45 mm): cut on every seed; convex by the same angle never.
-    fold = math.radians(45.0)
-    for seed in SEEDS:
-        assert _border(np.random.default_rng(seed), fold=fold, disparity=DISPARITY)[2], seed
-        assert not _border(np.random.default_rng(seed), fold=-fold, disparity=DISPARITY)[2], \
-            seed
+def test_a_concave_crease_on_quantised_sides_is_still_cut():
+    # Two faces meeting concave each side of the border, depths quantised at 1 m. With a
+    # Kinect's step (finer than the grid, no quantum) the 12-degree crease above is cut as
+    # without the quantisation. With twice that step (terraces resolved) a crease must
+    # fold by more than half a step (2.9 mm): at 60 degrees a link 4-10 mm across sees
+    # about -tan(60 deg) x 3 mm = -5.2 mm, cut on every seed. Convex by the same angles,
+    # never.
+    for disparity, degrees in ((DISPARITY, 12.0), (COARSE_DISPARITY, 60.0)):
+        fold = math.radians(degrees)
+        for seed in SEEDS:
+            assert _border(np.random.default_rng(seed), fold=fold, disparity=disparity)[2], \
+                (disparity, seed)
+            assert not _border(np.random.default_rng(seed), fold=-fold,
+                               disparity=disparity)[2], (disparity, seed)
 
 
 def _staircase_borders(depth, tilt, seed, quantised):
@@ -241,8 +254,8 @@ def _staircase_borders(depth, tilt, seed, quantised):
     noise_w = working_noise(points, counts, noise)
     floor = STEP_SHARE * params.seg_plane_threshold
     normals = _patch_normals(points, normals, nbrs, patches, noise_w)
-    quantum = level_quantum(np.c_[x, y, z], inverse, counts, DISPARITY) if quantised \
-        else np.zeros(len(points))
+    quantum = level_quantum(np.c_[x, y, z], inverse, counts, DISPARITY,
+                            params.seg_voxel_size) if quantised else np.zeros(len(points))
     return _border_votes(points, normals, nbrs, sqdist, patches, int(patches.max()) + 1,
                          max_edge, params.seg_concavity_tolerance,
                          np.maximum(floor, noise_w), math.cos(params.face_angle_threshold),

@@ -104,10 +104,10 @@ LEVEL_SPREAD = 0.1
 #: terrace: along a border that follows a terrace edge the votes are not independent, and
 #: the median fold carries the staircase whole. A link from a tread to the next level
 #: seen from a normal tilted by the riser folds by up to about half a depth step: a crease
-#: is seen only beyond it. Hand geometry (quantised planes at 1-3 m tilted by 0-70 deg,
-#: patches split as the segmentation does, 2536 borders): median folds down to -0.49 of
-#: the border's mean quantum. The office scene's plane at 2.3-2.8 m was cut along borders
-#: of median fold -0.5 to -4.9 mm where a step is 15-20 mm.
+#: is seen only beyond it. Hand geometry (quantised planes at 1.5-3 m tilted by 0-70 deg,
+#: seen by a Kinect, patches split as the segmentation does, 2175 borders): median folds
+#: down to -0.49 of the border's mean quantum. The office scene's plane at 2.3-2.8 m was
+#: cut along borders of median fold -0.5 to -4.9 mm where a step is 15-20 mm.
 QUANTUM_FOLD_STEPS = 0.5
 
 
@@ -218,7 +218,8 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     timing["seg_supports_s"] = t2 - t1
     step = disparity_step(p)
     labels[finite] = _working_labels(wp, wn, counts, supports, params, grid, noise, step,
-                                     level_quantum(p, inverse, counts, step))[inverse]
+                                     level_quantum(p, inverse, counts, step,
+                                                   params.seg_voxel_size))[inverse]
     planes = _claim_contact_rims(p, finite, labels, len(supports), params, rng)
     timing["seg_objects_s"] = time.perf_counter() - t2
     timing["segmentation_s"] = time.perf_counter() - t0
@@ -423,7 +424,8 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
 
 
 def level_quantum(points: NDArray[np.float64], inverse: NDArray[np.int64],
-                  counts: NDArray[np.int64], step: float | None) -> NDArray[np.float64]:
+                  counts: NDArray[np.int64], step: float | None, spacing: float = 0.0
+                  ) -> NDArray[np.float64]:
     """Depth quantisation [m] left in every working point after the averaging.
 
     A working point whose input points all lie on one disparity level (their depths spread
@@ -431,7 +433,12 @@ def level_quantum(points: NDArray[np.float64], inverse: NDArray[np.int64],
     one depth step ``step * z**2`` between two such points, and so do its neighbours on the
     same terrace: the error is shared along a terrace edge, not averaged. A working point
     averaging points of several levels has its quantisation spread into noise, which the
-    frame's noise already holds (0 there).
+    frame's noise already holds (0 there). So has one where a depth step is no longer than
+    the working points' ``spacing`` [m]: the grid does not resolve the terraces, its normals
+    see the staircase as one slope (hand geometry, quantised planes at 0.6-1 m and a 4 mm
+    grid: border folds within 0.09 of a step; at 1.5-3 m, steps of 1.6-3.3 spacings: up to
+    0.49, :data:`QUANTUM_FOLD_STEPS`), as the terrace join counts a surface parted only
+    where a step is longer than a link (:func:`geomodel_ros.core.joins.join_terraces`).
 
     Parameters
     ----------
@@ -444,6 +451,8 @@ def level_quantum(points: NDArray[np.float64], inverse: NDArray[np.int64],
     step : float or None
         The frame's disparity step in 1/z [1/m] (:func:`disparity_step`); None for a frame
         whose depths are not quantised (all 0).
+    spacing : float
+        Spacing of the working points [m] (``seg_voxel_size``).
 
     Returns
     -------
@@ -456,7 +465,8 @@ def level_quantum(points: NDArray[np.float64], inverse: NDArray[np.int64],
     mean = np.bincount(inverse, weights=z, minlength=len(counts)) / n
     var = np.bincount(inverse, weights=np.square(z - mean[inverse]), minlength=len(counts)) / n
     depth_step = step * np.square(mean)
-    return np.where(var < np.square(LEVEL_SPREAD * depth_step), depth_step, 0.0)
+    level = (var < np.square(LEVEL_SPREAD * depth_step)) & (depth_step > spacing)
+    return np.where(level, depth_step, 0.0)
 
 
 def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
