@@ -273,9 +273,10 @@ def test_a_can_lying_against_a_standing_tin_stays_apart(noisy):
 
 
 #: Steps the segmentation does not see: 3 mm is below its 4 mm working voxel (the step's
-#: side is no face of its own); at 12 mm, noise-free, the upper box's side above the lower
-#: top (three voxels high) joins the lower top's patch, whose edge to the upper top is
-#: convex. Measured IoU (both objects) 0.49-0.51, under-segmented, before and after.
+#: side is no face of its own). Measured IoU (both objects) 0.49-0.51, under-segmented.
+#: (At 12 mm, noise-free, the upper box's side above the lower top joins the lower top's
+#: patch, whose border to the upper top then votes 17 convex of 34: a tie, which no longer
+#: joins the two groups, :func:`geomodel_ros.core.joins.merge_patches`.)
 _STEP_LIMIT = pytest.mark.xfail(strict=True, reason="step not seen (see _STEP_LIMIT)")
 
 
@@ -285,7 +286,7 @@ _STEP_LIMIT = pytest.mark.xfail(strict=True, reason="step not seen (see _STEP_LI
     pytest.param(True, 5.0, id="5mm-kinect-noise"),
     pytest.param(False, 8.0, id="8mm-noise-free"),
     pytest.param(True, 8.0, id="8mm-kinect-noise"),
-    pytest.param(False, 12.0, marks=_STEP_LIMIT, id="12mm-noise-free"),
+    pytest.param(False, 12.0, id="12mm-noise-free"),
     pytest.param(True, 12.0, id="12mm-kinect-noise"),
 ])
 def test_touching_boxes_whose_tops_differ_by_a_step_stay_apart(step_mm, noisy):

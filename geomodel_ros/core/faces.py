@@ -465,7 +465,8 @@ def _relabel_small(labels: NDArray[np.int64], points: NDArray[np.float64], min_s
 
 
 def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: float,
-                min_face_points: int, max_edge: float | None = None) -> FaceSet:
+                min_face_points: int, max_edge: float | None = None,
+                crease_length: float | None = None) -> FaceSet:
     """Split the working cloud into smooth faces.
 
     Neighbouring non-edge points whose normals differ by less than ``angle_threshold``
@@ -473,6 +474,14 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
     ``min_face_points`` points. Edge points (surface variation above ``edge_variation``)
     and smaller components are assigned to the face of their nearest face point. With
     ``max_edge`` [m], neighbours farther apart (across a depth jump) are never linked.
+
+    With ``crease_length`` [m], a link shorter than it may turn the normals by only its
+    share of ``angle_threshold`` (length / ``crease_length``): the threshold is then a
+    turn per ``crease_length`` of surface, whatever the spacing of the working points.
+    Without it the test is per link, and its tolerance to curvature grows as the points
+    get denser: a crease that the normals round over about a centimetre is crossed in
+    several small turns by links much shorter than ``crease_length``
+    (:func:`_link_angle_limits`).
     """
     m, k = cloud.neighbors.shape
     if m == 0:
@@ -481,16 +490,35 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
     nb = cloud.neighbors
     cos = _pair_dot(cloud.normals, nb)
     np.abs(cos, out=cos)
-    keep = (cos >= np.cos(angle_threshold)) & smooth[nb] & smooth[:, None] \
-        & (nb != np.arange(m)[:, None])
-    if max_edge is not None:
+    d2 = None
+    if max_edge is not None or crease_length is not None:
         d2 = cloud.sqdist if cloud.sqdist is not None else _pair_sqdist(cloud.points, nb)
+    limit = np.cos(angle_threshold) if crease_length is None else \
+        _link_angle_limits(d2, angle_threshold, crease_length)
+    keep = (cos >= limit) & smooth[nb] & smooth[:, None] & (nb != np.arange(m)[:, None])
+    if max_edge is not None:
         keep &= d2 <= max_edge * max_edge
     _, comp = connected_components(link_graph(nb, keep, m), directed=False)
     comp = np.where(smooth, comp, -1).astype(np.int64)
     labels = _relabel_small(comp, cloud.points, min_face_points)
     n_faces = int(labels.max()) + 1 if labels.size else 0
     return FaceSet(labels, _adjacency(labels, cloud.neighbors, n_faces))
+
+
+def _link_angle_limits(sqdist: NDArray[np.float64], angle_threshold: float,
+                       crease_length: float) -> NDArray[np.float64]:
+    """Return the cosine (M, k) of the largest normal turn allowed on each link.
+
+    A link of squared length ``sqdist`` [m^2] (``inf`` for a removed link) shorter than
+    ``crease_length`` [m] may turn by ``angle_threshold`` [rad] times length /
+    ``crease_length``; longer links by ``angle_threshold``. Links of length 0 (the point
+    itself) allow no turn.
+    """
+    share = np.sqrt(sqdist, where=np.isfinite(sqdist), out=np.full(sqdist.shape, np.inf))
+    share *= 1.0 / crease_length
+    np.minimum(share, 1.0, out=share)
+    share *= angle_threshold
+    return np.cos(share)
 
 
 #: Normals within this angle [rad] of a plane's normal count as lying on it when a

@@ -183,6 +183,7 @@ class DisjointSets:
 
 def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDArray,
                   yes: NDArray, sizes: NDArray | None = None,
+                  exact: NDArray[np.bool_] | None = None,
                   creased: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
     """Group patches into objects from their border votes.
 
@@ -197,6 +198,9 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     sizes : (n,) array, optional
         Points of every patch; with them a pair joins only across a border of at least
         :data:`JOIN_MIN_BORDER_VOTES` sqrt(points of the smaller patch) votes.
+    exact : (n,) bool array, optional
+        Patches whose links were tested exactly (the frame's measured noise below the
+        fixed step floor at every point); default none (fixed tolerances: noise unknown).
     creased : (P,) bool array, optional
         Borders found to hold a crease along their whole length (e.g. from the median of
         their links, :func:`geomodel_ros.core.segmentation._creased_borders`): never
@@ -212,9 +216,10 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     Pairs with at least :data:`JOIN_MIN_CONVEX_SHARE` of their votes flat or convex are
     joined, strongest evidence (most convex votes) first; a join is refused when the two
     groups already share a clear crease (:data:`CREASE_MIN_VOTES`,
-    :data:`CREASE_MAX_CONVEX_SHARE`), so a weak convex contact cannot glue together two
-    objects that meet at a concave crease elsewhere. That refusal depends on the joins
-    made before it, so the pairs are joined one by one in order of evidence.
+    :data:`CREASE_MAX_CONVEX_SHARE`), and, across a border of two ``exact`` patches, when
+    the votes summed over every border of the two groups hold no more than that share
+    (:class:`_GroupContacts`). Both refusals depend on the joins made before them, so the
+    pairs are joined one by one in order of evidence.
     """
     share = yes / np.maximum(votes, 1)
     crease = (votes >= CREASE_MIN_VOTES) & (share < CREASE_MAX_CONVEX_SHARE)
@@ -226,21 +231,79 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     if sizes is not None:
         smaller = np.minimum(np.take(sizes, a), np.take(sizes, b))
         joinable &= votes >= JOIN_MIN_BORDER_VOTES * np.sqrt(smaller)
+    summed = np.zeros(len(a), dtype=bool) if exact is None else \
+        np.take(exact, a) & np.take(exact, b)
     sets = DisjointSets(range(n))
     members: dict[int, set[int]] = {}
+    contact = _GroupContacts(a, b, votes, yes)
     order = np.argsort(-yes, kind="stable")
     for e in order[joinable[order]].tolist():
         ra, rb = sets.find(int(a[e])), sets.find(int(b[e]))
         if ra == rb:
             continue
         ma, mb = members.get(ra, {ra}), members.get(rb, {rb})
-        if any(creases.get(x, set()) & mb for x in ma):
+        if any(creases.get(x, set()) & mb for x in ma) or \
+                (summed[e] and contact.share(ra, rb) <= JOIN_MIN_CONVEX_SHARE):
             continue
         sets.union(ra, rb)
+        contact.union(ra, rb)
         members[ra] = ma | mb
         members.pop(rb, None)
     roots = np.array([sets.find(i) for i in range(n)])
     return np.unique(roots, return_inverse=True)[1].ravel()
+
+
+class _GroupContacts:
+    """Border votes summed over every pair of patch groups, kept up to date as groups join.
+
+    Two groups of patches may border along several patch borders (a flared cup standing
+    against a box: its rim touches the box's side along one border that votes convex by a
+    narrow majority, 28 of 54 links in clutter scene 5, while its wall meets the box at a
+    concave crease that the patches cut into short borders, 7 convex of 23); the join of
+    the two groups is decided on all of them together (35 of 77: apart), and needs more
+    than half of them (a tie is no evidence for the join: a sphere against a lying can in
+    clutter scene 4, 54 of 108; two touching boxes whose tops differ by 12 mm, 17 of 34).
+    Only where the link tests are exact: where noise sets the step, a link on one surface
+    fails its test by chance (29-38 % of the links inside smooth patches on noisy synthetic
+    frames), so the sum over a long border of one surface falls to about half, and summing
+    refused joins of one box's faces under Kinect-class noise (clutter benchmark, Kinect row
+    89.2 -> 87.2 % with IoU >= 0.8). With fixed tolerances the noise is unknown and nothing
+    is summed (on real frames with ``noise_model: fixed`` it exceeds the floor; summing
+    there cut the PCL mug scene into 57 segments instead of 53).
+
+    Parameters
+    ----------
+    a, b : (P,) int64 arrays
+        The two patches of each adjacent pair.
+    votes, yes : (P,) arrays
+        Links across each border and the flat or convex ones among them.
+    """
+
+    def __init__(self, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDArray,
+                 yes: NDArray) -> None:
+        self.tally: dict[int, dict[int, list[float]]] = {}
+        for x, y, v, w in zip(a.tolist(), b.tolist(), np.asarray(votes, float).tolist(),
+                              np.asarray(yes, float).tolist()):
+            self.tally.setdefault(x, {})[y] = [v, w]
+            self.tally.setdefault(y, {})[x] = [v, w]
+
+    def share(self, ra: int, rb: int) -> float:
+        """Return the share of flat or convex votes over all borders of groups ``ra``, ``rb``."""
+        v, w = self.tally.get(ra, {}).get(rb, (0.0, 0.0))
+        return w / v if v > 0 else 1.0
+
+    def union(self, keep: int, absorb: int) -> None:
+        """Fold group ``absorb``'s borders into group ``keep``'s (the roots of a join)."""
+        mine = self.tally.setdefault(keep, {})
+        for other, (v, w) in self.tally.pop(absorb, {}).items():
+            theirs = self.tally[other]
+            del theirs[absorb]
+            if other == keep:
+                continue
+            tv = mine.setdefault(other, [0.0, 0.0])
+            tv[0] += v
+            tv[1] += w
+            theirs[keep] = tv
 
 
 def _crease_partners(a: NDArray[np.int64], b: NDArray[np.int64], crease: NDArray[np.bool_]

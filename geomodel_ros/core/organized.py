@@ -24,7 +24,15 @@ search (the two costs of :func:`~geomodel_ros.core.faces.voxelize` +
 
 The arrays have the layout of the voxel path's (``inverse`` of every finite input row,
 ``counts`` of input points, (M, k) neighbours with squared distances), so the support
-search, patches, border votes and joins run on them unchanged.
+search, patches, border votes and joins run on them unchanged, with one difference: the
+smooth patches compare normals per length (:func:`geomodel_ros.core.faces.split_faces`
+with ``crease_length = seg_voxel_size``: a link shorter than a voxel may turn the normals
+by its share of ``face_angle_threshold`` only). Neighbouring blocks lie ~0.8 voxel apart
+and the 1-block links are shorter still; compared link by link, a concave crease that the
+normals round over about a centimetre (a box stacked on a box, two cans side by side) was
+crossed in several small turns (osd_learn with the defaults, ``python -m
+geomodel_ros.tools.bench_organized --part osd --defaults``: 92.0 % of the objects with
+IoU >= 0.8 link by link, 97.3 % per length, voxel path 98.2 %).
 """
 
 from __future__ import annotations

@@ -403,7 +403,8 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                          np.arange(m), sqdist)
     max_edge = params.seg_max_edge_factor * params.seg_voxel_size
     patches = split_faces(cloud, params.face_angle_threshold, params.edge_variation_threshold,
-                          params.min_face_points, max_edge).labels
+                          params.min_face_points, max_edge,
+                          None if neighbourhood is None else params.seg_voxel_size).labels
     noise_w = working_noise(points, counts, noise)
     floor = STEP_SHARE * params.seg_plane_threshold
     step = np.maximum(floor, STEP_NOISE_SIGMAS * noise_w)
@@ -419,6 +420,8 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
         whole=None if noise is None else (noise_w,
                                           np.zeros(m) if quantum is None else quantum))
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
+                        exact=None if noise is None else
+                        np.bincount(patches[step > floor], minlength=n_p) == 0,
                         creased=creased)
     return obj[patches].astype(np.int64)
 

@@ -12,9 +12,11 @@ Both paths of :func:`~geomodel_ros.core.segmentation.segment_scene` (parameter
   alternated, median of ``--repeats`` runs, on osd_learn frames (640 x 480) and the paper's
   scene3 (1104 x 624, 368k points);
 * ``--part profile``: cProfile of warm ``model_scene`` with the fast path on one osd_learn
-  frame, the functions with the largest own time.
+  frame, the functions with the largest own time;
+* ``--part scenes``: the real organized scenes without labels (``pcl_scenes`` and the PCL
+  mug, 640 x 480, the defaults): objects and their types on each path.
 
-``python -m geomodel_ros.tools.bench_organized [--part osd|time|profile|all]``. Figures go to
+``python -m geomodel_ros.tools.bench_organized [--part osd|time|profile|scenes|all]``. Figures go to
 BENCHMARKS.md; nothing here is a test.
 """
 
@@ -28,17 +30,24 @@ import pstats
 import statistics
 import time
 
+from collections import Counter
+
 from geomodel_ros.core import organized
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams, load_params_file
 from geomodel_ros.tools.benchmark import osd_benchmark, osd_lines, osd_type_lines
 from geomodel_ros.tools.io import load_osd
+from geomodel_ros.tools.pcd_file import read_pcd
 from geomodel_ros.tools.paths import CONFIG_DIR, data_dir
 
 __all__ = ["main"]
 
 #: osd_learn frames timed by default: one or two of each scene group.
 TIMED_FRAMES = (0, 10, 20, 30, 40)
+#: Real organized scenes without labels (relative to the data directory).
+REAL_SCENES = ("pcl_scenes/region_growing_rgb_tutorial.pcd",
+               "pcl_scenes/milk_cartoon_all_small_clorox.pcd",
+               "pcl_mug/table_scene_mug_stereo_textured.pcd")
 #: The two paths, by the value of ``organized_fast_path``.
 PATHS = (("voxel", False), ("organized", True))
 
@@ -117,10 +126,25 @@ def _profile(frame: int, top: int) -> None:
     print(out.getvalue())
 
 
+def _scenes() -> None:
+    for rel in REAL_SCENES:
+        cloud = read_pcd(data_dir() / rel)
+        if cloud.height <= 1:
+            print(f"{rel}: unorganized, the fast path does not apply")
+            continue
+        for name, fast in PATHS:
+            _, result = model_scene(cloud.points, ModelingParams(organized_fast_path=fast),
+                                    organized_shape=(cloud.height, cloud.width))
+            types = Counter(o.type.value for o in result.objects)
+            listed = ", ".join(f"{k} {v}" for k, v in sorted(types.items()))
+            print(f"{rel} ({cloud.height} x {cloud.width}), {name} path: "
+                  f"{len(result.objects)} objects ({listed})")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the parts asked for; print the figures."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--part", choices=("osd", "time", "profile", "all"), default="all")
+    ap.add_argument("--part", choices=("osd", "time", "profile", "scenes", "all"), default="all")
     ap.add_argument("--repeats", type=int, default=7, help="timed runs per frame and path")
     ap.add_argument("--frame", type=int, default=20, help="osd_learn frame to profile")
     ap.add_argument("--top", type=int, default=25, help="functions listed by the profile")
@@ -137,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
         _time(args.repeats)
     if args.part in ("profile", "all"):
         _profile(args.frame, args.top)
+    if args.part in ("scenes", "all"):
+        _scenes()
     return 0
 
 
