@@ -183,7 +183,8 @@ class DisjointSets:
 
 def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDArray,
                   yes: NDArray, sizes: NDArray | None = None,
-                  exact: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
+                  exact: NDArray[np.bool_] | None = None,
+                  creased: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
     """Group patches into objects from their border votes.
 
     Parameters
@@ -200,6 +201,10 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     exact : (n,) bool array, optional
         Patches whose links were tested exactly (the frame's measured noise below the
         fixed step floor at every point); default none (fixed tolerances: noise unknown).
+    creased : (P,) bool array, optional
+        Borders found to hold a crease along their whole length (e.g. from the median of
+        their links, :func:`geomodel_ros.core.segmentation._creased_borders`): never
+        joined, whatever their votes, and clear creases for the test below.
 
     Returns
     -------
@@ -217,9 +222,12 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     pairs are joined one by one in order of evidence.
     """
     share = yes / np.maximum(votes, 1)
-    creases = _crease_partners(a, b, (votes >= CREASE_MIN_VOTES)
-                               & (share < CREASE_MAX_CONVEX_SHARE))
+    crease = (votes >= CREASE_MIN_VOTES) & (share < CREASE_MAX_CONVEX_SHARE)
     joinable = share >= JOIN_MIN_CONVEX_SHARE
+    if creased is not None:
+        crease |= creased
+        joinable &= ~creased
+    creases = _crease_partners(a, b, crease)
     if sizes is not None:
         smaller = np.minimum(np.take(sizes, a), np.take(sizes, b))
         joinable &= votes >= JOIN_MIN_BORDER_VOTES * np.sqrt(smaller)

@@ -8,7 +8,9 @@
    smooth patches are joined where most neighbour links across their common border are
    flat or convex, not across a concave crease (object on object, object against object),
    a step (parallel faces at different heights) nor a depth jump (occlusion boundary);
-   tiny objects are noise. Two further joins
+   tiny objects are noise; a border whose links show a crease at their median (the
+   evidence of the whole border against the noise of that median) is never joined.
+   Two further joins
    (:mod:`geomodel_ros.core.joins`) put together the parts of one surface cut by an
    occluder and the inner and outer walls of an open round container.
 4. Objects are numbered by size, largest first, after the supports; labels go back to every
@@ -18,6 +20,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -33,7 +36,7 @@ from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
                                      voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.fastmath import rows_finite, take_rows
-from geomodel_ros.core.noise import NoiseEstimate, disparity_step, resolve_params
+from geomodel_ros.core.noise import MAD_TO_SIGMA, NoiseEstimate, disparity_step, resolve_params
 from geomodel_ros.core.joins import (join_contained_parts, join_occluded_parts, join_terraces,
                                      merge_patches)
 from geomodel_ros.core.organized import GridCloud, grid_cloud
@@ -69,6 +72,43 @@ STEP_SHARE = 0.25
 #: scenes): 1 sigma leaves 4.0 % of the objects under-segmented, 3 sigma 20.8 % (a step
 #: that large no longer parts objects that touch tangentially: whole scenes merge).
 STEP_NOISE_SIGMAS = 1.0
+#: A border of two patches holds a crease when the median of its links' fold
+#: (:func:`_creased_borders`) is concave by more than this many standard errors of that
+#: median (the per-link spread measured on the links inside the frame's patches). Three: a
+#: one-sided false cut of 0.13 % of the borders of one surface under Gaussian noise (a
+#: frame has tens to hundreds of borders); none of 12 seeds of the hand-made borders in
+#: ``test/test_segmentation_border_step.py`` is cut without a crease.
+BORDER_CREASE_SIGMAS = 3.0
+#: The border points of one side of a border lie in a strip about this many point spacings
+#: deep (links reach ``seg_max_edge_factor`` = 2.5 voxels across), so the border is about
+#: their number over this long, and its votes count once per point spacing along it: the
+#: i.i.d. noise of the points dominates a link's statistic, the shared errors of
+#: neighbouring normals do not. Measured on a 10 cm border of one plane (50 border points
+#: a side, i.i.d. noise plus a shared slow error of twice its size, 100 seeds): the
+#: medians' spread implies 27-29 independent votes, this count gives 25.
+BORDER_STRIP_POINTS = 2.0
+#: The per-link spreads are measured on at most about this many links inside the patches
+#: (evenly strided; a Kinect frame holds about 10^5): the relative standard error of a
+#: MAD-based sigma is about 1.1 / sqrt(n), 2 % for 4000 links, well below the margin of
+#: :data:`BORDER_CREASE_SIGMAS`; all of them cost 5-6 ms a frame.
+NULL_LINKS = 4000
+#: Standard error of the median of n Gaussian samples over sigma / sqrt(n): sqrt(pi / 2).
+MEDIAN_STANDARD_ERROR = math.sqrt(math.pi / 2.0)
+#: A working point holds one disparity level when the depths of its input points spread
+#: (standard deviation) less than this share of a depth step: two levels mixed in any
+#: proportion p spread by sqrt(p (1 - p)) steps, at least 0.19 for one point in 25 of the
+#: other level (a working point holds at most a few tens of input points).
+LEVEL_SPREAD = 0.1
+#: Where the depths are quantised and a working point holds one disparity level
+#: (:func:`level_quantum`), its error is the level's, shared by its neighbours on the same
+#: terrace: along a border that follows a terrace edge the votes are not independent, and
+#: the median fold carries the staircase whole. A link from a tread to the next level
+#: seen from a normal tilted by the riser folds by up to about half a depth step: a crease
+#: is seen only beyond it. Hand geometry (quantised planes at 1.5-3 m tilted by 0-70 deg,
+#: seen by a Kinect, patches split as the segmentation does, 2175 borders): median folds
+#: down to -0.49 of the border's mean quantum. The office scene's plane at 2.3-2.8 m was
+#: cut along borders of median fold -0.5 to -4.9 mm where a step is 15-20 mm.
+QUANTUM_FOLD_STEPS = 0.5
 
 
 class DepthNoise(Protocol):
@@ -176,8 +216,10 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     supports = support_planes(wp, wn, nbrs, sqdist, params, rng)
     t2 = time.perf_counter()
     timing["seg_supports_s"] = t2 - t1
-    labels[finite] = _working_labels(wp, wn, counts, supports, params, grid, noise,
-                                     disparity_step(p))[inverse]
+    step = disparity_step(p)
+    labels[finite] = _working_labels(wp, wn, counts, supports, params, grid, noise, step,
+                                     level_quantum(p, inverse, counts, step,
+                                                   params.seg_voxel_size))[inverse]
     planes = _claim_contact_rims(p, finite, labels, len(supports), params, rng)
     timing["seg_objects_s"] = time.perf_counter() - t2
     timing["segmentation_s"] = time.perf_counter() - t0
@@ -187,7 +229,8 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
 def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: NDArray[np.int64],
                     supports: list[NDArray[np.int64]], params: ModelingParams,
                     grid: GridCloud | None = None, noise: DepthNoise | None = None,
-                    step: float | None = None) -> NDArray[np.int64]:
+                    step: float | None = None, quantum: NDArray[np.float64] | None = None
+                    ) -> NDArray[np.int64]:
     """Label of every working point: supports 0 .. S-1, objects S, S+1, ... by size, -1 noise.
 
     Parameters
@@ -206,6 +249,8 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     step : float, optional
         The frame's disparity step in 1/z [1/m] (:func:`disparity_step`; None when its
         depths are not quantised): far terraces of one plane are joined.
+    quantum : (M,) float64 array, optional
+        Depth quantisation [m] left in every working point (:func:`level_quantum`).
 
     Returns
     -------
@@ -214,7 +259,7 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     wlabel = np.full(len(wp), -1, dtype=np.int64)
     for sid, sel in enumerate(supports):
         wlabel[sel] = sid
-    comp, comp_ok = _object_segments(wp, counts, wlabel < 0, params, grid, noise)
+    comp, comp_ok = _object_segments(wp, counts, wlabel < 0, params, grid, noise, quantum)
     if params.seg_max_occlusion_gap > 0:
         comp = join_occluded_parts(wp, wn, comp, comp_ok, params)
     comp = join_terraces(wp, comp, comp_ok, step, params)
@@ -226,13 +271,15 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
 
 def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
                      free: NDArray[np.bool_], params: ModelingParams,
-                     grid: GridCloud | None = None, noise: DepthNoise | None = None
+                     grid: GridCloud | None = None, noise: DepthNoise | None = None,
+                     quantum: NDArray[np.float64] | None = None
                      ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
     """Convex objects among the ``free`` (M,) working points (not in a support).
 
     With the organized ``grid`` of ``wp`` the free points' normals come from its neighbour
     lists (:meth:`GridCloud.restricted`) instead of a kNN search among them. ``noise`` is
-    the depth noise (:func:`working_noise`).
+    the depth noise (:func:`working_noise`), ``quantum`` (M,) the depth quantisation [m]
+    left in each working point (:func:`level_quantum`).
 
     Returns
     -------
@@ -247,7 +294,8 @@ def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
     if len(rest_idx) >= MIN_WORKING_POINTS:
         # Normals recomputed without the supports, so they do not blend into the desk.
         comp[rest_idx] = _convex_objects(wp[rest_idx], counts[rest_idx], params, noise,
-                                         None if grid is None else grid.restricted(rest_idx))
+                                         None if grid is None else grid.restricted(rest_idx),
+                                         None if quantum is None else quantum[rest_idx])
     rest = comp >= 0
     size = np.bincount(comp[rest], weights=counts[rest], minlength=int(comp.max()) + 1)
     comp_ok = rest.copy()
@@ -320,7 +368,8 @@ def working_noise(points: NDArray[np.float64], counts: NDArray[np.int64],
 
 def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                     params: ModelingParams, noise: DepthNoise | None = None,
-                    neighbourhood: tuple[NDArray, ...] | None = None) -> NDArray[np.int64]:
+                    neighbourhood: tuple[NDArray, ...] | None = None,
+                    quantum: NDArray[np.float64] | None = None) -> NDArray[np.int64]:
     """Object label of every point of a support-free working cloud (local convexity).
 
     Parameters
@@ -365,19 +414,71 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                          noisy=STEP_NOISE_SIGMAS * noise_w > floor, parallel_cos=parallel)
     n_p = int(patches.max()) + 1
     normals = _patch_normals(points, normals, nbrs, patches, noise_w)
-    a, b, votes, yes = _border_votes(points, normals, nbrs, sqdist, patches, n_p, max_edge,
-                                     params.seg_concavity_tolerance, step, parallel)
+    a, b, votes, yes, creased = _border_votes(
+        points, normals, nbrs, sqdist, patches, n_p, max_edge,
+        params.seg_concavity_tolerance, step, parallel,
+        whole=None if noise is None else (noise_w,
+                                          np.zeros(m) if quantum is None else quantum))
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
                         exact=None if noise is None else
-                        np.bincount(patches[step > floor], minlength=n_p) == 0)
+                        np.bincount(patches[step > floor], minlength=n_p) == 0,
+                        creased=creased)
     return obj[patches].astype(np.int64)
+
+
+def level_quantum(points: NDArray[np.float64], inverse: NDArray[np.int64],
+                  counts: NDArray[np.int64], step: float | None, spacing: float = 0.0
+                  ) -> NDArray[np.float64]:
+    """Depth quantisation [m] left in every working point after the averaging.
+
+    A working point whose input points all lie on one disparity level (their depths spread
+    less than :data:`LEVEL_SPREAD` of a depth step) keeps the level's whole error, up to
+    one depth step ``step * z**2`` between two such points, and so do its neighbours on the
+    same terrace: the error is shared along a terrace edge, not averaged. A working point
+    averaging points of several levels has its quantisation spread into noise, which the
+    frame's noise already holds (0 there). So has one where a depth step is no longer than
+    the working points' ``spacing`` [m]: the grid does not resolve the terraces, its normals
+    see the staircase as one slope (hand geometry, quantised planes at 0.6-1 m and a 4 mm
+    grid: border folds within 0.09 of a step; at 1.5-3 m, steps of 1.6-3.3 spacings: up to
+    0.49, :data:`QUANTUM_FOLD_STEPS`), as the terrace join counts a surface parted only
+    where a step is longer than a link (:func:`geomodel_ros.core.joins.join_terraces`).
+
+    Parameters
+    ----------
+    points : (N, 3) float64 array [m]
+        Finite input points, optical axis along +z or -z.
+    inverse : (N,) int64 array
+        Working point of every input point.
+    counts : (M,) int64 array
+        Input points per working point.
+    step : float or None
+        The frame's disparity step in 1/z [1/m] (:func:`disparity_step`); None for a frame
+        whose depths are not quantised (all 0).
+    spacing : float
+        Spacing of the working points [m] (``seg_voxel_size``).
+
+    Returns
+    -------
+    (M,) float64 array [m]
+    """
+    if step is None:
+        return np.zeros(len(counts))
+    z = np.abs(points[:, 2])
+    n = np.maximum(counts, 1)
+    mean = np.bincount(inverse, weights=z, minlength=len(counts)) / n
+    var = np.bincount(inverse, weights=np.square(z - mean[inverse]), minlength=len(counts)) / n
+    depth_step = step * np.square(mean)
+    level = (var < np.square(LEVEL_SPREAD * depth_step)) & (depth_step > spacing)
+    return np.where(level, depth_step, 0.0)
 
 
 def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
                   nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
                   patches: NDArray[np.int64], n_p: int, max_edge: float, tolerance: float,
-                  step: NDArray[np.float64], parallel_cos: float = 1.0
-                  ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray, NDArray]:
+                  step: NDArray[np.float64], parallel_cos: float = 1.0,
+                  whole: tuple[NDArray, NDArray] | None = None
+                  ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray, NDArray,
+                             NDArray[np.bool_] | None]:
     """Convexity votes of the neighbour links across each border of two patches.
 
     Every link i -> j (``nbrs`` (M, k), squared lengths ``sqdist`` [m^2]) between two
@@ -387,27 +488,124 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     step (:func:`_step_free` with ``step`` (M,) [m] and ``parallel_cos``: two parallel faces
     at different heights have a convexity of 0 but are no continuation of one surface).
 
+    With ``whole`` = (working-point noise (M,) [m] (:func:`working_noise`), the depth
+    quantisation left in each working point (M,) [m] (:func:`level_quantum`)) each border
+    is also tested as a whole for a crease (:func:`_creased_borders`), its floor the
+    per-link concavity tolerance.
+
     Returns
     -------
     a, b : (P,) int64 arrays
         The two patches of each adjacent pair, ``a < b``, pairs in increasing order.
     votes, yes : (P,) arrays
         Number of links across each pair's border, and of yes votes among them.
+    creased : (P,) bool array or None
+        Borders with a crease along their whole length (None without ``whole``).
     """
     m, k = nbrs.shape
     i = np.repeat(np.arange(m), k)
     j = nbrs.ravel()
-    ok = (patches[i] != patches[j]) & (sqdist.ravel() <= max_edge * max_edge)
-    i, j = i[ok], j[ok]
+    within = sqdist.ravel() <= max_edge * max_edge
+    ok = (patches[i] != patches[j]) & within
     dist = np.sqrt(sqdist.ravel()[ok])
-    below_i, below_j, no_step = _step_free(points, normals, i, j, step, parallel_cos)
+    below_i, below_j, no_step = _step_free(points, normals, i[ok], j[ok], step, parallel_cos)
     good = (below_i + below_j >= -tolerance * dist) & no_step
-    pi, pj = patches[i], patches[j]
+    pi, pj = patches[i[ok]], patches[j[ok]]
     key = np.minimum(pi, pj) * n_p + np.maximum(pi, pj)
     pairs, inv = np.unique(key, return_inverse=True)
     votes = np.bincount(inv, minlength=len(pairs))
     yes = np.bincount(inv, weights=good, minlength=len(pairs))
-    return pairs // n_p, pairs % n_p, votes, yes
+    creased = None if whole is None else np.zeros(len(pairs), dtype=bool)
+    if whole is not None and len(pairs):
+        noise_w, quantum = whole
+        inner = np.flatnonzero(within & ~ok)
+        inner = inner[::max(1, len(inner) // NULL_LINKS)]
+        null = _link_folds(points, normals, i[inner], j[inner])
+        noise_in = np.minimum(noise_w[i[inner]], noise_w[j[inner]])
+        has = noise_in > 0  # no noise unit where the noise is unknown (0)
+        spread = MAD_TO_SIGMA * _median_abs_dev(null[has] / noise_in[has])
+        links = np.stack([0.5 * (below_i + below_j), np.minimum(noise_w[i[ok]], noise_w[j[ok]]),
+                          0.5 * tolerance * dist, 0.5 * (quantum[i[ok]] + quantum[j[ok]])])
+        creased = _creased_borders(inv, len(pairs), i[ok], pi < pj, links, spread)
+    return pairs // n_p, pairs % n_p, votes, yes, creased
+
+
+def _link_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
+                i: NDArray[np.int64], j: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Fold [m] of the links i -> j: (below_i + below_j) / 2 (:func:`_step_free`)."""
+    below_i, below_j, _ = _step_free(points, normals, i, j, np.zeros(len(points)))
+    return 0.5 * (below_i + below_j)
+
+
+def _median_abs_dev(values: NDArray[np.float64]) -> float:
+    """Return the median absolute deviation of ``values`` from their median (0 if empty)."""
+    values = values[np.isfinite(values)]
+    return float(np.median(np.abs(values - np.median(values)))) if len(values) else 0.0
+
+
+def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
+                  ) -> NDArray[np.float64]:
+    """Return the median (n,) of ``values`` (L,) within each ``group`` (L,) id 0 .. n-1.
+
+    Every group must hold at least one value.
+    """
+    order = np.lexsort((values, group))
+    v = values[order]
+    counts = np.bincount(group, minlength=n)
+    start = np.cumsum(counts) - counts
+    return 0.5 * (v[start + (counts - 1) // 2] + v[start + counts // 2])
+
+
+def _creased_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
+                     lower: NDArray[np.bool_], links: NDArray[np.float64], spread: float
+                     ) -> NDArray[np.bool_]:
+    """Tell which patch borders hold a crease, from the median fold of their links.
+
+    The per-link votes judge each link alone: under noise a shallow contact crease (two
+    objects touching) lets 30-50 % of them pass, and a majority may join the two. Along a
+    whole border the fold keeps its value while the noise of its median shrinks like
+    1 / sqrt(independent votes): one vote per point spacing along the border, (border
+    points of the side with fewer) / :data:`BORDER_STRIP_POINTS`, at least 1. A border
+    holds a crease where its median fold < -max(its mean floor, E ``spread`` x its mean
+    frame noise, :data:`QUANTUM_FOLD_STEPS` x its mean quantum), E =
+    :data:`BORDER_CREASE_SIGMAS` x :data:`MEDIAN_STANDARD_ERROR` / sqrt(votes). The fold
+    carries the normals' error times the link length, and the frame's slowly varying error
+    bends the surface, so it is judged against the frame's noise. The quantum (a depth
+    step where a working point holds one disparity level, 0 elsewhere) does not shrink
+    with the votes: a terrace's error is shared along it; and on such terraces most links
+    inside a patch have a fold of exactly 0, so the measured spread vanishes there.
+
+    Parameters
+    ----------
+    inv : (L,) int64 array
+        Border (pair) of every cross-border link, 0 .. n_pairs-1.
+    n_pairs : int
+    i : (L,) int64 array
+        The link's first point.
+    lower : (L,) bool array
+        That point is in the pair's lower patch (it counts on that side of the border).
+    links : (4, L) float64 array
+        Per link: fold [m] (:func:`_link_folds`), frame noise [m] (the smaller of its two
+        ends'), smallest fold of a crease [m] (the per-link concavity tolerance), depth
+        quantisation [m] (the mean of its two ends' :func:`level_quantum`).
+    spread : float
+        Robust sigma of the fold in frame noise units, measured on the links inside the
+        patches (one smooth surface each).
+
+    Returns
+    -------
+    (n_pairs,) bool array
+    """
+    cell = inv * 2 + lower
+    _, first = np.unique(cell * (int(i.max(initial=0)) + 1) + i, return_index=True)
+    side = np.bincount(cell[first], minlength=2 * n_pairs).reshape(-1, 2)
+    error = BORDER_CREASE_SIGMAS * MEDIAN_STANDARD_ERROR \
+        / np.sqrt(np.maximum(side.min(axis=1) / BORDER_STRIP_POINTS, 1.0))
+    links_per = np.maximum(np.bincount(inv, minlength=n_pairs), 1)
+    frame, tol, quantum = (np.bincount(inv, weights=w, minlength=n_pairs) / links_per
+                           for w in links[1:])
+    return _group_median(inv, links[0], n_pairs) < -np.maximum(
+        np.maximum(tol, error * spread * frame), QUANTUM_FOLD_STEPS * quantum)
 
 
 def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
