@@ -34,6 +34,13 @@ __all__ = ["WorkingCloud", "FaceSet", "voxelize", "count_voxels", "estimate_norm
 #: point, are counted in a dense table (sorting is used for sparser boxes).
 DENSE_CELLS = 1 << 22
 DENSE_CELLS_PER_POINT = 8
+#: Keys in which at most this share of the neighbouring pairs descend are sorted with a
+#: stable sort (timsort, linear on its long ascending runs): a sensor's cloud comes in scan
+#: order, whose consecutive points mostly share or follow their voxel (a Kinect frame's
+#: 194k keys: 3.7 ms against quicksort's 11.1 ms); keys in random order take quicksort
+#: (11.3 ms against the stable sort's 14.0 ms on the same keys shuffled). A quarter: far
+#: from both (a scan-order frame has a few per cent descents, random keys a half).
+PRESORTED_DESCENTS = 0.25
 #: Largest number of voxel keys (cells of the occupied box times groups) and largest cell
 #: index [voxels] :func:`voxelize` accepts: keys are int64, and 2**62 leaves room for the
 #: products and sums that build them (larger boxes raise InputError instead of overflowing).
@@ -173,14 +180,31 @@ def voxelize(points: NDArray[np.float64], voxel_size: float,
         inverse = lookup[flat].astype(np.int64)
         counts = np.bincount(inverse, minlength=occupied.size)
     else:
-        _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
-        inverse = inverse.ravel()
+        inverse, counts = _sorted_groups(flat)
     m = counts.size
     centroids = np.empty((m, 3))
     for axis in range(3):
         centroids[:, axis] = np.bincount(inverse, weights=pt[axis], minlength=m)
     centroids /= counts[:, None]
     return centroids, inverse, counts
+
+
+def _sorted_groups(keys: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Group equal ``keys`` (N,): the group of every key and the group sizes.
+
+    The groups are numbered in ascending key order: the inverse and counts of
+    :func:`numpy.unique`, whatever sort is used (see :data:`PRESORTED_DESCENTS`).
+    """
+    n = len(keys)
+    descents = np.count_nonzero(keys[1:] < keys[:-1])
+    order = np.argsort(keys, kind="stable" if descents <= PRESORTED_DESCENTS * n else None)
+    ordered = keys[order]
+    first = np.empty(n, dtype=bool)
+    first[0] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
+    inverse = np.empty(n, dtype=np.int64)
+    inverse[order] = np.cumsum(first) - 1
+    return inverse, np.diff(np.append(np.flatnonzero(first), n))
 
 
 def smallest_eigenpairs(cov: NDArray[np.float64]

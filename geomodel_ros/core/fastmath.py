@@ -17,7 +17,7 @@ from typing import Iterator
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["row_norms", "centroid", "rows_finite", "take_rows", "robust_sigma", "knn",
+__all__ = ["row_norms", "centroid", "rows_finite", "take_rows", "robust_sigma", "knn", "knn_among",
            "retain_freed_memory", "single_threaded_blas", "blas_libraries"]
 
 
@@ -45,6 +45,57 @@ def robust_sigma(d: NDArray[np.float64]) -> float:
     return float(1.4826 * np.median(np.abs(d - np.median(d)))) if d.size else 0.0
 
 
+def knn_among(points: NDArray[np.float64], sel: NDArray[np.int64], neighbors: NDArray[np.int64],
+              sqdist: NDArray[np.float64], k: int
+              ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Find the ``k`` nearest neighbours of the points ``sel`` among themselves.
+
+    Parameters
+    ----------
+    points : (N, 3) float64 array [m]
+    sel : (M,) int64 array
+        Rows of ``points``, without repeats.
+    neighbors, sqdist : (N, K) arrays
+        Nearest neighbours of every point of ``points`` among all of them, nearest first,
+        and their squared distances [m^2] (:func:`knn`).
+    k : int
+        Neighbours wanted (at most K are taken from ``neighbors``).
+
+    Returns
+    -------
+    neighbors, sqdist : (M, k') arrays, k' = min(k, M)
+        Indices into ``sel`` (not ``points``) and squared distances [m^2], nearest first.
+
+    Notes
+    -----
+    Where at least k' of a point's K neighbours are in ``sel``, the first k' of them are its
+    k' nearest in ``sel`` (a nearer point of ``sel`` would be among the K): they are kept,
+    and only the other points are searched again, among ``sel`` alone. Equal distances
+    may come in another order than a new search over ``sel`` would give.
+    """
+    m = len(sel)
+    k = int(min(k, m))
+    local = np.full(len(points), -1, dtype=np.int64)
+    local[sel] = np.arange(m)
+    nb = local[neighbors[sel]]
+    inside = nb >= 0
+    kept = np.flatnonzero(inside.sum(axis=1) >= k) if k <= nb.shape[1] else \
+        np.zeros(0, dtype=np.int64)
+    out = np.empty((m, k), dtype=np.int64)
+    out_sq = np.empty((m, k))
+    # The first k neighbours in ``sel`` of each kept row, in their order (a stable sort
+    # moves the others behind them).
+    first = np.argsort(~inside[kept], axis=1, kind="stable")[:, :k]
+    out[kept] = np.take_along_axis(nb[kept], first, axis=1)
+    out_sq[kept] = np.take_along_axis(sqdist[sel[kept]], first, axis=1)
+    again = np.ones(m, dtype=bool)
+    again[kept] = False
+    if again.any():
+        sub = take_rows(points, sel)
+        out[again], out_sq[again] = knn(sub, k, return_sqdist=True, queries=sub[again])
+    return out, out_sq
+
+
 def take_rows(a: NDArray, which: NDArray) -> NDArray:
     """``a[which]`` for an (N, D) array and an index array or boolean mask of rows.
 
@@ -57,19 +108,21 @@ def take_rows(a: NDArray, which: NDArray) -> NDArray:
     return np.take(a, which, axis=0)
 
 
-def knn(points: NDArray[np.float64], k: int, return_sqdist: bool = False):
+def knn(points: NDArray[np.float64], k: int, return_sqdist: bool = False,
+        queries: NDArray[np.float64] | None = None):
     """Find the ``k`` nearest neighbours of every point of ``points`` (M, 3) among themselves.
 
     Returns their indices (M, k), nearest first (the point itself, distance 0, among them);
-    with ``return_sqdist`` also their squared distances (M, k) [m^2].
+    with ``return_sqdist`` also their squared distances (M, k) [m^2]. With ``queries``
+    (Q, 3) the neighbours among ``points`` of those points instead ((Q, k) arrays).
 
     open3d's multithreaded nearest-neighbour search (faster than building and querying
     a :class:`scipy.spatial.cKDTree` on working clouds of 10^4-10^5 points).
     """
     import open3d as o3d  # imported on first use: the module stays cheap to import
 
-    m = len(points)
-    k = int(min(k, m))
+    k = int(min(k, len(points)))
+    m = len(points) if queries is None else len(queries)
     if m == 0 or k == 0:
         empty = np.zeros((m, k), dtype=np.int64)
         return (empty, np.zeros((m, k))) if return_sqdist else empty
@@ -79,7 +132,9 @@ def knn(points: NDArray[np.float64], k: int, return_sqdist: bool = False):
     search = o3d.core.nns.NearestNeighborSearch(data, o3d.core.int64)
     if not search.knn_index():
         raise RuntimeError("open3d could not build a nearest-neighbour index")
-    idx, sqdist = search.knn_search(data, k)
+    idx, sqdist = search.knn_search(
+        data if queries is None else o3d.core.Tensor(np.ascontiguousarray(queries,
+                                                                          dtype=np.float64)), k)
     idx = idx.numpy().astype(np.int64, copy=False).reshape(m, k)
     if return_sqdist:
         return idx, sqdist.numpy().astype(np.float64, copy=False).reshape(m, k)

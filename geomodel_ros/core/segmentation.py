@@ -35,7 +35,7 @@ from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
                                      neighborhood_moments, smallest_eigenpairs_sym, split_faces,
                                      voxelize)
 from geomodel_ros.core.input import without_far_points
-from geomodel_ros.core.fastmath import robust_sigma, rows_finite, take_rows
+from geomodel_ros.core.fastmath import knn_among, robust_sigma, rows_finite, take_rows
 from geomodel_ros.core.noise import NoiseEstimate, disparity_step, resolve_params
 from geomodel_ros.core.joins import (join_contained_parts, join_occluded_parts, join_terraces,
                                      merge_patches)
@@ -219,7 +219,8 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     step = disparity_step(p)
     labels[finite] = _working_labels(wp, wn, counts, supports, params, grid, noise, step,
                                      level_quantum(p, inverse, counts, step,
-                                                   params.seg_voxel_size))[inverse]
+                                                   params.seg_voxel_size),
+                                     None if grid is not None else (nbrs, sqdist))[inverse]
     planes = _claim_contact_rims(p, finite, labels, len(supports), params, rng)
     timing["seg_objects_s"] = time.perf_counter() - t2
     timing["segmentation_s"] = time.perf_counter() - t0
@@ -229,7 +230,8 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
 def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: NDArray[np.int64],
                     supports: list[NDArray[np.int64]], params: ModelingParams,
                     grid: GridCloud | None = None, noise: DepthNoise | None = None,
-                    step: float | None = None, quantum: NDArray[np.float64] | None = None
+                    step: float | None = None, quantum: NDArray[np.float64] | None = None,
+                    near: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
                     ) -> NDArray[np.int64]:
     """Label of every working point: supports 0 .. S-1, objects S, S+1, ... by size, -1 noise.
 
@@ -251,6 +253,10 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
         depths are not quantised): far terraces of one plane are joined.
     quantum : (M,) float64 array, optional
         Depth quantisation [m] left in every working point (:func:`level_quantum`).
+    near : (neighbors, sqdist), optional
+        The (M, k) nearest neighbours of every working point and their squared distances
+        [m^2] (voxel path): the objects' neighbours among the points of no support are
+        taken from them where they can be (:func:`_rest_neighbourhood`).
 
     Returns
     -------
@@ -259,7 +265,7 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     wlabel = np.full(len(wp), -1, dtype=np.int64)
     for sid, sel in enumerate(supports):
         wlabel[sel] = sid
-    comp, comp_ok = _object_segments(wp, counts, wlabel < 0, params, grid, noise, quantum)
+    comp, comp_ok = _object_segments(wp, counts, wlabel < 0, params, grid, noise, quantum, near)
     if params.seg_max_occlusion_gap > 0:
         comp = join_occluded_parts(wp, wn, comp, comp_ok, params)
     comp = join_terraces(wp, comp, comp_ok, step, params)
@@ -272,14 +278,17 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
 def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
                      free: NDArray[np.bool_], params: ModelingParams,
                      grid: GridCloud | None = None, noise: DepthNoise | None = None,
-                     quantum: NDArray[np.float64] | None = None
+                     quantum: NDArray[np.float64] | None = None,
+                     near: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
                      ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
     """Convex objects among the ``free`` (M,) working points (not in a support).
 
     With the organized ``grid`` of ``wp`` the free points' normals come from its neighbour
-    lists (:meth:`GridCloud.restricted`) instead of a kNN search among them. ``noise`` is
-    the depth noise (:func:`working_noise`), ``quantum`` (M,) the depth quantisation [m]
-    left in each working point (:func:`level_quantum`).
+    lists (:meth:`GridCloud.restricted`) instead of a kNN search among them; with ``near``
+    (the (M, k) neighbours of all working points and their squared distances) the search
+    is only for the free points that it does not answer (:func:`_rest_neighbourhood`).
+    ``noise`` is the depth noise (:func:`working_noise`), ``quantum`` (M,) the depth
+    quantisation [m] left in each working point (:func:`level_quantum`).
 
     Returns
     -------
@@ -293,9 +302,12 @@ def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
     comp = np.full(len(wp), -1, dtype=np.int64)
     if len(rest_idx) >= MIN_WORKING_POINTS:
         # Normals recomputed without the supports, so they do not blend into the desk.
-        comp[rest_idx] = _convex_objects(wp[rest_idx], counts[rest_idx], params, noise,
-                                         None if grid is None else grid.restricted(rest_idx),
-                                         None if quantum is None else quantum[rest_idx])
+        comp[rest_idx] = _convex_objects(
+            wp[rest_idx], counts[rest_idx], params, noise,
+            None if grid is None else grid.restricted(rest_idx),
+            None if quantum is None else quantum[rest_idx],
+            None if near is None or grid is not None else
+            _rest_neighbourhood(wp, rest_idx, *near, params.normal_neighbors))
     rest = comp >= 0
     size = np.bincount(comp[rest], weights=counts[rest], minlength=int(comp.max()) + 1)
     comp_ok = rest.copy()
@@ -366,10 +378,39 @@ def working_noise(points: NDArray[np.float64], counts: NDArray[np.int64],
     return sigma / np.sqrt(np.maximum(counts, 1))
 
 
+def _rest_neighbourhood(wp: NDArray[np.float64], rest_idx: NDArray[np.int64],
+                        nbrs: NDArray[np.int64], sqdist: NDArray[np.float64], k: int
+                        ) -> tuple[NDArray, ...]:
+    """Estimate the normals of the working points ``rest_idx`` from their ``k`` nearest.
+
+    The result of :func:`geomodel_ros.core.faces.estimate_normals` on ``wp[rest_idx]``
+    (equal distances aside), from the neighbours ``nbrs`` (M, K) and squared distances
+    ``sqdist`` [m^2] of all working points ``wp`` (M, 3) [m]: most points of no support
+    have no support point among their nearest (:func:`geomodel_ros.core.fastmath.knn_among`);
+    only the others are searched again.
+
+    Returns
+    -------
+    normals (R, 3), variation (R,), neighbors (R, k'), sqdist (R, k')
+        As :func:`geomodel_ros.core.faces.estimate_normals` returns them (k' = min(k, R);
+        indices into ``rest_idx``).
+    """
+    points = wp[rest_idx]
+    nb, sq = knn_among(wp, rest_idx, nbrs, sqdist, k)
+    xx, xy, xz, yy, yz, zz = neighborhood_moments(points, nb)
+    lam, normals = smallest_eigenpairs_sym(xx, xy, xz, yy, yz, zz)
+    total = xx + yy + zz
+    variation = np.divide(lam, total, out=np.zeros(len(points)), where=total > 0)
+    # Oriented towards the sensor at the origin, as estimate_normals does by default.
+    normals[np.einsum("mi,mi->m", normals, points) > 0] *= -1
+    return normals, variation, nb, sq
+
+
 def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                     params: ModelingParams, noise: DepthNoise | None = None,
                     neighbourhood: tuple[NDArray, ...] | None = None,
-                    quantum: NDArray[np.float64] | None = None) -> NDArray[np.int64]:
+                    quantum: NDArray[np.float64] | None = None,
+                    own: tuple[NDArray, ...] | None = None) -> NDArray[np.int64]:
     """Object label of every point of a support-free working cloud (local convexity).
 
     Parameters
@@ -383,7 +424,8 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
         Depth noise of the working points (:func:`working_noise`).
     neighbourhood : (normals, variation, neighbors, sqdist), optional
         The points' normals, surface variation and neighbour lists when known (organized
-        path); by default they are estimated over the ``normal_neighbors`` nearest points.
+        path); by default they are estimated over the ``normal_neighbors`` nearest points
+        (given as ``own``, the same from :func:`_rest_neighbourhood`, when known).
 
     Returns
     -------
@@ -398,6 +440,7 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     """
     m = len(points)
     normals, variation, nbrs, sqdist = neighbourhood if neighbourhood is not None else \
+        own if own is not None else \
         estimate_normals(points, params.normal_neighbors, return_sqdist=True)
     cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
                          np.arange(m), sqdist)
