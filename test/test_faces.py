@@ -206,3 +206,23 @@ def test_a_face_plane_is_not_tilted_by_strays_behind_it():
     plane, spread = face_plane(pts, normals, 0.006)
     assert abs(plane.normal @ normal) >= np.cos(np.radians(0.5))   # 0.15 deg measured
     assert spread < 0.0007   # the face's own noise, sigma 0.5 mm
+
+
+def test_sorted_groups_numbers_equal_keys_in_ascending_order():
+    from geomodel_ros.core.faces import _sorted_groups
+
+    # Mostly ascending (scan order, the stable sort) and mixed (quicksort): groups are
+    # numbered by ascending key, sizes counted, as numpy.unique numbers them.
+    inverse, counts = _sorted_groups(np.array([1, 1, 3, 3, 3, 7], dtype=np.int64))
+    np.testing.assert_array_equal(inverse, [0, 0, 1, 1, 1, 2])
+    np.testing.assert_array_equal(counts, [2, 3, 1])
+    inverse, counts = _sorted_groups(np.array([5, 5, 2, 9, 2], dtype=np.int64))
+    np.testing.assert_array_equal(inverse, [1, 1, 0, 2, 0])
+    np.testing.assert_array_equal(counts, [2, 2, 1])
+    rng = np.random.default_rng(8)
+    runs = np.sort(rng.integers(0, 10 ** 9, 3000)).repeat(rng.integers(1, 5, 3000))
+    for keys in (runs, rng.permutation(runs)):
+        _, want_inv, want_counts = np.unique(keys, return_inverse=True, return_counts=True)
+        inverse, counts = _sorted_groups(keys)
+        np.testing.assert_array_equal(inverse, want_inv.ravel())
+        np.testing.assert_array_equal(counts, want_counts)

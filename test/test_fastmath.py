@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from geomodel_ros.core.fastmath import knn
+from geomodel_ros.core.fastmath import knn, knn_among
 
 
 def test_knn_gives_the_nearest_points_in_order_with_their_squared_distances():
@@ -31,3 +31,42 @@ def test_knn_asks_for_no_more_neighbours_than_there_are_points():
                                rtol=0, atol=1e-15)
     empty, none = knn(np.zeros((0, 3)), 4, return_sqdist=True)
     assert empty.shape == none.shape == (0, 0)
+
+
+def _brute_knn(p, k):
+    d = p[:, None, :] - p[None, :, :]
+    full = (d[..., 0] ** 2 + d[..., 1] ** 2) + d[..., 2] ** 2
+    idx = np.argsort(full, axis=1)[:, :k]
+    return idx, np.take_along_axis(full, idx, axis=1)
+
+
+def test_knn_among_gives_the_nearest_points_of_the_subset():
+    # Random points (no equal distances): the k nearest within a random subset, whether
+    # taken from the whole cloud's lists or searched again, are those of a brute force
+    # over the subset alone; both ways occur here.
+    rng = np.random.default_rng(5)
+    p = rng.uniform(0.0, 0.1, (600, 3))
+    sel = np.flatnonzero(rng.random(600) < 0.7)
+    for big_k, k in ((8, 8), (12, 8)):
+        nb, sq = knn(p, big_k, return_sqdist=True)
+        local = np.full(600, -1)
+        local[sel] = np.arange(len(sel))
+        inside = (local[nb[sel]] >= 0).sum(axis=1) >= k
+        assert inside.any() and not inside.all()
+        got, got_sq = knn_among(p, sel, nb, sq, k)
+        want, want_sq = _brute_knn(p[sel], k)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(got_sq, want_sq)
+
+
+def test_knn_among_never_returns_a_neighbour_outside_the_subset():
+    # Points on a line 1 m apart; the subset {0, 5, 6}. Point 0's two nearest overall are 0
+    # and 1, but 1 is not in the subset: its nearest in it are itself and 5 (5 m away).
+    p = np.column_stack([np.arange(8.0), np.zeros(8), np.zeros(8)])
+    nb, sq = knn(p, 2, return_sqdist=True)
+    got, got_sq = knn_among(p, np.array([0, 5, 6]), nb, sq, 2)
+    np.testing.assert_array_equal(got, [[0, 1], [1, 2], [2, 1]])
+    np.testing.assert_array_equal(got_sq, [[0.0, 25.0], [0.0, 1.0], [0.0, 1.0]])
+    # Fewer subset points than neighbours asked for: all of them.
+    got, _ = knn_among(p, np.array([3, 7]), nb, sq, 4)
+    np.testing.assert_array_equal(got, [[0, 1], [1, 0]])

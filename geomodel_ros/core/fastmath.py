@@ -77,17 +77,21 @@ def knn_among(points: NDArray[np.float64], sel: NDArray[np.int64], neighbors: ND
     k = int(min(k, m))
     local = np.full(len(points), -1, dtype=np.int64)
     local[sel] = np.arange(m)
-    nb = local[neighbors[sel]]
+    nb = local[take_rows(neighbors, sel)]
+    sq = take_rows(sqdist, sel)
     inside = nb >= 0
     kept = np.flatnonzero(inside.sum(axis=1) >= k) if k <= nb.shape[1] else \
         np.zeros(0, dtype=np.int64)
     out = np.empty((m, k), dtype=np.int64)
     out_sq = np.empty((m, k))
-    # The first k neighbours in ``sel`` of each kept row, in their order (a stable sort
-    # moves the others behind them).
-    first = np.argsort(~inside[kept], axis=1, kind="stable")[:, :k]
-    out[kept] = np.take_along_axis(nb[kept], first, axis=1)
-    out_sq[kept] = np.take_along_axis(sqdist[sel[kept]], first, axis=1)
+    if k == nb.shape[1]:
+        out[kept], out_sq[kept] = nb[kept], sq[kept]
+    else:
+        # The first k neighbours in ``sel`` of each kept row, in their order (a stable
+        # sort moves the others behind them).
+        first = np.argsort(~inside[kept], axis=1, kind="stable")[:, :k]
+        out[kept] = np.take_along_axis(nb[kept], first, axis=1)
+        out_sq[kept] = np.take_along_axis(sq[kept], first, axis=1)
     again = np.ones(m, dtype=bool)
     again[kept] = False
     if again.any():

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
 from geomodel_ros.core.faces import link_graph
+from geomodel_ros.core.fastmath import take_rows
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, ransac, refine
 
@@ -54,8 +55,8 @@ def _components(n: int, sel: NDArray[np.int64], radius: float, neighbors: NDArra
     m = len(sel)
     local = np.full(n, -1, dtype=np.int64)
     local[sel] = np.arange(m)
-    nb = local[neighbors[sel]]
-    keep = (nb >= 0) & (sqdist[sel] <= radius * radius)
+    nb = local[take_rows(neighbors, sel)]
+    keep = (nb >= 0) & (take_rows(sqdist, sel) <= radius * radius)
     return connected_components(link_graph(nb, keep, m), directed=False)
 
 
