@@ -108,15 +108,16 @@ def _plane_inliers(wp: NDArray[np.float64], wn: NDArray[np.float64], idx: NDArra
     The RANSAC plane is refit by least squares on its inliers, and the inliers (within
     ``seg_plane_threshold`` and ``seg_plane_normal_angle``) taken again.
     """
-    fit = ransac(PlaneModel, wp[idx], wn[idx], params.seg_plane_threshold,
+    pts, nrm = take_rows(wp, idx), take_rows(wn, idx)
+    fit = ransac(PlaneModel, pts, nrm, params.seg_plane_threshold,
                  params.seg_plane_normal_angle, params.ransac_max_iterations,
                  params.ransac_confidence, rng, max_score_points=SUPPORT_SCORE_POINTS)
     if fit is None:
         return None
-    model = fit_plane_svd(wp[idx[fit.inliers]]) if fit.inliers.sum() >= PLANE_MIN_POINTS \
-        else fit.model
-    dist = np.abs(wp[idx] @ model.normal + model.d)
-    cos = np.abs(wn[idx] @ model.normal)
+    model = fit_plane_svd(take_rows(pts, fit.inliers)) \
+        if fit.inliers.sum() >= PLANE_MIN_POINTS else fit.model
+    dist = np.abs(pts @ model.normal + model.d)
+    cos = np.abs(nrm @ model.normal)
     return idx[(dist <= params.seg_plane_threshold)
                & (cos >= math.cos(params.seg_plane_normal_angle))]
 
