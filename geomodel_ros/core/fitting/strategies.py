@@ -8,7 +8,8 @@ has to beat a box: the box of the planar faces and of the flat cores of curved f
 box side with a gable, fold or shrink-wrap ripples over part of it), the other curved
 faces left out as outliers (:func:`box_rival`); the shape with the smaller truncated
 residual over all the object's points (MSAC cost at the noise band) is taken
-(:func:`prefer_box`).
+(:func:`prefer_box`). A box, in turn, has to beat the round model of all the object's
+faces taken as curved, on the same cost (:func:`prefer_round`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
                                              bends_beyond_noise)
 from geomodel_ros.core.confidence import surface_distance
 from geomodel_ros.core.fitting.measure import every_kth
+from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.model_graph import (FaceInfo, GraphDecision, curvature_candidates,
@@ -39,8 +41,9 @@ __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_stra
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
            "UprightAboveSupport", "BoxRival", "PlanarPatchesOfCurvedObjects", "BoxOfFlatCores",
            "flat_faces",
-           "flat_core_faces", "box_rival", "support_below", "truncated_cost", "prefer_box",
-           "as_curved"]
+           "flat_core_faces", "box_rival", "support_below", "truncated_cost", "truncated_costs",
+           "prefer_box",
+           "prefer_round", "all_faces_curved", "as_curved"]
 
 #: Parallel planar faces whose offsets differ by at most this many RANSAC thresholds are
 #: one plane (the band within which a plane's own points scatter).
@@ -333,18 +336,26 @@ def box_rival(cloud: ObjectCloud) -> BoxRival | None:
                     dataclasses.replace(decision, candidates=(PrimitiveType.CUBOID,)), note)
 
 
-def truncated_cost(p: Primitive, cloud: ObjectCloud) -> float:
-    """MSAC cost of ``p`` on the object's points: mean of min(d, t)^2 / t^2, in [0, 1].
+def truncated_costs(p: Primitive, cloud: ObjectCloud) -> NDArray[np.float64]:
+    """MSAC cost (k,) of ``p`` per compared point: min(d, t)^2 / t^2, in [0, 1].
 
     ``d`` is each point's distance to the fitted surface (every k-th of about
-    :data:`RIVAL_SAMPLE` points), ``t`` the RANSAC threshold (the noise band): points on
-    the surface cost their squared residual, points off it (outliers) one band each.
+    :data:`RIVAL_SAMPLE` points of the object), ``t`` the RANSAC threshold (the noise
+    band): points on the surface cost their squared residual, points off it (outliers)
+    one band each. All ones when ``p`` has no surface.
     """
     t = cloud.params.ransac_threshold
-    d = surface_distance(p, np.ascontiguousarray(every_kth(cloud.points, RIVAL_SAMPLE)))
-    if d is None or not len(d) or t <= 0:
-        return 1.0
-    return float(np.mean(np.minimum(d / t, 1.0) ** 2))
+    sample = np.ascontiguousarray(every_kth(cloud.points, RIVAL_SAMPLE))
+    d = surface_distance(p, sample)
+    if d is None or t <= 0:
+        return np.ones(len(sample))
+    return np.minimum(d / t, 1.0) ** 2
+
+
+def truncated_cost(p: Primitive, cloud: ObjectCloud) -> float:
+    """MSAC cost of ``p`` on the object's points: the mean of :func:`truncated_costs`."""
+    c = truncated_costs(p, cloud)
+    return float(np.mean(c)) if len(c) else 1.0
 
 
 def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
@@ -474,18 +485,65 @@ class PlanarPatchesOfCurvedObjects:
 
     def attempt(self, situation: Situation) -> Attempt | None:
         """Fit the candidates of the whole object's curvatures with every face curved."""
-        cloud = situation.cloud
-        params = cloud.params
-        cands, why = curvature_candidates(
-            *curvatures(cloud, np.ones(len(cloud.wc.points), dtype=bool)),
-            params.sphere_curvature_ratio, params.developable_curvature_ratio,
-            params.cone_curvature_variation)
-        if not cands:
-            return None
-        faces = [as_curved(f) for f in cloud.faces]
-        return Attempt(dataclasses.replace(cloud, faces=faces),
-                       GraphDecision("curved", cands, -1, (), why),
-                       note=f"planar faces taken as patches of the curved surface: {why}")
+        return all_faces_curved(situation.cloud,
+                                "planar faces taken as patches of the curved surface")
+
+
+def all_faces_curved(cloud: ObjectCloud, note: str) -> Attempt | None:
+    """Return the attempt of the whole object's curvature candidates, every face curved.
+
+    None when the principal curvatures of all the object's working points propose no
+    primitive. ``note`` starts the attempt's note (the curvature reason follows).
+    """
+    params = cloud.params
+    cands, why = curvature_candidates(
+        *curvatures(cloud, np.ones(len(cloud.wc.points), dtype=bool)),
+        params.sphere_curvature_ratio, params.developable_curvature_ratio,
+        params.cone_curvature_variation)
+    if not cands:
+        return None
+    faces = [as_curved(f) for f in cloud.faces]
+    return Attempt(dataclasses.replace(cloud, faces=faces),
+                   GraphDecision("curved", cands, -1, (), why), note=f"{note}: {why}")
+
+
+def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
+                 reasons: list[str]) -> tuple[Primitive, tuple[FaceSummary, ...]]:
+    """Return the cuboid ``prim`` or the round model of the whole object, whichever costs less.
+
+    A round side seen up close under depth noise splits into facets that each pass as
+    planar, and the facets of a lying cylinder meet at about right angles: a box verifies
+    on them (its inlier band holds the facets' bend), and the box of flat cores beats a
+    round fit made on part of the faces. The round rival is fitted to all of the object's
+    faces taken as curved (:func:`all_faces_curved`; the fits' own checks, inliers and
+    scatter against the measured noise, apply); it replaces the box when its
+    :func:`truncated_costs` over the same points are lower beyond the noise
+    (:func:`~.paired_cost.lower_beyond_noise`: the mean difference against its standard
+    error over blocks of neighbouring points, whose depth errors are correlated). Far
+    from the sensor the noise band outgrows a small object's shape, and a round model
+    may fit a box's points about as well; a real box's edges do not fit a round model
+    where the shape shows (its cost stays far above the box's). Only with ``noise_model
+    = auto`` (``fixed`` keeps the previous strategies exactly). The comparison is added
+    to ``reasons``.
+    """
+    cloud = situation.cloud
+    if prim.type is not PrimitiveType.CUBOID or cloud.params.noise_model != "auto":
+        return prim, faces
+    attempt = all_faces_curved(cloud, "all faces taken as curved")
+    if attempt is None:
+        return prim, faces
+    rnd, _ = fit_first(attempt.cloud, attempt.decision)
+    if rnd is None:
+        return prim, faces
+    c_box, c_round = truncated_costs(prim, cloud), truncated_costs(rnd, cloud)
+    blocks = spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE))
+    lower, stat = lower_beyond_noise(c_round, c_box, blocks)
+    verdict = "replaces" if lower else "does not replace"
+    reasons.append(f"{attempt.note}; {rnd.type} (cost {np.mean(c_round):.3f}) {verdict} "
+                   f"cuboid (cost {np.mean(c_box):.3f}, t = {stat:.1f})")
+    if lower:
+        return rnd, tuple(f.summary for f in attempt.cloud.faces)
+    return prim, faces
 
 
 class BoxOfFlatCores:
@@ -529,7 +587,8 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
 
     Returns the primitive (None if none fits), the face summaries it was fitted with
     (those of ``situation.cloud`` if none) and every reason on the way. A round fit
-    is checked against the box of the flat cores (:func:`prefer_box`).
+    is checked against the box of the flat cores (:func:`prefer_box`), a cuboid against
+    the round model of all the object's faces (:func:`prefer_round`).
     """
     reasons = [situation.decision.reason]
     for strategy in strategies:
@@ -545,5 +604,6 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
         reasons.extend(attempt.prefix + r for r in tried)
         if prim is not None:
             faces = tuple(f.summary for f in attempt.cloud.faces)
-            return (*prefer_box(situation, prim, faces, reasons), reasons)
+            prim, faces = prefer_box(situation, prim, faces, reasons)
+            return (*prefer_round(situation, prim, faces, reasons), reasons)
     return None, tuple(f.summary for f in situation.cloud.faces), reasons
