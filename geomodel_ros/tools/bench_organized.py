@@ -16,6 +16,9 @@ Both paths of :func:`~geomodel_ros.core.segmentation.segment_scene` (parameter
 * ``--part scenes``: the real organized scenes without labels (``pcl_scenes`` and the PCL
   mug, 640 x 480, the defaults): objects and their types on each path.
 
+``--path voxel|organized`` runs the osd and scenes parts on one path only (the other
+path's figures do not change with the fast path's code).
+
 ``python -m geomodel_ros.tools.bench_organized [--part osd|time|profile|scenes|all]``. Figures go to
 BENCHMARKS.md; nothing here is a test.
 """
@@ -57,8 +60,13 @@ def _kinect(fast: bool) -> ModelingParams:
                                organized_fast_path=fast)
 
 
-def _osd(defaults: bool, block: int | None) -> None:
-    paths = PATHS if block is None else (("organized", True),)
+def _paths(only: str | None) -> tuple[tuple[str, bool], ...]:
+    """Return the paths to run: both, or the one named ``only``."""
+    return tuple(p for p in PATHS if only is None or p[0] == only)
+
+
+def _osd(defaults: bool, block: int | None, only: str | None = None) -> None:
+    paths = _paths(only) if block is None else (("organized", True),)
     if block is not None:
         organized.block_size = lambda _image, _voxel: block
     source = "defaults" if defaults else "config/kinect.yaml"
@@ -126,13 +134,13 @@ def _profile(frame: int, top: int) -> None:
     print(out.getvalue())
 
 
-def _scenes() -> None:
+def _scenes(only: str | None = None) -> None:
     for rel in REAL_SCENES:
         cloud = read_pcd(data_dir() / rel)
         if cloud.height <= 1:
             print(f"{rel}: unorganized, the fast path does not apply")
             continue
-        for name, fast in PATHS:
+        for name, fast in _paths(only):
             _, result = model_scene(cloud.points, ModelingParams(organized_fast_path=fast),
                                     organized_shape=(cloud.height, cloud.width))
             types = Counter(o.type.value for o in result.objects)
@@ -152,17 +160,19 @@ def main(argv: list[str] | None = None) -> int:
                     help="osd part: the default parameters instead of config/kinect.yaml")
     ap.add_argument("--block", type=int, default=None,
                     help="osd part, diagnosis: force the fast path's block edge [px]")
+    ap.add_argument("--path", choices=tuple(name for name, _ in PATHS), default=None,
+                    help="osd and scenes parts: run this path only (default: both)")
     args = ap.parse_args(argv)
     if args.block is not None and args.block < 1:
         ap.error("--block must be >= 1 [px]")
     if args.part in ("osd", "all"):
-        _osd(args.defaults, args.block)
+        _osd(args.defaults, args.block, args.path)
     if args.part in ("time", "all"):
         _time(args.repeats)
     if args.part in ("profile", "all"):
         _profile(args.frame, args.top)
     if args.part in ("scenes", "all"):
-        _scenes()
+        _scenes(args.path)
     return 0
 
 
