@@ -1,6 +1,6 @@
 """Model comparison beyond correlated noise, and a box against the round model of its faces.
 
-Modules: core.fitting.paired_cost and core.fitting.strategies.prefer_round.
+Modules: core.fitting.paired_cost and core.fitting.strategies (prefer_round, thinned).
 
 By hand: with B equal blocks of m points each and block means of the per-point
 difference d_b, the cluster-robust standard error of the mean is
@@ -19,9 +19,14 @@ from scipy import stats
 
 from geomodel_ros.core.fitting.paired_cost import (BLOCK_GRID, LOWER_LEVEL, MIN_BLOCKS,
                                                    lower_beyond_noise, spread_blocks)
+from geomodel_ros.core.fitting.strategies import all_faces_curved, thinned
+from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import PrimitiveType
 from geomodel_ros.tools.synth.suite import SuiteCase, render_case
+
+from test_fitting_units import CYL_R, cloud_of, cylinder_points, plane_points
 
 #: The Student quantile of a 16-block comparison (15 degrees of freedom), about 2.13.
 T16 = stats.t.ppf(1.0 - LOWER_LEVEL, BLOCK_GRID ** 2 - 1)
@@ -111,3 +116,42 @@ def test_a_box_stays_a_box(distance, seed):
     assert o.type == "cuboid"
     assert "replaces cuboid" not in o.reason
     assert math.isfinite(sum(o.dimensions.values()))
+
+
+def test_thinned_faces_keep_every_kth_point_and_its_normal():
+    # A cylinder r 40 mm, 120 mm long: tens of thousands of points, thinned to ~400.
+    cloud = cloud_of(cylinder_points())
+    thin = thinned(cloud, 400)
+    n_w = sum(len(f.working) for f in cloud.faces)
+    n_p = sum(len(f.points) for f in cloud.faces)
+    kw, kp = n_w // 400, n_p // 400
+    assert kw > 1 and kp > 1  # the example really thins
+    for f, t in zip(cloud.faces, thin.faces, strict=True):
+        assert np.array_equal(t.working, f.working[::kw])
+        assert np.array_equal(t.points, f.points[::kp])
+        assert np.array_equal(t.info.point_normals, f.info.point_normals[::kw])
+        assert t.info.size == len(t.working)
+    # About the target in all (between it and twice it, k = floor(n / target)).
+    assert 400 <= sum(len(f.working) for f in thin.faces) < 800
+    assert 400 <= sum(len(f.points) for f in thin.faces) < 800
+    # The object itself is shared, not thinned; the original faces are untouched.
+    assert thin.points is cloud.points and thin.wc is cloud.wc
+    assert sum(len(f.working) for f in cloud.faces) == n_w
+
+
+def test_a_round_side_fits_on_its_thinned_faces():
+    # The cheap rival must find a round side the object really has: the cylinder's
+    # radius within 2 mm on about 400 of its points (noise-free surface).
+    cloud = cloud_of(cylinder_points())
+    attempt = all_faces_curved(cloud, "all faces taken as curved")
+    assert attempt is not None
+    prim, _ = fit_first(thinned(attempt.cloud), attempt.decision)
+    assert prim is not None and prim.type is PrimitiveType.CYLINDER
+    assert prim.dimensions["radius"] == pytest.approx(CYL_R, abs=0.002)
+
+
+def test_a_plane_has_no_thinned_round_rival():
+    # A flat patch: no round model passes its own checks on it, so nothing is refitted.
+    cloud = cloud_of(plane_points())
+    attempt = all_faces_curved(cloud, "all faces taken as curved")
+    assert attempt is None or fit_first(thinned(attempt.cloud), attempt.decision)[0] is None
