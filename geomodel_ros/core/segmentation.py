@@ -35,8 +35,8 @@ from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
                                      neighborhood_moments, smallest_eigenpairs_sym, split_faces,
                                      voxelize)
 from geomodel_ros.core.input import without_far_points
-from geomodel_ros.core.fastmath import rows_finite, take_rows
-from geomodel_ros.core.noise import MAD_TO_SIGMA, NoiseEstimate, disparity_step, resolve_params
+from geomodel_ros.core.fastmath import robust_sigma, rows_finite, take_rows
+from geomodel_ros.core.noise import NoiseEstimate, disparity_step, resolve_params
 from geomodel_ros.core.joins import (join_contained_parts, join_occluded_parts, join_terraces,
                                      merge_patches)
 from geomodel_ros.core.organized import GridCloud, grid_cloud
@@ -523,7 +523,8 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
         null = _link_folds(points, normals, i[inner], j[inner])
         noise_in = np.minimum(noise_w[i[inner]], noise_w[j[inner]])
         has = noise_in > 0  # no noise unit where the noise is unknown (0)
-        spread = MAD_TO_SIGMA * _median_abs_dev(null[has] / noise_in[has])
+        units = null[has] / noise_in[has]
+        spread = robust_sigma(units[np.isfinite(units)])
         links = np.stack([0.5 * (below_i + below_j), np.minimum(noise_w[i[ok]], noise_w[j[ok]]),
                           0.5 * tolerance * dist, 0.5 * (quantum[i[ok]] + quantum[j[ok]])])
         creased = _creased_borders(inv, len(pairs), i[ok], pi < pj, links, spread)
@@ -535,12 +536,6 @@ def _link_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
     """Fold [m] of the links i -> j: (below_i + below_j) / 2 (:func:`_step_free`)."""
     below_i, below_j, _ = _step_free(points, normals, i, j, np.zeros(len(points)))
     return 0.5 * (below_i + below_j)
-
-
-def _median_abs_dev(values: NDArray[np.float64]) -> float:
-    """Return the median absolute deviation of ``values`` from their median (0 if empty)."""
-    values = values[np.isfinite(values)]
-    return float(np.median(np.abs(values - np.median(values)))) if len(values) else 0.0
 
 
 def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
