@@ -123,19 +123,24 @@ def test_thinned_faces_keep_every_kth_point_and_its_normal():
     cloud = cloud_of(cylinder_points())
     thin = thinned(cloud, 400)
     n_w = sum(len(f.working) for f in cloud.faces)
-    n_p = sum(len(f.points) for f in cloud.faces)
-    kw, kp = n_w // 400, n_p // 400
+    n_obj = len(cloud.points)
+    kw, kp = n_w // 400, n_obj // 400
     assert kw > 1 and kp > 1  # the example really thins
+    # The object's points: every kp-th, about the target (k = floor(n / target)).
+    assert np.array_equal(thin.points, cloud.points[::kp])
+    assert 400 <= len(thin.points) < 800
     for f, t in zip(cloud.faces, thin.faces, strict=True):
         assert np.array_equal(t.working, f.working[::kw])
-        assert np.array_equal(t.points, f.points[::kp])
         assert np.array_equal(t.info.point_normals, f.info.point_normals[::kw])
         assert t.info.size == len(t.working)
-    # About the target in all (between it and twice it, k = floor(n / target)).
+        # The face keeps exactly its points that the object kept, as the same 3-D points.
+        kept = f.points[f.points % kp == 0]
+        assert np.array_equal(thin.points[t.points], cloud.points[kept])
     assert 400 <= sum(len(f.working) for f in thin.faces) < 800
-    assert 400 <= sum(len(f.points) for f in thin.faces) < 800
-    # The object itself is shared, not thinned; the original faces are untouched.
-    assert thin.points is cloud.points and thin.wc is cloud.wc
+    # A first look (no full-resolution refinement); the working cloud is shared and the
+    # original object is untouched.
+    assert thin.first_look and not cloud.first_look
+    assert thin.wc is cloud.wc and len(cloud.points) == n_obj
     assert sum(len(f.working) for f in cloud.faces) == n_w
 
 

@@ -317,7 +317,7 @@ def patch_bends(points: NDArray[np.float64], normal: NDArray[np.float64]
 
 
 def principal_curvatures(points: NDArray[np.float64], normals: NDArray[np.float64],
-                         neighbors: NDArray[np.int64]
+                         neighbors: NDArray[np.int64], rows: NDArray[np.int64] | None = None
                          ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Principal curvatures per point from a local quadric fit (vectorised).
 
@@ -330,15 +330,22 @@ def principal_curvatures(points: NDArray[np.float64], normals: NDArray[np.float6
     points : (M, 3) float64 array [m]
     normals : (M, 3) float64 array, unit
     neighbors : (M, k) int64 array, k >= 6
+    rows : (R,) int64 array, optional
+        The points whose curvatures are computed (default: all M); each one's own fit is
+        the same as with all.
 
     Returns
     -------
-    k_max, k_min : (M,) float64 arrays [1/m]
-        Curvature of largest and smallest magnitude (signs kept).
+    k_max, k_min : (M,) or (R,) float64 arrays [1/m]
+        Curvature of largest and smallest magnitude (signs kept), per point of ``rows``.
     """
-    m = len(points)
+    if rows is not None:
+        centres, normals, neighbors = points[rows], normals[rows], neighbors[rows]
+    else:
+        centres = points
+    m = len(centres)
     u, v = perpendicular_bases(normals)
-    d = points[neighbors] - points[:, None, :]
+    d = points[neighbors] - centres[:, None, :]
     x = np.einsum("mki,mi->mk", d, u)
     y = np.einsum("mki,mi->mk", d, v)
     z = np.einsum("mki,mi->mk", d, normals)

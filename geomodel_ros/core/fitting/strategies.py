@@ -98,10 +98,9 @@ def graph_decision(infos: list[FaceInfo], adjacency: NDArray[np.bool_],
 def curvatures(cloud: ObjectCloud, which: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
     """Principal curvatures k_max, k_min [1/m] of the working points ``which`` (M,) selects."""
     wc, params = cloud.wc, cloud.params
-    k_max, k_min = principal_curvatures(wc.points, wc.normals, wc.neighbors)
     smooth = which & (wc.variation <= params.edge_variation_threshold)
     sel = smooth if smooth.sum() >= MIN_SMOOTH_POINTS else which
-    return k_max[sel], k_min[sel]
+    return principal_curvatures(wc.points, wc.normals, wc.neighbors, np.flatnonzero(sel))
 
 
 def decide(cloud: ObjectCloud) -> GraphDecision:
@@ -494,17 +493,20 @@ class PlanarPatchesOfCurvedObjects:
                                 "planar faces taken as patches of the curved surface")
 
 
-def all_faces_curved(cloud: ObjectCloud, note: str) -> Attempt | None:
+def all_faces_curved(cloud: ObjectCloud, note: str, target: int | None = None
+                     ) -> Attempt | None:
     """Return the attempt of the whole object's curvature candidates, every face curved.
 
-    None when the principal curvatures of all the object's working points propose no
-    primitive. ``note`` starts the attempt's note (the curvature reason follows).
+    None when the principal curvatures of the object's working points (every k-th, about
+    ``target`` of them, when given) propose no primitive. ``note`` starts the attempt's
+    note (the curvature reason follows).
     """
     params = cloud.params
+    which = np.zeros(len(cloud.wc.points), dtype=bool)
+    which[::_every(len(which), target)] = True
     cands, why = curvature_candidates(
-        *curvatures(cloud, np.ones(len(cloud.wc.points), dtype=bool)),
-        params.sphere_curvature_ratio, params.developable_curvature_ratio,
-        params.cone_curvature_variation)
+        *curvatures(cloud, which), params.sphere_curvature_ratio,
+        params.developable_curvature_ratio, params.cone_curvature_variation)
     if not cands:
         return None
     faces = [as_curved(f) for f in cloud.faces]
@@ -512,46 +514,55 @@ def all_faces_curved(cloud: ObjectCloud, note: str) -> Attempt | None:
                    GraphDecision("curved", cands, -1, (), why), note=f"{note}: {why}")
 
 
+def _every(n: int, target: int | None) -> int:
+    """Step k that leaves about ``target`` of ``n`` items (1: all, also without a target)."""
+    return 1 if target is None else max(1, n // max(1, target))
+
+
 def thinned(cloud: ObjectCloud, target: int = RIVAL_FIT_POINTS) -> ObjectCloud:
-    """Return ``cloud`` with every face thinned to about ``target`` points in all.
+    """Return a first-look copy of ``cloud`` thinned to about ``target`` face points.
 
-    Every k-th working point of each face (with its normal) and every k'-th of its
-    full-resolution points, k and k' the object's counts over ``target``; the working
-    cloud, the object's points and everything else are shared.
+    Every k-th working point of each face (with its normal) and every k'-th of the
+    object's points (the faces' full-resolution points among them), k and k' the counts
+    over ``target``; the working cloud and everything else are shared. Its round fits
+    skip their full-resolution refinement (``ObjectCloud.first_look``).
     """
-    def every(n_all: int) -> int:
-        return max(1, n_all // max(1, target))
-
-    kw = every(sum(len(f.working) for f in cloud.faces))
-    kp = every(sum(len(f.points) for f in cloud.faces))
+    kw = _every(sum(len(f.working) for f in cloud.faces), target)
+    kp = _every(len(cloud.points), target)
     faces = []
     for f in cloud.faces:
         normals = f.info.point_normals
         info = dataclasses.replace(f.info, size=len(f.working[::kw]),
                                    point_normals=normals[::kw] if len(normals) == len(
                                        f.working) else normals)
-        faces.append(ObjectFace(info, f.summary, f.working[::kw], f.points[::kp]))
-    return dataclasses.replace(cloud, faces=faces)
+        faces.append(ObjectFace(info, f.summary, f.working[::kw],
+                                f.points[f.points % kp == 0] // kp))
+    return dataclasses.replace(cloud, points=cloud.points[::kp], faces=faces, first_look=True)
 
 
-def round_rival(cloud: ObjectCloud, box: Primitive, compared: NDArray[np.int64]
-                ) -> tuple[Attempt, Primitive] | None:
+def round_rival(cloud: ObjectCloud, box: Primitive
+                ) -> tuple[Attempt, Primitive, NDArray[np.int64]] | None:
     """Return the round model of all of the object's faces taken as curved, or None.
 
-    It is fitted first on :func:`thinned` faces (a few hundred points); None when that
-    fit fails its own checks or the ``box`` is already lower than it beyond the noise
-    (:func:`~.paired_cost.lower_beyond_noise` on the compared points' blocks
-    ``compared``). Otherwise it is refitted on all the faces' points.
+    Its candidates come from the curvatures of about :data:`RIVAL_FIT_POINTS` working
+    points, and it is fitted first on :func:`thinned` faces; None when that fit fails
+    its own checks or the ``box`` is already lower than it beyond the noise
+    (:func:`~.paired_cost.lower_beyond_noise` on the compared points' blocks).
+    Otherwise it is refitted on all the faces' points, and returned with its attempt
+    and the compared points' blocks (:func:`~.paired_cost.spread_blocks`).
     """
-    attempt = all_faces_curved(cloud, "all faces taken as curved")
+    attempt = all_faces_curved(cloud, "all faces taken as curved", RIVAL_FIT_POINTS)
     if attempt is None:
         return None
     cheap, _ = fit_first(thinned(attempt.cloud), attempt.decision)
-    if cheap is None or lower_beyond_noise(truncated_costs(box, cloud),
-                                           truncated_costs(cheap, cloud), compared)[0]:
+    if cheap is None:
+        return None
+    blocks = spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE))
+    if lower_beyond_noise(truncated_costs(box, cloud), truncated_costs(cheap, cloud),
+                          blocks)[0]:
         return None
     rnd, _ = fit_first(attempt.cloud, attempt.decision)
-    return None if rnd is None else (attempt, rnd)
+    return None if rnd is None else (attempt, rnd, blocks)
 
 
 def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
@@ -576,11 +587,10 @@ def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary
     cloud = situation.cloud
     if prim.type is not PrimitiveType.CUBOID or cloud.params.noise_model != "auto":
         return prim, faces
-    blocks = spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE))
-    found = round_rival(cloud, prim, blocks)
+    found = round_rival(cloud, prim)
     if found is None:
         return prim, faces
-    attempt, rnd = found
+    attempt, rnd, blocks = found
     c_box, c_round = truncated_costs(prim, cloud), truncated_costs(rnd, cloud)
     lower, stat = lower_beyond_noise(c_round, c_box, blocks)
     verdict = "replaces" if lower else "does not replace"
