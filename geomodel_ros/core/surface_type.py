@@ -266,6 +266,18 @@ def face_bend(points: NDArray[np.float64], normal: NDArray[np.float64],
     return FaceBend(float(f_stat), bool(f_stat > crit), float(abs(evals[k]) * (hi - lo)), height)
 
 
+def _normal_equations(design: NDArray[np.float64], rhs: NDArray[np.float64]
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Return the normal equations A^T A (P, t, t) and A^T b (P, t) of P least-squares fits.
+
+    ``design`` (P, m, t) holds each fit's m rows of t terms, ``rhs`` (P, m) its right-hand
+    sides. As batched matrix products (several times faster than the equivalent ``einsum``
+    over small matrices).
+    """
+    at = design.transpose(0, 2, 1)
+    return at @ design, (at @ rhs[..., None])[..., 0]
+
+
 def patch_bends(points: NDArray[np.float64], normal: NDArray[np.float64]
                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Bend height and turn (:class:`FaceBend`) of many patches of one plane at once.
@@ -293,8 +305,8 @@ def patch_bends(points: NDArray[np.float64], normal: NDArray[np.float64]
                        np.finfo(float).tiny)
     xs, ys = x / scale, y / scale
     design = np.stack([xs * xs, xs * ys, ys * ys, xs, ys, np.ones_like(xs)], axis=2)
-    ata = np.einsum("pki,pkj->pij", design, design) + _QUADRIC_RIDGE * np.eye(_QUADRIC_TERMS)
-    atb = np.einsum("pki,pk->pi", design, h)
+    ata, atb = _normal_equations(design, h)
+    ata = ata + _QUADRIC_RIDGE * np.eye(_QUADRIC_TERMS)
     coef = np.linalg.solve(ata, atb[..., None])[..., 0]
     flat = np.linalg.solve(ata[:, _PLANE_TERMS:, _PLANE_TERMS:],
                            atb[:, _PLANE_TERMS:, None])[..., 0]
@@ -353,8 +365,8 @@ def principal_curvatures(points: NDArray[np.float64], normals: NDArray[np.float6
     scale = np.where(scale > 0, scale, 1.0)
     xs, ys, zs = x / scale, y / scale, z / scale
     design = np.stack([xs * xs, xs * ys, ys * ys, xs, ys, np.ones_like(xs)], axis=2)
-    ata = np.einsum("mki,mkj->mij", design, design) + _QUADRIC_RIDGE * np.eye(6)
-    atb = np.einsum("mki,mk->mi", design, zs)
+    ata, atb = _normal_equations(design, zs)
+    ata = ata + _QUADRIC_RIDGE * np.eye(6)
     coef = np.linalg.solve(ata, atb[..., None])[..., 0]
     a, b, c = coef[:, 0], coef[:, 1], coef[:, 2]
     s = scale[:, 0]
