@@ -160,3 +160,15 @@ def test_a_plane_has_no_thinned_round_rival():
     cloud = cloud_of(plane_points())
     attempt = all_faces_curved(cloud, "all faces taken as curved")
     assert attempt is None or fit_first(thinned(attempt.cloud), attempt.decision)[0] is None
+
+
+def test_a_round_sides_candidates_come_from_a_few_hundred_of_its_points():
+    # A cylinder r 40 mm: k2 ~ 0 and k1 = 1/r at every point, so a few hundred of its
+    # working points propose the cylinder first, as all of them do.
+    cloud = cloud_of(cylinder_points())
+    assert len(cloud.wc.points) > 2 * 400  # the example really thins
+    full = all_faces_curved(cloud, "all faces taken as curved")
+    few = all_faces_curved(cloud, "all faces taken as curved", 400)
+    assert full is not None and few is not None
+    assert full.decision.candidates[0] == few.decision.candidates[0] == "cylinder"
+    assert "k1 constant" in few.note

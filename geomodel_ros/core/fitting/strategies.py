@@ -65,10 +65,12 @@ FLAT_CORE_PERCENTILE = 50.0
 #: Points on which the truncated residuals of rival shapes are compared (as
 #: CONFIDENCE_SAMPLE: a mean over 2000 samples has a standard error of a few per cent).
 RIVAL_SAMPLE = 2000
-#: Points on which a cuboid's round rival is fitted first (:func:`round_rival`): a few
-#: hundred, enough for its RANSAC and checks to find a round side that the object really
-#: has, at a fraction of the full fit's time; only a rival the box does not already beat
-#: beyond the noise is refitted on all the points.
+#: Points on which a cuboid's round rival is looked at first (:func:`round_rival`): its
+#: candidates come from the curvatures of about this many working points, and it is
+#: fitted on as many face points (:func:`thinned`, no full-resolution refinement) -- a few
+#: hundred, enough for its curvature medians, RANSAC and checks to find a round side that
+#: the object really has, at a fraction of the full fit's time; only a rival the box does
+#: not already beat beyond the noise is refitted on all the points.
 RIVAL_FIT_POINTS = 400
 #: Fewest point normals and smallest mean-normal norm for which flatness is judged.
 MIN_FLAT_NORMALS = 3
