@@ -244,6 +244,24 @@ def test_cylinder_curvatures_are_one_over_r_and_zero(r):
     assert np.all(np.abs(k_max) >= np.abs(k_min))
 
 
+def test_curvatures_at_chosen_rows_are_those_points_own():
+    # A cylinder r 30 mm: curvatures of every 7th point only, each its own quadric fit,
+    # exactly as with all the points; 1/r and 0 there as everywhere.
+    r = 0.03
+    pts = cylinder_patch(r, math.pi)
+    normals, _, neighbors = estimate_normals(pts, 16)
+    rows = np.arange(3, len(pts), 7)
+    k_max, k_min = principal_curvatures(pts, normals, neighbors, rows)
+    all_max, all_min = principal_curvatures(pts, normals, neighbors)
+    assert k_max.shape == k_min.shape == rows.shape
+    assert np.array_equal(k_max, all_max[rows]) and np.array_equal(k_min, all_min[rows])
+    assert np.median(np.abs(k_max)) == pytest.approx(1.0 / r, rel=0.005)
+    assert np.percentile(np.abs(k_min), 95) < 0.001 / r
+    # No rows: nothing computed, no error.
+    empty = principal_curvatures(pts, normals, neighbors, np.zeros(0, dtype=np.int64))
+    assert empty[0].shape == empty[1].shape == (0,)
+
+
 def test_plane_curvatures_are_zero():
     k_max, k_min = _curvatures(rectangle(0.05, 0.04))
     assert np.abs(k_max).max() < 1e-9

@@ -89,6 +89,9 @@ class ObjectCloud:
         (``NoiseEstimate.scale``; 1 without an estimate)
     slow_null : SlowBendNull or None, the bends the frame's slow errors give flat patches
         of its support (:mod:`~.slow_bend`); None without a support or an estimate
+    first_look : bool, a thinned copy fitted only to judge whether a model is worth a
+        full fit (``strategies.thinned``): round fits skip their refinement on the
+        full-resolution points
     center : (3,) float64 [m], centroid of ``points``
     """
 
@@ -104,6 +107,7 @@ class ObjectCloud:
     view: SceneView | None = None
     correlation: float = 1.0
     slow_null: SlowBendNull | None = None
+    first_look: bool = False
     center: NDArray[np.float64] = field(init=False)
 
     def __post_init__(self) -> None:

@@ -1,8 +1,9 @@
 """Fit step shared by the sphere, cylinder and cone units: RANSAC on the curved faces.
 
 The model is drawn by RANSAC from the curved faces' working points and normals, refined
-by least squares (first on the working cloud, then on the full-resolution points), and
-verified by its inlier ratio on the working points. A cylinder or cone may take a flat
+by least squares (first on the working cloud, then on the full-resolution points, except
+on a first look: ``ObjectCloud.first_look``), and verified by its inlier ratio on the
+working points. A cylinder or cone may take a flat
 end that region growing joined to its side as an *inner cap* (:func:`inner_cap`).
 """
 
@@ -141,7 +142,8 @@ def fit_curved(cloud: ObjectCloud, kind: PrimitiveType, model_cls: type,
         return Rejected(kind, f"{kind}: no valid RANSAC hypothesis")
     model = refine(fit.model, wp, params.ransac_threshold, rounds=WORKING_REFINE_ROUNDS)
     full = cloud.sample(cloud.face_points(curved))
-    model = refine(model, full, params.ransac_threshold, rounds=FULL_REFINE_ROUNDS)
+    if not cloud.first_look:
+        model = refine(model, full, params.ransac_threshold, rounds=FULL_REFINE_ROUNDS)
     on_model = np.abs(model.distance(wp)) <= params.ransac_threshold
     caps: tuple[Plane, ...] = ()
     if with_caps and not on_model.all():

@@ -8,7 +8,8 @@ has to beat a box: the box of the planar faces and of the flat cores of curved f
 box side with a gable, fold or shrink-wrap ripples over part of it), the other curved
 faces left out as outliers (:func:`box_rival`); the shape with the smaller truncated
 residual over all the object's points (MSAC cost at the noise band) is taken
-(:func:`prefer_box`).
+(:func:`prefer_box`). A box, in turn, has to beat the round model of all the object's
+faces taken as curved, on the same cost (:func:`prefer_round`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
                                              bends_beyond_noise)
 from geomodel_ros.core.confidence import surface_distance
 from geomodel_ros.core.fitting.measure import every_kth
+from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.model_graph import (FaceInfo, GraphDecision, curvature_candidates,
@@ -39,8 +41,9 @@ __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_stra
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
            "UprightAboveSupport", "BoxRival", "PlanarPatchesOfCurvedObjects", "BoxOfFlatCores",
            "flat_faces",
-           "flat_core_faces", "box_rival", "support_below", "truncated_cost", "prefer_box",
-           "as_curved"]
+           "flat_core_faces", "box_rival", "support_below", "truncated_cost", "truncated_costs",
+           "prefer_box",
+           "prefer_round", "round_rival", "thinned", "all_faces_curved", "as_curved"]
 
 #: Parallel planar faces whose offsets differ by at most this many RANSAC thresholds are
 #: one plane (the band within which a plane's own points scatter).
@@ -62,6 +65,13 @@ FLAT_CORE_PERCENTILE = 50.0
 #: Points on which the truncated residuals of rival shapes are compared (as
 #: CONFIDENCE_SAMPLE: a mean over 2000 samples has a standard error of a few per cent).
 RIVAL_SAMPLE = 2000
+#: Points on which a cuboid's round rival is looked at first (:func:`round_rival`): its
+#: candidates come from the curvatures of about this many working points, and it is
+#: fitted on as many face points (:func:`thinned`, no full-resolution refinement) -- a few
+#: hundred, enough for its curvature medians, RANSAC and checks to find a round side that
+#: the object really has, at a fraction of the full fit's time; only a rival the box does
+#: not already beat beyond the noise is refitted on all the points.
+RIVAL_FIT_POINTS = 400
 #: Fewest point normals and smallest mean-normal norm for which flatness is judged.
 MIN_FLAT_NORMALS = 3
 MIN_FLAT_MEAN_NORM = 1e-9
@@ -90,10 +100,9 @@ def graph_decision(infos: list[FaceInfo], adjacency: NDArray[np.bool_],
 def curvatures(cloud: ObjectCloud, which: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
     """Principal curvatures k_max, k_min [1/m] of the working points ``which`` (M,) selects."""
     wc, params = cloud.wc, cloud.params
-    k_max, k_min = principal_curvatures(wc.points, wc.normals, wc.neighbors)
     smooth = which & (wc.variation <= params.edge_variation_threshold)
     sel = smooth if smooth.sum() >= MIN_SMOOTH_POINTS else which
-    return k_max[sel], k_min[sel]
+    return principal_curvatures(wc.points, wc.normals, wc.neighbors, np.flatnonzero(sel))
 
 
 def decide(cloud: ObjectCloud) -> GraphDecision:
@@ -333,18 +342,26 @@ def box_rival(cloud: ObjectCloud) -> BoxRival | None:
                     dataclasses.replace(decision, candidates=(PrimitiveType.CUBOID,)), note)
 
 
-def truncated_cost(p: Primitive, cloud: ObjectCloud) -> float:
-    """MSAC cost of ``p`` on the object's points: mean of min(d, t)^2 / t^2, in [0, 1].
+def truncated_costs(p: Primitive, cloud: ObjectCloud) -> NDArray[np.float64]:
+    """MSAC cost (k,) of ``p`` per compared point: min(d, t)^2 / t^2, in [0, 1].
 
     ``d`` is each point's distance to the fitted surface (every k-th of about
-    :data:`RIVAL_SAMPLE` points), ``t`` the RANSAC threshold (the noise band): points on
-    the surface cost their squared residual, points off it (outliers) one band each.
+    :data:`RIVAL_SAMPLE` points of the object), ``t`` the RANSAC threshold (the noise
+    band): points on the surface cost their squared residual, points off it (outliers)
+    one band each. All ones when ``p`` has no surface.
     """
     t = cloud.params.ransac_threshold
-    d = surface_distance(p, np.ascontiguousarray(every_kth(cloud.points, RIVAL_SAMPLE)))
-    if d is None or not len(d) or t <= 0:
-        return 1.0
-    return float(np.mean(np.minimum(d / t, 1.0) ** 2))
+    sample = np.ascontiguousarray(every_kth(cloud.points, RIVAL_SAMPLE))
+    d = surface_distance(p, sample)
+    if d is None or t <= 0:
+        return np.ones(len(sample))
+    return np.minimum(d / t, 1.0) ** 2
+
+
+def truncated_cost(p: Primitive, cloud: ObjectCloud) -> float:
+    """MSAC cost of ``p`` on the object's points: the mean of :func:`truncated_costs`."""
+    c = truncated_costs(p, cloud)
+    return float(np.mean(c)) if len(c) else 1.0
 
 
 def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
@@ -474,18 +491,116 @@ class PlanarPatchesOfCurvedObjects:
 
     def attempt(self, situation: Situation) -> Attempt | None:
         """Fit the candidates of the whole object's curvatures with every face curved."""
-        cloud = situation.cloud
-        params = cloud.params
-        cands, why = curvature_candidates(
-            *curvatures(cloud, np.ones(len(cloud.wc.points), dtype=bool)),
-            params.sphere_curvature_ratio, params.developable_curvature_ratio,
-            params.cone_curvature_variation)
-        if not cands:
-            return None
-        faces = [as_curved(f) for f in cloud.faces]
-        return Attempt(dataclasses.replace(cloud, faces=faces),
-                       GraphDecision("curved", cands, -1, (), why),
-                       note=f"planar faces taken as patches of the curved surface: {why}")
+        return all_faces_curved(situation.cloud,
+                                "planar faces taken as patches of the curved surface")
+
+
+def all_faces_curved(cloud: ObjectCloud, note: str, target: int | None = None
+                     ) -> Attempt | None:
+    """Return the attempt of the whole object's curvature candidates, every face curved.
+
+    None when the principal curvatures of the object's working points (every k-th, about
+    ``target`` of them, when given) propose no primitive. ``note`` starts the attempt's
+    note (the curvature reason follows).
+    """
+    params = cloud.params
+    which = np.zeros(len(cloud.wc.points), dtype=bool)
+    which[::_every(len(which), target)] = True
+    cands, why = curvature_candidates(
+        *curvatures(cloud, which), params.sphere_curvature_ratio,
+        params.developable_curvature_ratio, params.cone_curvature_variation)
+    if not cands:
+        return None
+    faces = [as_curved(f) for f in cloud.faces]
+    return Attempt(dataclasses.replace(cloud, faces=faces),
+                   GraphDecision("curved", cands, -1, (), why), note=f"{note}: {why}")
+
+
+def _every(n: int, target: int | None) -> int:
+    """Step k that leaves about ``target`` of ``n`` items (1: all, also without a target)."""
+    return 1 if target is None else max(1, n // max(1, target))
+
+
+def thinned(cloud: ObjectCloud, target: int = RIVAL_FIT_POINTS) -> ObjectCloud:
+    """Return a first-look copy of ``cloud`` thinned to about ``target`` face points.
+
+    Every k-th working point of each face (with its normal) and every k'-th of the
+    object's points (the faces' full-resolution points among them), k and k' the counts
+    over ``target``; the working cloud and everything else are shared. Its round fits
+    skip their full-resolution refinement (``ObjectCloud.first_look``).
+    """
+    kw = _every(sum(len(f.working) for f in cloud.faces), target)
+    kp = _every(len(cloud.points), target)
+    faces = []
+    for f in cloud.faces:
+        normals = f.info.point_normals
+        info = dataclasses.replace(f.info, size=len(f.working[::kw]),
+                                   point_normals=normals[::kw] if len(normals) == len(
+                                       f.working) else normals)
+        faces.append(ObjectFace(info, f.summary, f.working[::kw],
+                                f.points[f.points % kp == 0] // kp))
+    return dataclasses.replace(cloud, points=cloud.points[::kp], faces=faces, first_look=True)
+
+
+def round_rival(cloud: ObjectCloud, box: Primitive
+                ) -> tuple[Attempt, Primitive, NDArray[np.int64]] | None:
+    """Return the round model of all of the object's faces taken as curved, or None.
+
+    Its candidates come from the curvatures of about :data:`RIVAL_FIT_POINTS` working
+    points, and it is fitted first on :func:`thinned` faces; None when that fit fails
+    its own checks or the ``box`` is already lower than it beyond the noise
+    (:func:`~.paired_cost.lower_beyond_noise` on the compared points' blocks).
+    Otherwise it is refitted on all the faces' points, and returned with its attempt
+    and the compared points' blocks (:func:`~.paired_cost.spread_blocks`).
+    """
+    attempt = all_faces_curved(cloud, "all faces taken as curved", RIVAL_FIT_POINTS)
+    if attempt is None:
+        return None
+    cheap, _ = fit_first(thinned(attempt.cloud), attempt.decision)
+    if cheap is None:
+        return None
+    blocks = spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE))
+    if lower_beyond_noise(truncated_costs(box, cloud), truncated_costs(cheap, cloud),
+                          blocks)[0]:
+        return None
+    rnd, _ = fit_first(attempt.cloud, attempt.decision)
+    return None if rnd is None else (attempt, rnd, blocks)
+
+
+def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
+                 reasons: list[str]) -> tuple[Primitive, tuple[FaceSummary, ...]]:
+    """Return the cuboid ``prim`` or the round model of the whole object, whichever costs less.
+
+    A round side seen up close under depth noise splits into facets that each pass as
+    planar, and the facets of a lying cylinder meet at about right angles: a box verifies
+    on them (its inlier band holds the facets' bend), and the box of flat cores beats a
+    round fit made on part of the faces. The round rival is fitted to all of the object's
+    faces taken as curved (:func:`round_rival`; the fits' own checks, inliers and
+    scatter against the measured noise, apply); it replaces the box when its
+    :func:`truncated_costs` over the same points are lower beyond the noise
+    (:func:`~.paired_cost.lower_beyond_noise`: the mean difference against its standard
+    error over blocks of neighbouring points, whose depth errors are correlated). Far
+    from the sensor the noise band outgrows a small object's shape, and a round model
+    may fit a box's points about as well; a real box's edges do not fit a round model
+    where the shape shows (its cost stays far above the box's). Only with ``noise_model
+    = auto`` (``fixed`` keeps the previous strategies exactly). The comparison is added
+    to ``reasons``.
+    """
+    cloud = situation.cloud
+    if prim.type is not PrimitiveType.CUBOID or cloud.params.noise_model != "auto":
+        return prim, faces
+    found = round_rival(cloud, prim)
+    if found is None:
+        return prim, faces
+    attempt, rnd, blocks = found
+    c_box, c_round = truncated_costs(prim, cloud), truncated_costs(rnd, cloud)
+    lower, stat = lower_beyond_noise(c_round, c_box, blocks)
+    verdict = "replaces" if lower else "does not replace"
+    reasons.append(f"{attempt.note}; {rnd.type} (cost {np.mean(c_round):.3f}) {verdict} "
+                   f"cuboid (cost {np.mean(c_box):.3f}, t = {stat:.1f})")
+    if lower:
+        return rnd, tuple(f.summary for f in attempt.cloud.faces)
+    return prim, faces
 
 
 class BoxOfFlatCores:
@@ -529,7 +644,8 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
 
     Returns the primitive (None if none fits), the face summaries it was fitted with
     (those of ``situation.cloud`` if none) and every reason on the way. A round fit
-    is checked against the box of the flat cores (:func:`prefer_box`).
+    is checked against the box of the flat cores (:func:`prefer_box`), a cuboid against
+    the round model of all the object's faces (:func:`prefer_round`).
     """
     reasons = [situation.decision.reason]
     for strategy in strategies:
@@ -545,5 +661,6 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
         reasons.extend(attempt.prefix + r for r in tried)
         if prim is not None:
             faces = tuple(f.summary for f in attempt.cloud.faces)
-            return (*prefer_box(situation, prim, faces, reasons), reasons)
+            prim, faces = prefer_box(situation, prim, faces, reasons)
+            return (*prefer_round(situation, prim, faces, reasons), reasons)
     return None, tuple(f.summary for f in situation.cloud.faces), reasons
