@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from geomodel_ros.core.errors import InputError, as_points
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
                                      neighborhood_moments, smallest_eigenpairs_sym, split_faces,
@@ -109,6 +110,22 @@ LEVEL_SPREAD = 0.1
 #: down to -0.49 of the border's mean quantum. The office scene's plane at 2.3-2.8 m was
 #: cut along borders of median fold -0.5 to -4.9 mm where a step is 15-20 mm.
 QUANTUM_FOLD_STEPS = 0.5
+#: Image neighbours of a working point (for the seams of :func:`_occluding_borders`): its
+#: nearest points by viewing direction, at most this many working-grid spacings apart as
+#: seen from the sensor (spacing / range). 1.5: the 8-neighbourhood of a square grid
+#: (diagonal sqrt(2)) with room for the grid's jitter.
+SEAM_RADIUS_SPACINGS = 1.5
+#: Image neighbours looked at per working point: its own surface's 8-neighbourhood and
+#: itself take 9, and a surface behind it across an outline is denser in viewing angle
+#: (farther), so 16 reach past the own surface's ring to the next one (a 5 x 5 block has 25).
+SEAM_NEIGHBORS = 16
+#: A patch border is an outline in front of the other patch when more than this share of
+#: its image seam are depth jumps longer than a link: the two surfaces meet in 3-D only
+#: along a minority of the seam, and the convexity votes of those few links say nothing
+#: about a surface continuing into the other. Half: a majority of the seam.
+SEAM_JUMP_SHARE = 0.5
+#: Standard deviation of a Gaussian over its median absolute deviation.
+MAD_SIGMA = 1.4826
 
 
 class DepthNoise(Protocol):
@@ -419,6 +436,11 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
         params.seg_concavity_tolerance, step, parallel,
         whole=None if noise is None else (noise_w,
                                           np.zeros(m) if quantum is None else quantum))
+    outline = _occluding_borders(points, normals, patches, a, b, n_p, params.seg_voxel_size,
+                                 max_edge,
+                                 _concave_patches(points, normals, nbrs, sqdist, patches, n_p,
+                                                  max_edge))
+    creased = outline if creased is None else creased | outline
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
                         exact=None if noise is None else
                         np.bincount(patches[step > floor], minlength=n_p) == 0,
@@ -529,6 +551,128 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
                           0.5 * tolerance * dist, 0.5 * (quantum[i[ok]] + quantum[j[ok]])])
         creased = _creased_borders(inv, len(pairs), i[ok], pi < pj, links, spread)
     return pairs // n_p, pairs % n_p, votes, yes, creased
+
+
+def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64],
+                       patches: NDArray[np.int64], a: NDArray[np.int64], b: NDArray[np.int64],
+                       n_p: int, spacing: float,
+                       max_edge: float, concave: NDArray[np.bool_] | None = None
+                       ) -> NDArray[np.bool_]:
+    """Tell which patch borders are mostly one patch's outline in front of the other.
+
+    Two objects that touch are often seen one in front of the other: where they meet in
+    the image the depth jumps by centimetres (an outline over the surface behind it), and
+    they are linked in 3-D only near the contact, whose few links vote like one smooth
+    surface under correlated noise. The image seam of two patches is the pairs of image
+    neighbours, one in each (nearest by viewing direction, within
+    :data:`SEAM_RADIUS_SPACINGS` working-grid spacings as seen from the nearer one); a
+    border whose seam holds more than :data:`SEAM_JUMP_SHARE` depth jumps longer than a
+    link (``max_edge``) is an outline. A jump is the nearer point lying off the farther
+    one's tangent plane by more than a link: neighbours on a face seen at a grazing angle
+    are far apart along the ray too, but each lies in the other's plane (a box's top
+    beyond its front edge). Patches of one surface meet along a seam without
+    jumps. A container's rim is an outline in front of its own inner wall, seen through its
+    opening: a concave surface, where a convex object behind another shows a flat or convex
+    one. So a border is no outline where the patch behind it (the farther end of most of
+    its jumps) is ``concave``: there the border votes decide as before.
+
+    Parameters
+    ----------
+    points, normals : (M, 3) float64 arrays
+        Working points [m], sensor at the origin, and their unit normals.
+    patches : (M,) int64 array
+        Patch of every point.
+    a, b : (P,) int64 arrays
+        The two patches of each border, ``a < b``, in increasing order of ``a * n_p + b``.
+    n_p : int
+        Number of patches.
+    spacing : float
+        Spacing of the working points [m].
+    max_edge : float
+        Longest link [m].
+    concave : (n_p,) bool array, optional
+        Patches that are concave as seen from the sensor (:func:`_concave_patches`).
+
+    Returns
+    -------
+    (P,) bool array
+    """
+    if len(a) == 0 or len(points) < 2:
+        return np.zeros(len(a), dtype=bool)
+    ranges = np.linalg.norm(points, axis=1)
+    dirs = points / np.maximum(ranges, np.finfo(float).tiny)[:, None]
+    k = min(SEAM_NEIGHBORS, len(points))
+    angle, nb = cKDTree(dirs).query(dirs, k=k)
+    i = np.repeat(np.arange(len(points)), k)
+    j = nb.ravel()
+    near = angle.ravel() * np.minimum(ranges[i], ranges[j]) <= SEAM_RADIUS_SPACINGS * spacing
+    near &= patches[i] != patches[j]
+    i, j = i[near], j[near]
+    far = np.where(ranges[i] > ranges[j], i, j)
+    gap = np.abs(np.einsum("ij,ij->i", normals[far], points[i] - points[j]))
+    jump = gap > max_edge
+    key = np.minimum(patches[i], patches[j]) * n_p + np.maximum(patches[i], patches[j])
+    pairs = a * n_p + b
+    pos = np.minimum(np.searchsorted(pairs, key), len(pairs) - 1)
+    on = pairs[pos] == key
+    seam = np.bincount(pos[on], minlength=len(pairs))
+    jumps = np.bincount(pos[on], weights=jump[on], minlength=len(pairs))
+    outline = jumps > SEAM_JUMP_SHARE * seam
+    if concave is None:
+        return outline
+    # The farther end of each jump is the patch behind; per border, the side with most.
+    jump_on = on & jump
+    a_behind = np.bincount(pos[jump_on], weights=patches[far[jump_on]] == a[pos[jump_on]],
+                           minlength=len(pairs))
+    behind = np.where(2 * a_behind >= jumps, a, b)
+    return outline & ~concave[behind]
+
+
+def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
+                     nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
+                     patches: NDArray[np.int64], n_p: int, max_edge: float
+                     ) -> NDArray[np.bool_]:
+    """Tell which patches are concave as seen from the sensor (a container's inner wall).
+
+    The fold of a link inside a patch (:func:`_link_folds`) is about l^2 / (2 r) on a
+    surface of radius r bent away from the sensor (convex), 0 on a plane and negative on
+    one bent towards it (concave). A patch is concave where the median fold of its links
+    is negative beyond :data:`BORDER_CREASE_SIGMAS` standard errors of that median, its
+    links' robust spread over sqrt(its points) (a point's links share its normal).
+
+    Parameters
+    ----------
+    points, normals : (M, 3) float64 arrays
+        Working points [m] and their unit normals oriented towards the sensor.
+    nbrs, sqdist : (M, k) arrays
+        Nearest neighbours and their squared distances [m^2].
+    patches : (M,) int64 array
+        Patch of every point, 0 .. n_p-1.
+    n_p : int
+    max_edge : float
+        Longest link [m].
+
+    Returns
+    -------
+    (n_p,) bool array
+    """
+    m, k = nbrs.shape
+    i = np.repeat(np.arange(m), k)
+    j = nbrs.ravel()
+    inside = np.flatnonzero((patches[i] == patches[j]) & (i != j)
+                            & (sqdist.ravel() <= max_edge * max_edge))
+    concave = np.zeros(n_p, dtype=bool)
+    if not len(inside):
+        return concave
+    fold = _link_folds(points, normals, i[inside], j[inside])
+    ids, group = np.unique(patches[i[inside]], return_inverse=True)
+    group = group.ravel()
+    median = _group_median(group, fold, len(ids))
+    mad = _group_median(group, np.abs(fold - median[group]), len(ids))
+    error = BORDER_CREASE_SIGMAS * MEDIAN_STANDARD_ERROR * MAD_SIGMA * mad \
+        / np.sqrt(np.bincount(patches, minlength=n_p)[ids])
+    concave[ids] = median < -error
+    return concave
 
 
 def _link_folds(points: NDArray[np.float64], normals: NDArray[np.float64],

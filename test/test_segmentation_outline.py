@@ -1,0 +1,102 @@
+"""A patch border seen as one patch's outline in front of the other.
+
+Hand-made scenes, the geometry worked out in the comments. Working points on a square grid
+4 mm apart (the default ``seg_voxel_size``), the sensor at the origin looking along +z;
+links reach ``max_edge`` = 2.5 spacings = 10 mm.
+
+- Two halves of one plane at 0.8 m (split along x = 0 as two patches): every pair of image
+  neighbours across the seam is about 4-6 mm apart in 3-D, within a link: no outline.
+- A vertical board (the near patch, a box's front face at z = 0.8 m) in front of a plane
+  behind it (z = 0.8 m + gap), both facing the sensor, the board's right edge touching the
+  back plane only in its lower part: the back plane bends forward and meets the board
+  along a short strip. Across the board's outline the image neighbours on the back plane
+  lie ``gap`` deeper, beyond a link where the gap exceeds 10 mm: most of the seam is
+  jumps and the border is an outline, whatever the votes of the few links at the contact.
+- The same with a gap of 6 mm (a step shorter than a link): no outline.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from geomodel_ros.core.segmentation import _occluding_borders
+
+MM = 1e-3
+SPACING = 4 * MM
+MAX_EDGE = 2.5 * SPACING
+Z = 0.8
+
+
+def _grid(x0, x1, y0, y1, z, spacing=SPACING):
+    """Points of the plane z = ``z`` [m] on a square grid over [x0, x1) x [y0, y1)."""
+    xs = np.arange(x0, x1, spacing)
+    ys = np.arange(y0, y1, spacing)
+    x, y = np.meshgrid(xs, ys)
+    return np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
+
+
+def _facing(pts):
+    """Normals of planes z = const, towards the sensor at the origin: (0, 0, -1)."""
+    return np.tile([0.0, 0.0, -1.0], (len(pts), 1))
+
+
+def _pairs(patches):
+    """The border pairs (a < b) of two patches 0 and 1."""
+    del patches
+    return np.array([0]), np.array([1])
+
+
+def test_two_halves_of_one_plane_are_no_outline():
+    left = _grid(-0.05, 0.0, -0.05, 0.05, Z)
+    right = _grid(0.0, 0.05, -0.05, 0.05, Z)
+    pts = np.vstack([left, right])
+    patches = np.repeat([0, 1], [len(left), len(right)])
+    a, b = _pairs(patches)
+    assert not _occluding_borders(pts, _facing(pts), patches, a, b, 2, SPACING, MAX_EDGE)[0]
+
+
+def _board_in_front(gap, contact_rows=3):
+    """A board x < 0 at z = Z in front of a plane at z = Z + gap, seen right of its outline.
+
+    Seen from the sensor, the back plane's part behind the board is hidden: only its points
+    right of the board's image outline remain. Along the
+    lowest ``contact_rows`` rows the back plane is brought forward to the board's depth
+    (the contact, a few links long).
+    """
+    board = _grid(-0.05, 0.0, -0.05, 0.05, Z)
+    # The back plane's visible points continue the board's image columns: the next column
+    # of rays after the board's last one (x / z = -2.5 mm / 0.8 m + one spacing / Z), at
+    # the back plane's depth (so 4 (Z + gap) / Z mm apart in 3-D).
+    last = board[:, 0].max() / Z
+    cols = last + SPACING / Z * np.arange(1, 16)
+    rows = board[board[:, 0] == board[:, 0].max(), 1] / Z
+    u, v = np.meshgrid(cols, rows)
+    back = np.column_stack([u.ravel(), v.ravel(), np.ones(u.size)]) * (Z + gap)
+    low = back[:, 1] < back[:, 1].min() + contact_rows * SPACING
+    back[low, 2] = Z
+    back[low, :2] *= Z / (Z + gap)  # the same rays, now at the board's depth
+    pts = np.vstack([board, back])
+    patches = np.repeat([0, 1], [len(board), len(back)])
+    return pts, patches
+
+
+def test_board_in_front_of_a_plane_is_an_outline():
+    # A gap of 30 mm: the image neighbours across the outline are 30 mm apart along the
+    # ray, three links; only the three contact rows (of 25 rows of seam) meet in 3-D.
+    pts, patches = _board_in_front(30 * MM)
+    a, b = _pairs(patches)
+    assert _occluding_borders(pts, _facing(pts), patches, a, b, 2, SPACING, MAX_EDGE)[0]
+
+
+def test_a_step_shorter_than_a_link_is_no_outline():
+    # A gap of 6 mm: across the outline the neighbours are within 4-8 mm, within a link.
+    pts, patches = _board_in_front(6 * MM)
+    a, b = _pairs(patches)
+    assert not _occluding_borders(pts, _facing(pts), patches, a, b, 2, SPACING, MAX_EDGE)[0]
+
+
+def test_mostly_contact_is_no_outline():
+    # Contact along 15 of the 25 rows: the jumps are a minority of the seam.
+    pts, patches = _board_in_front(30 * MM, contact_rows=15)
+    a, b = _pairs(patches)
+    assert not _occluding_borders(pts, _facing(pts), patches, a, b, 2, SPACING, MAX_EDGE)[0]
