@@ -124,8 +124,6 @@ SEAM_NEIGHBORS = 16
 #: along a minority of the seam, and the convexity votes of those few links say nothing
 #: about a surface continuing into the other. Half: a majority of the seam.
 SEAM_JUMP_SHARE = 0.5
-#: Standard deviation of a Gaussian over its median absolute deviation.
-MAD_SIGMA = 1.4826
 
 
 class DepthNoise(Protocol):
@@ -437,7 +435,7 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
         whole=None if noise is None else (noise_w,
                                           np.zeros(m) if quantum is None else quantum))
     outline = _occluding_borders(points, normals, patches, a, b, n_p, params.seg_voxel_size,
-                                 max_edge,
+                                 max_edge, quantum,
                                  _concave_patches(points, normals, nbrs, sqdist, patches, n_p,
                                                   max_edge))
     creased = outline if creased is None else creased | outline
@@ -555,9 +553,9 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
 
 def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64],
                        patches: NDArray[np.int64], a: NDArray[np.int64], b: NDArray[np.int64],
-                       n_p: int, spacing: float,
-                       max_edge: float, concave: NDArray[np.bool_] | None = None
-                       ) -> NDArray[np.bool_]:
+                       n_p: int, spacing: float, max_edge: float,
+                       quantum: NDArray[np.float64] | None = None,
+                       concave: NDArray[np.bool_] | None = None) -> NDArray[np.bool_]:
     """Tell which patch borders are mostly one patch's outline in front of the other.
 
     Two objects that touch are often seen one in front of the other: where they meet in
@@ -570,7 +568,9 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
     link (``max_edge``) is an outline. A jump is the nearer point lying off the farther
     one's tangent plane by more than a link: neighbours on a face seen at a grazing angle
     are far apart along the ray too, but each lies in the other's plane (a box's top
-    beyond its front edge). Patches of one surface meet along a seam without
+    beyond its front edge). Where the depths are quantised, the two ends' ``quantum`` is
+    added: the terraces of one far plane are a depth step apart (15-20 mm at 2.5 m for a
+    Kinect), longer than a link. Patches of one surface meet along a seam without
     jumps. A container's rim is an outline in front of its own inner wall, seen through its
     opening: a concave surface, where a convex object behind another shows a flat or convex
     one. So a border is no outline where the patch behind it (the farther end of most of
@@ -590,6 +590,8 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
         Spacing of the working points [m].
     max_edge : float
         Longest link [m].
+    quantum : (M,) float64 array, optional
+        Depth quantisation [m] left in every working point (:func:`level_quantum`).
     concave : (n_p,) bool array, optional
         Patches that are concave as seen from the sensor (:func:`_concave_patches`).
 
@@ -610,7 +612,7 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
     i, j = i[near], j[near]
     far = np.where(ranges[i] > ranges[j], i, j)
     gap = np.abs(np.einsum("ij,ij->i", normals[far], points[i] - points[j]))
-    jump = gap > max_edge
+    jump = gap > max_edge if quantum is None else gap > max_edge + quantum[i] + quantum[j]
     key = np.minimum(patches[i], patches[j]) * n_p + np.maximum(patches[i], patches[j])
     pairs = a * n_p + b
     pos = np.minimum(np.searchsorted(pairs, key), len(pairs) - 1)
@@ -636,9 +638,16 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
 
     The fold of a link inside a patch (:func:`_link_folds`) is about l^2 / (2 r) on a
     surface of radius r bent away from the sensor (convex), 0 on a plane and negative on
-    one bent towards it (concave). A patch is concave where the median fold of its links
-    is negative beyond :data:`BORDER_CREASE_SIGMAS` standard errors of that median, its
-    links' robust spread over sqrt(its points) (a point's links share its normal).
+    one bent towards it (concave); a patch is concave where the median fold of its links
+    is negative. No margin: the sign alone is what tells a surface seen from inside from
+    one seen from outside, and the noise does not make a plane concave (the normals' own
+    noise lifts a plane's median fold slightly above 0). Measured on the patches behind
+    the outlines of the clutter benchmark under ``KINECT_REAL_NOISE`` (20 scenes,
+    scratch): every cup and bowl inner wall behind its own rim has a negative median
+    fold (19 of 19, -0.008 to -0.12 mm), the patches behind another object's outline a
+    positive one in 49 of 55 (flat faces +0.006 to +0.03 mm, round sides up to +0.3 mm;
+    four of the six others are cup inner walls behind another object). At a 3-standard-
+    error margin none of the 19 was concave, and their cups fell apart.
 
     Parameters
     ----------
@@ -666,12 +675,7 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
         return concave
     fold = _link_folds(points, normals, i[inside], j[inside])
     ids, group = np.unique(patches[i[inside]], return_inverse=True)
-    group = group.ravel()
-    median = _group_median(group, fold, len(ids))
-    mad = _group_median(group, np.abs(fold - median[group]), len(ids))
-    error = BORDER_CREASE_SIGMAS * MEDIAN_STANDARD_ERROR * MAD_SIGMA * mad \
-        / np.sqrt(np.bincount(patches, minlength=n_p)[ids])
-    concave[ids] = median < -error
+    concave[ids] = _group_median(group.ravel(), fold, len(ids)) < 0.0
     return concave
 
 
