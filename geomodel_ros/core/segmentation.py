@@ -435,7 +435,7 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
         whole=None if noise is None else (noise_w,
                                           np.zeros(m) if quantum is None else quantum))
     outline = _occluding_borders(points, normals, patches, a, b, n_p, params.seg_voxel_size,
-                                 max_edge, quantum,
+                                 max_edge, step + (0.0 if quantum is None else quantum),
                                  _concave_patches(points, normals, nbrs, sqdist, patches, n_p,
                                                   max_edge))
     creased = outline if creased is None else creased | outline
@@ -554,7 +554,7 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
 def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64],
                        patches: NDArray[np.int64], a: NDArray[np.int64], b: NDArray[np.int64],
                        n_p: int, spacing: float, max_edge: float,
-                       quantum: NDArray[np.float64] | None = None,
+                       spread: NDArray[np.float64] | None = None,
                        concave: NDArray[np.bool_] | None = None) -> NDArray[np.bool_]:
     """Tell which patch borders are mostly one patch's outline in front of the other.
 
@@ -568,9 +568,11 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
     link (``max_edge``) is an outline. A jump is the nearer point lying off the farther
     one's tangent plane by more than a link: neighbours on a face seen at a grazing angle
     are far apart along the ray too, but each lies in the other's plane (a box's top
-    beyond its front edge). Where the depths are quantised, the two ends' ``quantum`` is
-    added: the terraces of one far plane are a depth step apart (15-20 mm at 2.5 m for a
-    Kinect), longer than a link. Patches of one surface meet along a seam without
+    beyond its front edge). The two ends' own depth ``spread`` is added to the link: the
+    step a surface may take at a point under its noise, and where the depths are quantised
+    its depth quantum (the terraces of one far plane are a depth step apart, 15-20 mm at
+    2.5 m for a Kinect, longer than a link; a stereo camera's depth at 2 m is noisier
+    than a link). Patches of one surface meet along a seam without
     jumps. A container's rim is an outline in front of its own inner wall, seen through its
     opening: a concave surface, where a convex object behind another shows a flat or convex
     one. So a border is no outline where the patch behind it (the farther end of most of
@@ -590,8 +592,10 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
         Spacing of the working points [m].
     max_edge : float
         Longest link [m].
-    quantum : (M,) float64 array, optional
-        Depth quantisation [m] left in every working point (:func:`level_quantum`).
+    spread : (M,) float64 array, optional
+        How far [m] the depth of every working point may be off its surface: its step
+        (at least its noise, :func:`working_noise`) plus its quantisation
+        (:func:`level_quantum`); default 0.
     concave : (n_p,) bool array, optional
         Patches that are concave as seen from the sensor (:func:`_concave_patches`).
 
@@ -612,7 +616,7 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
     i, j = i[near], j[near]
     far = np.where(ranges[i] > ranges[j], i, j)
     gap = np.abs(np.einsum("ij,ij->i", normals[far], points[i] - points[j]))
-    jump = gap > max_edge if quantum is None else gap > max_edge + quantum[i] + quantum[j]
+    jump = gap > max_edge if spread is None else gap > max_edge + spread[i] + spread[j]
     key = np.minimum(patches[i], patches[j]) * n_p + np.maximum(patches[i], patches[j])
     pairs = a * n_p + b
     pos = np.minimum(np.searchsorted(pairs, key), len(pairs) - 1)
