@@ -164,11 +164,23 @@ def test_an_outline_over_a_concave_patch_is_left_to_the_votes():
 def test_terraces_one_depth_step_apart_are_no_outline():
     # A board 15 mm in front of the plane behind (a jump beyond a 10 mm link), but every
     # working point holds one disparity level of a 15 mm depth step (a Kinect at about
-    # 2.4 m): the two are a step apart, within a link plus the two ends' depth spread.
+    # 2.4 m): the two are a step apart, within a link plus the two ends' quanta.
     pts, patches = _board_in_front(15 * MM, contact_rows=0)
     a, b = _pairs()
     normals = _facing(pts)
     assert _occluding_borders(pts, normals, patches, a, b, 2, SPACING, MAX_EDGE)[0]
     quantum = np.full(len(pts), 15 * MM)
     assert not _occluding_borders(pts, normals, patches, a, b, 2, SPACING, MAX_EDGE,
-                                  quantum)[0]
+                                  quantum=quantum)[0]
+
+
+def test_a_jump_within_the_noise_of_a_difference_is_no_outline():
+    # A 15 mm gap is beyond a 10 mm link, but with 4 mm of noise at each end (a far
+    # stereo depth) the gap's noise is 4 sqrt(2) = 5.7 mm and the limit 15.7 mm.
+    pts, patches = _board_in_front(15 * MM, contact_rows=0)
+    a, b = _pairs()
+    noise = np.full(len(pts), 4 * MM)
+    assert not _occluding_borders(pts, _facing(pts), patches, a, b, 2, SPACING, MAX_EDGE,
+                                  noise)[0]
+    assert _occluding_borders(pts, _facing(pts), patches, a, b, 2, SPACING, MAX_EDGE,
+                              noise / 2)[0]

@@ -435,7 +435,7 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
         whole=None if noise is None else (noise_w,
                                           np.zeros(m) if quantum is None else quantum))
     outline = _occluding_borders(points, normals, patches, a, b, n_p, params.seg_voxel_size,
-                                 max_edge, step + (0.0 if quantum is None else quantum),
+                                 max_edge, noise_w / getattr(noise, "scale", 1.0), quantum,
                                  _concave_patches(points, normals, nbrs, sqdist, patches, n_p,
                                                   max_edge))
     creased = outline if creased is None else creased | outline
@@ -554,7 +554,8 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
 def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64],
                        patches: NDArray[np.int64], a: NDArray[np.int64], b: NDArray[np.int64],
                        n_p: int, spacing: float, max_edge: float,
-                       spread: NDArray[np.float64] | None = None,
+                       noise: NDArray[np.float64] | None = None,
+                       quantum: NDArray[np.float64] | None = None,
                        concave: NDArray[np.bool_] | None = None) -> NDArray[np.bool_]:
     """Tell which patch borders are mostly one patch's outline in front of the other.
 
@@ -568,11 +569,12 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
     link (``max_edge``) is an outline. A jump is the nearer point lying off the farther
     one's tangent plane by more than a link: neighbours on a face seen at a grazing angle
     are far apart along the ray too, but each lies in the other's plane (a box's top
-    beyond its front edge). The two ends' own depth ``spread`` is added to the link: the
-    step a surface may take at a point under its noise, and where the depths are quantised
-    its depth quantum (the terraces of one far plane are a depth step apart, 15-20 mm at
-    2.5 m for a Kinect, longer than a link; a stereo camera's depth at 2 m is noisier
-    than a link). Patches of one surface meet along a seam without
+    beyond its front edge). The noise of the gap, a difference of two neighbours' depths
+    (sqrt(noise_i^2 + noise_j^2) of their local noise: the frame's slowly varying error
+    is shared by neighbours and cancels), is added to the link (a stereo camera's depth
+    at 2 m is noisier than a link), and so is each end's depth quantum where the depths
+    are quantised (the terraces of one far plane are a depth step apart, 15-20 mm at
+    2.5 m for a Kinect, longer than a link). Patches of one surface meet along a seam without
     jumps. A container's rim is an outline in front of its own inner wall, seen through its
     opening: a concave surface, where a convex object behind another shows a flat or convex
     one. So a border is no outline where the patch behind it (the farther end of most of
@@ -592,10 +594,12 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
         Spacing of the working points [m].
     max_edge : float
         Longest link [m].
-    spread : (M,) float64 array, optional
-        How far [m] the depth of every working point may be off its surface: its step
-        (at least its noise, :func:`working_noise`) plus its quantisation
-        (:func:`level_quantum`); default 0.
+    noise : (M,) float64 array, optional
+        Local noise [m] of every working point, the part its neighbours do not share (e.g.
+        :func:`working_noise` over the frame's ``scale``); default 0.
+    quantum : (M,) float64 array, optional
+        Depth quantisation [m] left in every working point (:func:`level_quantum`);
+        default 0.
     concave : (n_p,) bool array, optional
         Patches that are concave as seen from the sensor (:func:`_concave_patches`).
 
@@ -616,7 +620,12 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
     i, j = i[near], j[near]
     far = np.where(ranges[i] > ranges[j], i, j)
     gap = np.abs(np.einsum("ij,ij->i", normals[far], points[i] - points[j]))
-    jump = gap > max_edge if spread is None else gap > max_edge + spread[i] + spread[j]
+    limit = np.full(len(i), max_edge)
+    if noise is not None:
+        limit += np.hypot(noise[i], noise[j])
+    if quantum is not None:
+        limit += quantum[i] + quantum[j]
+    jump = gap > limit
     key = np.minimum(patches[i], patches[j]) * n_p + np.maximum(patches[i], patches[j])
     pairs = a * n_p + b
     pos = np.minimum(np.searchsorted(pairs, key), len(pairs) - 1)
