@@ -434,11 +434,11 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
         params.seg_concavity_tolerance, step, parallel,
         whole=None if noise is None else (noise_w,
                                           np.zeros(m) if quantum is None else quantum))
-    outline = _occluding_borders(points, normals, patches, a, b, n_p, params.seg_voxel_size,
-                                 max_edge, noise_w / getattr(noise, "scale", 1.0), quantum,
-                                 _concave_patches(points, normals, nbrs, sqdist, patches, n_p,
-                                                  max_edge))
-    creased = outline if creased is None else creased | outline
+    if noise is not None:  # an outline's jump is judged against the noise
+        creased = creased | _occluding_borders(
+            points, normals, patches, a, b, n_p, params.seg_voxel_size, max_edge,
+            noise_w / getattr(noise, "scale", 1.0), quantum,
+            _concave_patches(points, normals, nbrs, sqdist, patches, n_p, max_edge))
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
                         exact=None if noise is None else
                         np.bincount(patches[step > floor], minlength=n_p) == 0,
