@@ -153,12 +153,12 @@ def test_an_outline_over_a_concave_patch_is_left_to_the_votes():
     a, b = _pairs()
     normals = _facing(pts)
     assert _occluding_borders(pts, normals, patches, a, b, 2, SPACING, MAX_EDGE,
-                              concave=np.array([False, False]))[0]
+                              concave=lambda _: np.array([False, False]))[0]
     assert not _occluding_borders(pts, normals, patches, a, b, 2, SPACING, MAX_EDGE,
-                                  concave=np.array([False, True]))[0]
+                                  concave=lambda _: np.array([False, True]))[0]
     # The front patch's own shape does not matter: the patch behind is the farther one.
     assert _occluding_borders(pts, normals, patches, a, b, 2, SPACING, MAX_EDGE,
-                              concave=np.array([True, False]))[0]
+                              concave=lambda _: np.array([True, False]))[0]
 
 
 def test_terraces_one_depth_step_apart_are_no_outline():
@@ -181,6 +181,16 @@ def test_a_jump_within_the_noise_of_a_difference_is_no_outline():
     a, b = _pairs()
     noise = np.full(len(pts), 4 * MM)
     assert not _occluding_borders(pts, _facing(pts), patches, a, b, 2, SPACING, MAX_EDGE,
-                                  noise)[0]
+                                  noise=noise)[0]
     assert _occluding_borders(pts, _facing(pts), patches, a, b, 2, SPACING, MAX_EDGE,
-                              noise / 2)[0]
+                              noise=noise / 2)[0]
+
+
+def test_only_the_patches_asked_for_are_judged():
+    # Two concave walls; asked about the second only, the first is not judged (not concave).
+    pts, normals = _cylinder_patch(0.04, True)
+    nb, sq = _patch_links(pts)
+    patches = (pts[:, 0] > 0).astype(np.int64)
+    assert list(_concave_patches(pts, normals, nb, sq, patches, 2, MAX_EDGE)) == [True, True]
+    assert list(_concave_patches(pts, normals, nb, sq, patches, 2, MAX_EDGE,
+                                 np.array([1]))) == [False, True]

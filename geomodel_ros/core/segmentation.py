@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Callable, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -115,6 +115,11 @@ QUANTUM_FOLD_STEPS = 0.5
 #: seen from the sensor (spacing / range). 1.5: the 8-neighbourhood of a square grid
 #: (diagonal sqrt(2)) with room for the grid's jitter.
 SEAM_RADIUS_SPACINGS = 1.5
+#: A working point is at its surface's rim when its neighbours' centroid lies this many
+#: working-grid spacings from it along the surface (:func:`_rim_points`): a quarter, well
+#: below the 0.6 of the second row in from a straight rim, above the centroid's jitter
+#: inside a surface.
+RIM_OFFSET_SPACINGS = 0.25
 #: Image neighbours looked at per working point: its own surface's 8-neighbourhood and
 #: itself take 9, and a surface behind it across an outline is denser in viewing angle
 #: (farther), so 16 reach past the own surface's ring to the next one (a 5 x 5 block has 25).
@@ -435,10 +440,13 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
         whole=None if noise is None else (noise_w,
                                           np.zeros(m) if quantum is None else quantum))
     if noise is not None:  # an outline's jump is judged against the noise
+        edge = _rim_points(points, normals, nbrs, params.seg_voxel_size) \
+            | (patches[nbrs] != patches[:, None]).any(axis=1)
         creased = creased | _occluding_borders(
-            points, normals, patches, a, b, n_p, params.seg_voxel_size, max_edge,
+            points, normals, patches, a, b, n_p, params.seg_voxel_size, max_edge, edge,
             noise_w / getattr(noise, "scale", 1.0), quantum,
-            _concave_patches(points, normals, nbrs, sqdist, patches, n_p, max_edge))
+            lambda behind: _concave_patches(points, normals, nbrs, sqdist, patches, n_p,
+                                            max_edge, behind))
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
                         exact=None if noise is None else
                         np.bincount(patches[step > floor], minlength=n_p) == 0,
@@ -554,9 +562,11 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
 def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64],
                        patches: NDArray[np.int64], a: NDArray[np.int64], b: NDArray[np.int64],
                        n_p: int, spacing: float, max_edge: float,
+                       edge: NDArray[np.bool_] | None = None,
                        noise: NDArray[np.float64] | None = None,
                        quantum: NDArray[np.float64] | None = None,
-                       concave: NDArray[np.bool_] | None = None) -> NDArray[np.bool_]:
+                       concave: Callable[[NDArray[np.int64]], NDArray[np.bool_]] | None = None
+                       ) -> NDArray[np.bool_]:
     """Tell which patch borders are mostly one patch's outline in front of the other.
 
     Two objects that touch are often seen one in front of the other: where they meet in
@@ -594,14 +604,20 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
         Spacing of the working points [m].
     max_edge : float
         Longest link [m].
+    edge : (M,) bool array, optional
+        The points that may lie on a seam (default all), e.g. those at the rim of their
+        surface (:func:`_rim_points`) or next to another patch: a point inside one surface,
+        its nearest neighbours all around it on its own patch, has its image neighbours
+        there too.
     noise : (M,) float64 array, optional
         Local noise [m] of every working point, the part its neighbours do not share (e.g.
         :func:`working_noise` over the frame's ``scale``); default 0.
     quantum : (M,) float64 array, optional
         Depth quantisation [m] left in every working point (:func:`level_quantum`);
         default 0.
-    concave : (n_p,) bool array, optional
-        Patches that are concave as seen from the sensor (:func:`_concave_patches`).
+    concave : callable, optional
+        Given patch ids (Q,), tell which are concave as seen from the sensor ((n_p,) bool
+        array, e.g. :func:`_concave_patches`); asked only for the patches behind outlines.
 
     Returns
     -------
@@ -610,11 +626,14 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
     if len(a) == 0 or len(points) < 2:
         return np.zeros(len(a), dtype=bool)
     ranges = np.linalg.norm(points, axis=1)
-    dirs = points / np.maximum(ranges, np.finfo(float).tiny)[:, None]
-    k = min(SEAM_NEIGHBORS, len(points))
+    rows = np.arange(len(points)) if edge is None else np.flatnonzero(edge)
+    if len(rows) < 2:
+        return np.zeros(len(a), dtype=bool)
+    dirs = points[rows] / np.maximum(ranges[rows], np.finfo(float).tiny)[:, None]
+    k = min(SEAM_NEIGHBORS, len(rows))
     angle, nb = cKDTree(dirs).query(dirs, k=k)
-    i = np.repeat(np.arange(len(points)), k)
-    j = nb.ravel()
+    i = np.repeat(rows, k)
+    j = rows[nb.ravel()]
     near = angle.ravel() * np.minimum(ranges[i], ranges[j]) <= SEAM_RADIUS_SPACINGS * spacing
     near &= patches[i] != patches[j]
     i, j = i[near], j[near]
@@ -640,13 +659,33 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
     a_behind = np.bincount(pos[jump_on], weights=patches[far[jump_on]] == a[pos[jump_on]],
                            minlength=len(pairs))
     behind = np.where(2 * a_behind >= jumps, a, b)
-    return outline & ~concave[behind]
+    if outline.any():
+        outline[outline] = ~concave(np.unique(behind[outline]))[behind[outline]]
+    return outline
+
+
+def _rim_points(points: NDArray[np.float64], normals: NDArray[np.float64],
+                nbrs: NDArray[np.int64], spacing: float) -> NDArray[np.bool_]:
+    """Tell which working points lie at the rim of their surface (an outline in the image).
+
+    Inside a surface a point's nearest neighbours surround it and their centroid lies on
+    it; at the surface's rim they lie on one side, their centroid about a spacing away
+    along the surface (k = 16 neighbours on a square grid at a straight rim: 1.2
+    spacings; one row in: 0.6). A point is at the rim where that tangential offset exceeds
+    :data:`RIM_OFFSET_SPACINGS` of the working ``spacing`` [m].
+    """
+    offset = np.zeros(points.shape)
+    for c in range(points.shape[1]):
+        col = np.ascontiguousarray(points[:, c])
+        offset[:, c] = col[nbrs].mean(axis=1) - col
+    offset -= np.einsum("ij,ij->i", offset, normals)[:, None] * normals
+    return np.einsum("ij,ij->i", offset, offset) > (RIM_OFFSET_SPACINGS * spacing) ** 2
 
 
 def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
                      nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
-                     patches: NDArray[np.int64], n_p: int, max_edge: float
-                     ) -> NDArray[np.bool_]:
+                     patches: NDArray[np.int64], n_p: int, max_edge: float,
+                     which: NDArray[np.int64] | None = None) -> NDArray[np.bool_]:
     """Tell which patches are concave as seen from the sensor (a container's inner wall).
 
     The fold of a link inside a patch (:func:`_link_folds`) is about l^2 / (2 r) on a
@@ -673,16 +712,20 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
     n_p : int
     max_edge : float
         Longest link [m].
+    which : (Q,) int64 array, optional
+        The patches to judge (default all); the others are not concave.
 
     Returns
     -------
     (n_p,) bool array
     """
-    m, k = nbrs.shape
-    i = np.repeat(np.arange(m), k)
-    j = nbrs.ravel()
+    k = nbrs.shape[1]
+    rows = np.arange(len(points)) if which is None else \
+        np.flatnonzero(np.isin(patches, which))
+    i = np.repeat(rows, k)
+    j = nbrs[rows].ravel()
     inside = np.flatnonzero((patches[i] == patches[j]) & (i != j)
-                            & (sqdist.ravel() <= max_edge * max_edge))
+                            & (sqdist[rows].ravel() <= max_edge * max_edge))
     concave = np.zeros(n_p, dtype=bool)
     if not len(inside):
         return concave
