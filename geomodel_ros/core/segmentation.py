@@ -414,7 +414,9 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     -----
     Patches are smooth regions (:func:`geomodel_ros.core.faces.split_faces`); they are
     grouped into objects from their border votes (:func:`_border_votes`,
-    :func:`geomodel_ros.core.joins.merge_patches`).
+    :func:`geomodel_ros.core.joins.merge_patches`). With the frame's noise known, a border
+    seen mostly as one patch's outline in front of the other (:func:`_occluding_borders`)
+    is a crease whatever its votes.
     """
     m = len(points)
     normals, variation, nbrs, sqdist = neighbourhood if neighbourhood is not None else \
@@ -440,13 +442,8 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
         whole=None if noise is None else (noise_w,
                                           np.zeros(m) if quantum is None else quantum))
     if noise is not None:  # an outline's jump is judged against the noise
-        edge = _rim_points(points, normals, nbrs, params.seg_voxel_size) \
-            | (patches[nbrs] != patches[:, None]).any(axis=1)
-        creased = creased | _occluding_borders(
-            points, normals, patches, a, b, n_p, params.seg_voxel_size, max_edge, edge,
-            noise_w / getattr(noise, "scale", 1.0), quantum,
-            lambda behind: _concave_patches(points, normals, nbrs, sqdist, patches, n_p,
-                                            max_edge, behind))
+        creased = creased | _outlines(points, normals, nbrs, sqdist, patches, a, b, params,
+                                      noise_w / getattr(noise, "scale", 1.0), quantum)
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
                         exact=None if noise is None else
                         np.bincount(patches[step > floor], minlength=n_p) == 0,
@@ -557,6 +554,26 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
                           0.5 * tolerance * dist, 0.5 * (quantum[i[ok]] + quantum[j[ok]])])
         creased = _creased_borders(inv, len(pairs), i[ok], pi < pj, links, spread)
     return pairs // n_p, pairs % n_p, votes, yes, creased
+
+
+def _outlines(points: NDArray[np.float64], normals: NDArray[np.float64], nbrs: NDArray[np.int64],
+              sqdist: NDArray[np.float64], patches: NDArray[np.int64], a: NDArray[np.int64],
+              b: NDArray[np.int64], params: ModelingParams, noise: NDArray[np.float64],
+              quantum: NDArray[np.float64] | None) -> NDArray[np.bool_]:
+    """Borders (P,) of the patch pairs ``a``, ``b`` that are an outline over a surface behind.
+
+    :func:`_occluding_borders` over the points at a surface's rim (:func:`_rim_points`) or
+    next to another patch, with the working points' local ``noise`` (M,) [m] and depth
+    ``quantum`` (M,) [m], the patches behind judged by :func:`_concave_patches`.
+    """
+    n_p = int(patches.max()) + 1
+    max_edge = params.seg_max_edge_factor * params.seg_voxel_size
+    edge = _rim_points(points, normals, nbrs, params.seg_voxel_size) \
+        | (patches[nbrs] != patches[:, None]).any(axis=1)
+    return _occluding_borders(
+        points, normals, patches, a, b, n_p, params.seg_voxel_size, max_edge, edge, noise,
+        quantum, lambda behind: _concave_patches(points, normals, nbrs, sqdist, patches, n_p,
+                                                 max_edge, behind))
 
 
 def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64],
