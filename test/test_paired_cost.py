@@ -19,6 +19,7 @@ from scipy import stats
 
 from geomodel_ros.core.fitting.paired_cost import (BLOCK_GRID, LOWER_LEVEL, MIN_BLOCKS,
                                                    lower_beyond_noise, spread_blocks)
+from geomodel_ros.core.fitting import strategies
 from geomodel_ros.core.fitting.strategies import all_faces_curved, thinned
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.modeling import model_scene
@@ -172,3 +173,28 @@ def test_a_round_sides_candidates_come_from_a_few_hundred_of_its_points():
     assert full is not None and few is not None
     assert full.decision.candidates[0] == few.decision.candidates[0] == "cylinder"
     assert "k1 constant" in few.note
+
+
+@pytest.mark.parametrize("cheap_cost, refitted", [(0.2, False), (0.05, True)])
+def test_the_rival_is_refitted_only_when_its_first_look_is_no_worse_than_the_box(
+        monkeypatch, cheap_cost, refitted):
+    # A cylinder r 40 mm and a stand-in box whose truncated cost is 0.1 per point: the
+    # thinned rival's mean cost decides whether the full-resolution refit is paid for.
+    cloud = cloud_of(cylinder_points())
+    box = object()
+    calls = []
+
+    def counted(c, decision):
+        calls.append(c.first_look)
+        return fit_first(c, decision)
+
+    def costs(prim, c):
+        return np.full(len(c.points), 0.1 if prim is box else cheap_cost)
+
+    monkeypatch.setattr(strategies, "fit_first", counted)
+    monkeypatch.setattr(strategies, "truncated_costs", costs)
+    found = strategies.round_rival(cloud, box)
+    assert calls == ([True, False] if refitted else [True])
+    assert (found is not None) == refitted
+    if refitted:
+        assert found[1].type is PrimitiveType.CYLINDER
