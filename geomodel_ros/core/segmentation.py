@@ -608,26 +608,6 @@ def _outlines(points: NDArray[np.float64], normals: NDArray[np.float64], nbrs: N
     :func:`_occluding_borders` over the points at a surface's rim (:func:`_rim_points`) or
     next to another patch, with the working points' local ``noise`` (M,) [m] and depth
     ``quantum`` (M,) [m], the patches behind judged by :func:`_concave_patches`.
-    """
-    n_p = int(patches.max()) + 1
-    max_edge = params.seg_max_edge_factor * params.seg_voxel_size
-    edge = _rim_points(points, normals, nbrs, params.seg_voxel_size) \
-        | (patches[nbrs] != patches[:, None]).any(axis=1)
-    return _occluding_borders(
-        points, normals, patches, a, b, n_p, params.seg_voxel_size, max_edge, edge, noise,
-        quantum, lambda behind: _concave_patches(points, normals, nbrs, sqdist, patches, n_p,
-                                                 max_edge, behind))
-
-
-def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64],
-                       patches: NDArray[np.int64], a: NDArray[np.int64], b: NDArray[np.int64],
-                       n_p: int, spacing: float, max_edge: float,
-                       edge: NDArray[np.bool_] | None = None,
-                       noise: NDArray[np.float64] | None = None,
-                       quantum: NDArray[np.float64] | None = None,
-                       concave: Callable[[NDArray[np.int64]], NDArray[np.bool_]] | None = None
-                       ) -> NDArray[np.bool_]:
-    """Tell which patch borders are mostly one patch's outline in front of the other.
 
     Two objects that touch are often seen one in front of the other: where they meet in
     the image the depth jumps by centimetres (an outline over the surface behind it), and
@@ -649,6 +629,31 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
     opening: a concave surface, where a convex object behind another shows a flat or convex
     one. So a border is no outline where the patch behind it (the farther end of most of
     its jumps) is ``concave``: there the border votes decide as before.
+    """
+    n_p = int(patches.max()) + 1
+    max_edge = params.seg_max_edge_factor * params.seg_voxel_size
+    edge = _rim_points(points, normals, nbrs, params.seg_voxel_size) \
+        | (patches[nbrs] != patches[:, None]).any(axis=1)
+    return _occluding_borders(
+        points, normals, patches, a, b, n_p, params.seg_voxel_size, max_edge, edge, noise,
+        quantum, lambda behind: _concave_patches(points, normals, nbrs, sqdist, patches, n_p,
+                                                 max_edge, behind))
+
+
+def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64],
+                       patches: NDArray[np.int64], a: NDArray[np.int64], b: NDArray[np.int64],
+                       n_p: int, spacing: float, max_edge: float,
+                       edge: NDArray[np.bool_] | None = None,
+                       noise: NDArray[np.float64] | None = None,
+                       quantum: NDArray[np.float64] | None = None,
+                       concave: Callable[[NDArray[np.int64]], NDArray[np.bool_]] | None = None
+                       ) -> NDArray[np.bool_]:
+    """Tell which patch borders are mostly one patch's outline in front of the other.
+
+    A border whose image seam (:func:`_image_seam`) holds more than
+    :data:`SEAM_JUMP_SHARE` depth jumps longer than a link (``max_edge``, plus the noise
+    of a difference of two neighbours and both ends' depth quanta) is an outline, unless
+    the patch behind it is ``concave``; why, in :func:`_outlines`.
 
     Parameters
     ----------
@@ -683,21 +688,10 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
     -------
     (P,) bool array
     """
-    if len(a) == 0 or len(points) < 2:
-        return np.zeros(len(a), dtype=bool)
-    ranges = np.linalg.norm(points, axis=1)
     rows = np.arange(len(points)) if edge is None else np.flatnonzero(edge)
-    if len(rows) < 2:
+    if len(a) == 0 or len(rows) < 2:
         return np.zeros(len(a), dtype=bool)
-    dirs = points[rows] / np.maximum(ranges[rows], np.finfo(float).tiny)[:, None]
-    k = min(SEAM_NEIGHBORS, len(rows))
-    angle, nb = cKDTree(dirs).query(dirs, k=k)
-    i = np.repeat(rows, k)
-    j = rows[nb.ravel()]
-    near = angle.ravel() * np.minimum(ranges[i], ranges[j]) <= SEAM_RADIUS_SPACINGS * spacing
-    near &= patches[i] != patches[j]
-    i, j = i[near], j[near]
-    far = np.where(ranges[i] > ranges[j], i, j)
+    i, j, far = _image_seam(points, rows, patches, spacing)
     gap = np.abs(np.einsum("ij,ij->i", normals[far], points[i] - points[j]))
     limit = np.full(len(i), max_edge)
     if noise is not None:
@@ -722,6 +716,27 @@ def _occluding_borders(points: NDArray[np.float64], normals: NDArray[np.float64]
     if outline.any():
         outline[outline] = ~concave(np.unique(behind[outline]))[behind[outline]]
     return outline
+
+
+def _image_seam(points: NDArray[np.float64], rows: NDArray[np.int64],
+                patches: NDArray[np.int64], spacing: float
+                ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Pairs (i, j) of image neighbours among the points ``rows`` that lie on two patches.
+
+    Neighbours by viewing direction (the :data:`SEAM_NEIGHBORS` nearest), kept within
+    :data:`SEAM_RADIUS_SPACINGS` working-grid ``spacing`` [m] as seen from the nearer
+    point; also returns the farther point of each pair (the one behind).
+    """
+    ranges = np.linalg.norm(points, axis=1)
+    dirs = points[rows] / np.maximum(ranges[rows], np.finfo(float).tiny)[:, None]
+    k = min(SEAM_NEIGHBORS, len(rows))
+    angle, nb = cKDTree(dirs).query(dirs, k=k)
+    i = np.repeat(rows, k)
+    j = rows[nb.ravel()]
+    near = angle.ravel() * np.minimum(ranges[i], ranges[j]) <= SEAM_RADIUS_SPACINGS * spacing
+    near &= patches[i] != patches[j]
+    i, j = i[near], j[near]
+    return i, j, np.where(ranges[i] > ranges[j], i, j)
 
 
 def _rim_points(points: NDArray[np.float64], normals: NDArray[np.float64],
