@@ -297,8 +297,13 @@ def neighborhood_moments(points: NDArray[np.float64], neighbors: NDArray[np.int6
 
 def estimate_normals(points: NDArray[np.float64], k: int,
                      viewpoint: NDArray[np.float64] | None = None,
-                     return_sqdist: bool = False) -> tuple[NDArray, ...]:
+                     return_sqdist: bool = False,
+                     neighbours: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
+                     ) -> tuple[NDArray, ...]:
     """PCA normals over the ``k`` nearest neighbours, oriented towards ``viewpoint``.
+
+    ``neighbours`` (the (M, k') nearest neighbours and their squared distances [m^2],
+    nearest first) are used instead of a search when given.
 
     Returns
     -------
@@ -315,7 +320,8 @@ def estimate_normals(points: NDArray[np.float64], k: int,
     if k == 0:
         empty = (np.zeros((m, 3)), np.zeros(m), np.zeros((m, 0), dtype=np.int64))
         return (*empty, np.zeros((m, 0))) if return_sqdist else empty
-    neighbors, sqdist = knn(points, k, return_sqdist=True)
+    neighbors, sqdist = knn(points, k, return_sqdist=True) if neighbours is None \
+        else neighbours
     xx, xy, xz, yy, yz, zz = neighborhood_moments(points, neighbors)
     lam, normals = smallest_eigenpairs_sym(xx, xy, xz, yy, yz, zz)
     total = xx + yy + zz

@@ -415,15 +415,8 @@ def _rest_neighbourhood(wp: NDArray[np.float64], rest_idx: NDArray[np.int64],
         As :func:`geomodel_ros.core.faces.estimate_normals` returns them (k' = min(k, R);
         indices into ``rest_idx``).
     """
-    points = wp[rest_idx]
-    nb, sq = knn_among(wp, rest_idx, nbrs, sqdist, k)
-    xx, xy, xz, yy, yz, zz = neighborhood_moments(points, nb)
-    lam, normals = smallest_eigenpairs_sym(xx, xy, xz, yy, yz, zz)
-    total = xx + yy + zz
-    variation = np.divide(lam, total, out=np.zeros(len(points)), where=total > 0)
-    # Oriented towards the sensor at the origin, as estimate_normals does by default.
-    normals[np.einsum("mi,mi->m", normals, points) > 0] *= -1
-    return normals, variation, nb, sq
+    return estimate_normals(wp[rest_idx], k, return_sqdist=True,
+                            neighbours=knn_among(wp, rest_idx, nbrs, sqdist, k))
 
 
 def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],

@@ -69,8 +69,8 @@ RIVAL_SAMPLE = 2000
 #: candidates come from the curvatures of about this many working points, and it is
 #: fitted on as many face points (:func:`thinned`, no full-resolution refinement) -- a few
 #: hundred, enough for its curvature medians, RANSAC and checks to find a round side that
-#: the object really has, at a fraction of the full fit's time; only a rival the box does
-#: not already beat beyond the noise is refitted on all the points.
+#: the object really has, at a fraction of the full fit's time; only a rival whose first
+#: look costs no more than the box on average is refitted on all the points.
 RIVAL_FIT_POINTS = 400
 #: Fewest point normals and smallest mean-normal norm for which flatness is judged.
 MIN_FLAT_NORMALS = 3
@@ -548,9 +548,10 @@ def round_rival(cloud: ObjectCloud, box: Primitive
 
     Its candidates come from the curvatures of about :data:`RIVAL_FIT_POINTS` working
     points, and it is fitted first on :func:`thinned` faces; None when that fit fails
-    its own checks or its mean :func:`truncated_costs` exceed the ``box``'s (the
-    refinement on all points rarely recovers a rival the box already beats on average,
-    and a refit costs tens of milliseconds on a large box). Otherwise it is refitted on
+    its own checks or its mean :func:`truncated_costs` exceed the ``box``'s (on the
+    synthetic suite and the real frames measured, no rival the box beat on average went
+    on to replace it after the refit, which costs tens of milliseconds on a large box).
+    Otherwise it is refitted on
     all the faces' points, and returned with its attempt and the compared points'
     blocks (:func:`~.paired_cost.spread_blocks`).
     """
