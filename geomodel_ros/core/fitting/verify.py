@@ -180,10 +180,12 @@ def check_profile_bow(points: NDArray[np.float64], model: ConeModel | CylinderMo
     errors, beyond the bow they give a straight profile of this size in the image
     (:func:`~.slow_taper.slow_bow`). Only with ``noise_model = auto``.
 
-    Measured (the synthetic suite over its noise rows, 3 seeds; osd_learn's real cans,
-    cups and frustum; the PCL mug): right models turn by at most 0.39 rad on the suite and
-    0.63 rad on real data (a real frustum whose bow of 8 mm is significant); tori verified
-    as cones 0.86-1.77 rad, a sphere as a cylinder 1.21 rad.
+    Measured (the synthetic suite's four noise rows, 3 seeds; osd_learn; the PCL mug and
+    scenes): right models' sides turn by at most 0.38 rad on the suite (cylinders 0.38,
+    cones 0.34, frustums 0.29) and 0.61 rad on real data (osd_learn's cup, whose 8 mm bow
+    is significant; cans at most 0.14, the PCL mug 0.11, a bleach bottle 0.42); the
+    suite's tori verified as cones turn by 2.09-2.36 rad, a sphere seen as a cylinder by
+    1.20 rad.
     """
     params = cloud.params
     if params.noise_model != "auto":
