@@ -20,6 +20,12 @@ freedom for G blocks) at :data:`TAPER_LEVEL` times that spread.
 What a slow error common to the whole side does (one end of it nearer the camera than the
 other) no block structure shows; that part is measured on the frame's support instead
 (:mod:`~.slow_taper`).
+
+The same fit with one term more, ``c t^2``, tells whether the profile is straight at all
+(a cylinder's, cone's or frustum's) or curved (a torus's, a sphere's, a barrel's): its
+bow (the middle off the chord through the ends) and the turn of its tangent between the
+ends (:func:`profile_bow`), the bow judged by the same jackknife (:func:`least_bow`). A
+cylinder is fitted as the side of slope 0 about its axis point (:func:`_profile`).
 """
 
 from __future__ import annotations
