@@ -15,7 +15,8 @@ from geomodel_ros.core.fitting.measure import arc_span, nearest_surface
 from geomodel_ros.core.fitting.plane import RAY_SHIFT_FACTOR
 from geomodel_ros.core.fitting.result import FitTask, Rejected
 from geomodel_ros.core.fitting.verify import (OUTLIER_FACTOR, check_arc, check_axis,
-                                              check_coverage, check_noise_scatter)
+                                              check_coverage, check_noise_scatter,
+                                              check_profile_bow)
 from geomodel_ros.core.primitives import PrimitiveType
 
 __all__ = ["end_caps", "assign_to_surfaces", "axial_extent", "verified_side"]
@@ -118,5 +119,6 @@ def verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | N
         return nearest
     side_points = take_rows(cloud.points, nearest == 0)
     bad = check_arc(arc_span(side_points, origin, model.axis), cloud.params, kind) or \
-        check_noise_scatter(side_points, model.distance, cloud.params, kind)
+        check_noise_scatter(side_points, model.distance, cloud.params, kind) or \
+        check_profile_bow(side_points, model, cloud, kind)
     return bad if bad else (caps, nearest, side_points)

@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from geomodel_ros.core.fitting.slow_bend import (MIN_NULL_PATCHES, MIN_PATCH_POINTS, NULL_PATCHES,
                                                   NULL_SEED, SlowBendNull)
 
-__all__ = ["MAX_END_OFFSET", "MIN_RAY_COS", "CANDIDATE_CENTRES", "slow_taper"]
+__all__ = ["MAX_END_OFFSET", "MIN_RAY_COS", "CANDIDATE_CENTRES", "slow_taper", "slow_bow"]
 
 #: An end disc whose points' mean direction lies farther than this share of its angular
 #: radius from its centre is cut by the support's border (a disc cut by a chord half its
@@ -108,6 +108,36 @@ def slow_taper(null: SlowBendNull, end_a: NDArray[np.float64], end_b: NDArray[np
         by the ratio of sigma(z); infinite when fewer than MIN_NULL_PATCHES pairs are
         usable (nothing is known of the errors: no taper is beyond them).
     """
+    return _slow_contrast(null, end_a, end_b, radius, _TAPER_WEIGHTS)
+
+
+def slow_bow(null: SlowBendNull, end_a: NDArray[np.float64], end_b: NDArray[np.float64],
+             radius: float) -> float:
+    """Largest apparent bow [m] the frame's slow errors give a straight profile like this one.
+
+    As :func:`slow_taper`, with three discs per pair (the two ends' and the middle's): the
+    bow is the middle disc's mean range error off the mean of the two ends' (a circle held
+    on the axis through the middle's arc changes its radius by at most that much, the
+    profile's middle leaves the chord through its ends by as much).
+    """
+    return _slow_contrast(null, end_a, end_b, radius, _BOW_WEIGHTS)
+
+
+#: Weights of the mean range errors of the discs at the first end, the middle and the
+#: second end: the taper is the ends' difference, the bow the middle off the ends' mean.
+_TAPER_WEIGHTS = (1.0, 0.0, -1.0)
+_BOW_WEIGHTS = (-0.5, 1.0, -0.5)
+
+
+def _slow_contrast(null: SlowBendNull, end_a: NDArray[np.float64], end_b: NDArray[np.float64],
+                   radius: float, weights: tuple[float, float, float]) -> float:
+    """Largest weighted sum [m] of three discs' mean range errors over the support's pairs.
+
+    Discs of angular radius ``radius`` over the range at ``end_a``, the middle and
+    ``end_b``'s positions in the image relative to each candidate centre; discs of zero
+    weight are not measured. Scaled to the object's range by sigma(z); infinite with
+    fewer than MIN_NULL_PATCHES usable pairs.
+    """
     depth = float(np.linalg.norm((end_a + end_b) / 2.0))
     if radius <= 0.0 or depth <= 0.0:
         return math.inf
@@ -119,11 +149,17 @@ def slow_taper(null: SlowBendNull, end_a: NDArray[np.float64], end_b: NDArray[np
     # at a time, and usually one or two chunks.
     for start in range(0, len(pick), NULL_PATCHES):
         centres = null.points[pick[start:start + NULL_PATCHES]]
-        mean_a, ok_a = _end_means(u, err, _unit(_unit(centres) - half), radius / depth)
-        mean_b, ok_b = _end_means(u, err, _unit(_unit(centres) + half), radius / depth)
-        ok = ok_a & ok_b
+        total = np.zeros(len(centres))
+        ok = np.ones(len(centres), dtype=bool)
+        for shift, weight in zip((-1.0, 0.0, 1.0), weights):
+            if weight == 0.0:
+                continue
+            mean, usable = _end_means(u, err, _unit(_unit(centres) + shift * half),
+                                      radius / depth)
+            total += weight * mean
+            ok &= usable
         at.extend(np.linalg.norm(centres[ok], axis=1))
-        delta.extend(np.abs(mean_a[ok] - mean_b[ok]))
+        delta.extend(np.abs(total[ok]))
         if len(delta) >= NULL_PATCHES:
             break
     if len(delta) < MIN_NULL_PATCHES:
