@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Callable, ClassVar, Generic, NamedTuple, Protocol, TypeVar
 
 import numpy as np
@@ -423,13 +424,22 @@ class CylinderModel:
         """Return the cylinder of row ``i``."""
         return CylinderModel(h.point[i].copy(), h.axis[i].copy(), float(h.radius[i]))
 
+    @cached_property
+    def basis(self) -> tuple[Array, Array]:
+        """Unit vectors ``e1, e2`` (3,) perpendicular to the axis (:func:`perpendicular_basis`).
+
+        Computed once per model: a least-squares refinement perturbs one model through
+        :meth:`from_vector` and :meth:`jacobian_t` at every evaluation.
+        """
+        return perpendicular_basis(self.axis)
+
     def to_vector(self) -> Array:
         """Return zeros (5,): x perturbs this model (axis tilt 2, axis shift 2, radius)."""
         return np.zeros(5)
 
     def from_vector(self, x: Array) -> CylinderModel:
         """Return this cylinder with axis tilt x[:2], shift x[2:4] [m], radius + x[4] [m]."""
-        e1, e2 = perpendicular_basis(self.axis)
+        e1, e2 = self.basis
         axis = unit3(self.axis + x[0] * e1 + x[1] * e2)
         point = self.point + x[2] * e1 + x[3] * e2
         return CylinderModel(point, axis, float(self.radius + x[4]))
@@ -440,7 +450,7 @@ class CylinderModel:
 
     def jacobian_t(self, x: Array, pt: Array) -> Array:
         """Return :meth:`jacobian` transposed, (P, M), for points given as (3, M)."""
-        e1, e2 = perpendicular_basis(self.axis)
+        e1, e2 = self.basis
         m = self.from_vector(x)
         scale = float(np.linalg.norm(self.axis + x[0] * e1 + x[1] * e2))
         radial, t, rho = _axial_parts_t(pt - m.point[:, None], m.axis)
@@ -513,13 +523,22 @@ class ConeModel:
         """Return the cone of row ``i``."""
         return ConeModel(h.apex[i].copy(), h.axis[i].copy(), float(h.half_angle[i]))
 
+    @cached_property
+    def basis(self) -> tuple[Array, Array]:
+        """Unit vectors ``e1, e2`` (3,) perpendicular to the axis (:func:`perpendicular_basis`).
+
+        Computed once per model: a least-squares refinement perturbs one model through
+        :meth:`from_vector` and :meth:`jacobian_t` at every evaluation.
+        """
+        return perpendicular_basis(self.axis)
+
     def to_vector(self) -> Array:
         """Return zeros (6,): x perturbs this model (axis tilt 2, apex 3 [m], angle [rad])."""
         return np.zeros(6)
 
     def from_vector(self, x: Array) -> ConeModel:
         """Return this cone with axis tilt x[:2], apex + x[2:5] [m], angle + x[5] [rad]."""
-        e1, e2 = perpendicular_basis(self.axis)
+        e1, e2 = self.basis
         axis = unit3(self.axis + x[0] * e1 + x[1] * e2)
         return ConeModel(self.apex + x[2:5], axis, float(self.half_angle + x[5]))
 
@@ -529,7 +548,7 @@ class ConeModel:
 
     def jacobian_t(self, x: Array, pt: Array) -> Array:
         """Return :meth:`jacobian` transposed, (P, M), for points given as (3, M)."""
-        e1, e2 = perpendicular_basis(self.axis)
+        e1, e2 = self.basis
         m = self.from_vector(x)
         scale = float(np.linalg.norm(self.axis + x[0] * e1 + x[1] * e2))
         a = m.axis
