@@ -707,12 +707,17 @@ def ransac(model_cls: type[ModelT], points: Array, normals: Array, threshold: fl
 
 def _refine_plane(model: PlaneModel, points: Array, threshold: float, rounds: int
                   ) -> PlaneModel:
-    """Total least squares on the plane's inliers, re-selected ``rounds`` times."""
+    """Total least squares on the plane's inliers, re-selected ``rounds`` times.
+
+    A round whose inliers are those of the round before would fit the same points again
+    and return the same plane: the rounds stop there.
+    """
+    fitted = None
     for _ in range(rounds):
         inl = np.abs(model.distance(points)) <= threshold
-        if inl.sum() < _MIN_PLANE_POINTS:
+        if inl.sum() < _MIN_PLANE_POINTS or (fitted is not None and np.array_equal(inl, fitted)):
             break
-        model = fit_plane_svd(points[inl])
+        model, fitted = fit_plane_svd(points[inl]), inl
     return model
 
 
