@@ -13,6 +13,7 @@ import pytest
 
 from geomodel_ros.core import obb, ransac
 from geomodel_ros.core.fitting import measure
+from geomodel_ros.core.fitting.cloud import _grouped
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.modeling import estimate_spacing
 from geomodel_ros.core.ransac import ConeModel, CylinderModel, PlaneModel, refine
@@ -179,3 +180,24 @@ def test_spacing_is_the_median_nearest_neighbour_distance():
     d2[np.arange(500), np.arange(500)] = math.inf
     want = float(np.median(np.sqrt(d2.min(axis=1))))
     assert estimate_spacing(points, rng) == pytest.approx(want, rel=1e-12)
+
+
+def test_points_grouped_by_face_in_input_order():
+    order, bounds = _grouped(np.array([2, 0, 1, 0, 2, 2]), 3)
+    assert order.tolist() == [1, 3, 2, 0, 4, 5]
+    assert bounds.tolist() == [0, 2, 3, 6]
+    # A face without points has an empty range.
+    order, bounds = _grouped(np.array([0, 2, 0]), 3)
+    assert order.tolist() == [0, 2, 1]
+    assert bounds.tolist() == [0, 2, 2, 3]
+
+
+def test_grouping_matches_a_stable_sort_of_the_labels():
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        count = int(rng.integers(1, 30))
+        labels = rng.integers(0, count, int(rng.integers(1, 2000)))
+        order, bounds = _grouped(labels, count)
+        assert np.array_equal(order, np.argsort(labels, kind="stable"))
+        for f in range(count):
+            assert np.array_equal(order[bounds[f]:bounds[f + 1]], np.flatnonzero(labels == f))
