@@ -201,3 +201,29 @@ def test_grouping_matches_a_stable_sort_of_the_labels():
         assert np.array_equal(order, np.argsort(labels, kind="stable"))
         for f in range(count):
             assert np.array_equal(order[bounds[f]:bounds[f + 1]], np.flatnonzero(labels == f))
+
+
+@pytest.mark.parametrize("model", [
+    ransac.SphereModel(np.array([0.02, -0.01, 0.7]), 0.05),
+    CylinderModel(np.array([0.0, 0.0, 0.8]), np.array([0.0, 0.6, 0.8]), 0.04),
+    ConeModel(np.array([0.0, 0.05, 0.5]), np.array([0.0, 0.0, 1.0]), 0.35),
+])
+def test_shared_parts_give_the_distances_and_jacobian(model):
+    rng = np.random.default_rng(9)
+    pt = np.ascontiguousarray(rng.normal([0.0, 0.0, 0.7], 0.05, (200, 3)).T)
+    x = rng.normal(0.0, 1e-3, len(model.to_vector()))
+    if isinstance(model, ransac.SphereModel):
+        x = model.to_vector() + x                          # absolute parameters
+    m = model.from_vector(x)
+    parts = m.parts_t(pt)
+    assert np.array_equal(m.distance_from(parts), m.distance_t(pt))
+    jac = model.jacobian_from(x, m, parts)
+    assert np.array_equal(jac, model.jacobian_t(x, pt))
+    # Independently: central differences of the distances.
+    h = 1e-7
+    for i in range(len(x)):
+        step = np.zeros(len(x))
+        step[i] = h
+        fd = (model.from_vector(x + step).distance_t(pt)
+              - model.from_vector(x - step).distance_t(pt)) / (2 * h)
+        assert np.allclose(jac[i], fd, atol=1e-6)

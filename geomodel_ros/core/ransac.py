@@ -240,6 +240,18 @@ class RefinableModel(SurfaceModel, Protocol):
         """Return d distance / d x (P, M) at ``from_vector(x)`` for points (3, M)."""
         ...
 
+    def parts_t(self, pt: Array) -> Any:
+        """Return what the distances and the Jacobian of points (3, M) share."""
+        ...
+
+    def distance_from(self, parts: Any) -> Array:
+        """Return :meth:`distance_t` of the points whose :meth:`parts_t` are ``parts``."""
+        ...
+
+    def jacobian_from(self, x: Array, m: Any, parts: Any) -> Array:
+        """Return :meth:`jacobian_t` at ``x`` from ``m = from_vector(x)`` and ``m.parts_t``."""
+        ...
+
 
 # ----------------------------------------------------------------------------------------
 # Models
@@ -330,7 +342,19 @@ class SphereModel:
 
     def distance_t(self, pt: Array) -> Array:
         """:meth:`distance` of points given as (3, M)."""
-        return _col_norms(pt - self.center[:, None]) - self.radius
+        return self.distance_from(self.parts_t(pt))
+
+    def parts_t(self, pt: Array) -> tuple[Array, Array]:
+        """Offsets (3, M) [m] of points (3, M) from the centre, and their lengths (M,) [m].
+
+        What :meth:`distance_from` and :meth:`jacobian_from` share.
+        """
+        v = pt - self.center[:, None]
+        return v, _col_norms(v)
+
+    def distance_from(self, parts: tuple[Array, Array]) -> Array:
+        """Return :meth:`distance_t` of the points whose :meth:`parts_t` are ``parts``."""
+        return parts[1] - self.radius
 
     @staticmethod
     def from_batch(h: SphereBatch, i: int) -> SphereModel:
@@ -351,9 +375,15 @@ class SphereModel:
 
     def jacobian_t(self, x: Array, pt: Array) -> Array:
         """Return :meth:`jacobian` transposed, (P, M), for points given as (3, M)."""
-        v = pt - x[:3, None]
-        u = v / np.maximum(_col_norms(v), EPS)
-        jt = np.empty((4, pt.shape[1]))
+        m = self.from_vector(x)
+        return self.jacobian_from(x, m, m.parts_t(pt))
+
+    def jacobian_from(self, x: Array, m: SphereModel,  # noqa: ARG002 (protocol signature)
+                      parts: tuple[Array, Array]) -> Array:
+        """Return :meth:`jacobian_t` at ``x`` given ``m = from_vector(x)`` and its ``parts``."""
+        v, norms = parts
+        u = v / np.maximum(norms, EPS)
+        jt = np.empty((4, v.shape[1]))
         np.negative(u, out=jt[:3])
         jt[3] = -1.0
         return jt
@@ -417,7 +447,19 @@ class CylinderModel:
 
     def distance_t(self, pt: Array) -> Array:
         """:meth:`distance` of points given as (3, M)."""
-        return _axial_parts_t(pt - self.point[:, None], self.axis)[2] - self.radius
+        return self.distance_from(self.parts_t(pt))
+
+    def parts_t(self, pt: Array) -> tuple[Array, Array, Array]:
+        """Radial parts (3, M), axial coordinates (M,) and radial distances (M,) [m].
+
+        Of points (3, M) about the axis (:func:`_axial_parts_t`); what
+        :meth:`distance_from` and :meth:`jacobian_from` share.
+        """
+        return _axial_parts_t(pt - self.point[:, None], self.axis)
+
+    def distance_from(self, parts: tuple[Array, Array, Array]) -> Array:
+        """Return :meth:`distance_t` of the points whose :meth:`parts_t` are ``parts``."""
+        return parts[2] - self.radius
 
     @staticmethod
     def from_batch(h: CylinderBatch, i: int) -> CylinderModel:
@@ -450,12 +492,17 @@ class CylinderModel:
 
     def jacobian_t(self, x: Array, pt: Array) -> Array:
         """Return :meth:`jacobian` transposed, (P, M), for points given as (3, M)."""
-        e1, e2 = self.basis
         m = self.from_vector(x)
+        return self.jacobian_from(x, m, m.parts_t(pt))
+
+    def jacobian_from(self, x: Array, m: CylinderModel,  # noqa: ARG002 (protocol signature)
+                      parts: tuple[Array, Array, Array]) -> Array:
+        """Return :meth:`jacobian_t` at ``x`` given ``m = from_vector(x)`` and its ``parts``."""
+        e1, e2 = self.basis
         scale = float(np.linalg.norm(self.axis + x[0] * e1 + x[1] * e2))
-        radial, t, rho = _axial_parts_t(pt - m.point[:, None], m.axis)
+        radial, t, rho = parts
         u = _radial_units_t(radial, rho)
-        jt = np.empty((5, pt.shape[1]))
+        jt = np.empty((5, t.shape[0]))
         np.negative(e1 @ u, out=jt[2])
         np.negative(e2 @ u, out=jt[3])
         np.multiply(jt[2], t, out=jt[0])
@@ -515,7 +562,20 @@ class ConeModel:
 
     def distance_t(self, pt: Array) -> Array:
         """:meth:`distance` of points given as (3, M)."""
-        _, along, rn = _axial_parts_t(pt - self.apex[:, None], self.axis)
+        return self.distance_from(self.parts_t(pt))
+
+    def parts_t(self, pt: Array) -> tuple[Array, Array, Array, Array]:
+        """Offsets, radial parts (3, M), axial coordinates, radial distances (M,) [m].
+
+        Of points (3, M) from the apex and about the axis; what :meth:`distance_from` and
+        :meth:`jacobian_from` share.
+        """
+        v = pt - self.apex[:, None]
+        return (v, *_axial_parts_t(v, self.axis))
+
+    def distance_from(self, parts: tuple[Array, Array, Array, Array]) -> Array:
+        """Return :meth:`distance_t` of the points whose :meth:`parts_t` are ``parts``."""
+        _, _, along, rn = parts
         return rn * math.cos(self.half_angle) - along * math.sin(self.half_angle)
 
     @staticmethod
@@ -548,15 +608,19 @@ class ConeModel:
 
     def jacobian_t(self, x: Array, pt: Array) -> Array:
         """Return :meth:`jacobian` transposed, (P, M), for points given as (3, M)."""
-        e1, e2 = self.basis
         m = self.from_vector(x)
+        return self.jacobian_from(x, m, m.parts_t(pt))
+
+    def jacobian_from(self, x: Array, m: ConeModel,
+                      parts: tuple[Array, Array, Array, Array]) -> Array:
+        """Return :meth:`jacobian_t` at ``x`` given ``m = from_vector(x)`` and its ``parts``."""
+        e1, e2 = self.basis
         scale = float(np.linalg.norm(self.axis + x[0] * e1 + x[1] * e2))
         a = m.axis
-        v = pt - m.apex[:, None]
-        radial, t, rho = _axial_parts_t(v, a)
+        v, radial, t, rho = parts
         u = _radial_units_t(radial, rho)
         c, s = math.cos(m.half_angle), math.sin(m.half_angle)
-        jt = np.empty((6, pt.shape[1]))
+        jt = np.empty((6, v.shape[1]))
         for row, e in enumerate((e1, e2)):  # axis tilts: d axis = (e - a (a . e)) / scale
             ve = (e @ v - t * float(a @ e)) / scale
             jt[row] = -c * t * (e @ u) / scale - s * ve
@@ -724,10 +788,12 @@ def _refine_plane(model: PlaneModel, points: Array, threshold: float, rounds: in
 def _least_squares(ref: RefinableModel, sub: Array) -> Any:
     """One Levenberg-Marquardt minimisation of the distances of ``sub`` (3, M) [m]."""
     # leastsq evaluates the function and the Jacobian once at x0 to check their
-    # shapes before MINPACK evaluates them there again: keep the last of each.
-    last: dict[str, tuple[Array, Array]] = {}
+    # shapes before MINPACK evaluates them there again: keep the last of each. MINPACK
+    # asks for the Jacobian where it has just evaluated the function: the model there and
+    # the points' parts about it (offsets, axial and radial parts) serve both.
+    last: dict[str, tuple[Array, Any]] = {}
 
-    def cached(name: str, compute: Callable[[Array], Array], x: Array) -> Array:
+    def cached(name: str, compute: Callable[[Array], Any], x: Array) -> Any:
         hit = last.get(name)
         if hit is not None and np.array_equal(hit[0], x):
             return hit[1]
@@ -735,11 +801,15 @@ def _least_squares(ref: RefinableModel, sub: Array) -> Any:
         last[name] = (x.copy(), value)
         return value
 
+    def at(v: Array) -> tuple[Any, Any]:
+        m = ref.from_vector(v)
+        return m, m.parts_t(sub)
+
     def fun(x: Array) -> Array:
-        return cached("f", lambda v: ref.from_vector(v).distance_t(sub), x)
+        return cached("f", lambda v: (lambda m, p: m.distance_from(p))(*cached("m", at, v)), x)
 
     def jac(x: Array) -> Array:
-        return cached("j", lambda v: ref.jacobian_t(v, sub), x)
+        return cached("j", lambda v: ref.jacobian_from(v, *cached("m", at, v)), x)
 
     # Levenberg-Marquardt (MINPACK lmder) with the Jacobian as (P, M) rows
     # (col_deriv) and variables scaled by its column norms, at most MAX_EVALUATIONS
