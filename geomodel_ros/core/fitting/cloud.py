@@ -45,8 +45,6 @@ PLANAR_RMSE_SHARE = 0.5
 #: a bend is judged against the bends the frame's slow errors give flat patches of its
 #: support (:mod:`~.slow_bend`).
 MAX_NOISE_CORRELATION = math.sqrt(2.0)
-#: Face labels up to this are sorted as 16-bit keys (:func:`_grouped`).
-MAX_INT16_KEY = int(np.iinfo(np.int16).max)
 #: Smallest norm of a curved face's mean normal that is divided by (guards a face whose
 #: normals cancel, which no real face has).
 MIN_MEAN_NORMAL = 1e-12
@@ -320,17 +318,9 @@ def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.i
 
 def _grouped(labels: NDArray[np.int64], count: int) -> tuple[NDArray[np.int64],
                                                              NDArray[np.int64]]:
-    """Return indices sorted by label and the bounds of each label 0..count-1 in them.
-
-    ``labels`` (n,) lie in 0..count-1. A stable sort's order is unique, and numpy sorts
-    16-bit keys by radix, several times faster than int64 keys (measured: 0.34 -> 0.05
-    ms for a box's 20,000 points on 6 faces); the bounds are the labels' running counts.
-    """
-    keys = labels.astype(np.int16) if count <= MAX_INT16_KEY else labels
-    order = np.argsort(keys, kind="stable")
-    bounds = np.zeros(count + 1, dtype=np.int64)
-    np.cumsum(np.bincount(labels, minlength=count)[:count], out=bounds[1:])
-    return order, bounds
+    """Return indices sorted by label and the bounds of each label 0..count-1 in them."""
+    order = np.argsort(labels, kind="stable")
+    return order, np.searchsorted(labels[order], np.arange(count + 1))
 
 
 def build_faces(points: NDArray[np.float64], params: ModelingParams,
