@@ -203,7 +203,12 @@ def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
     if n < 2:
         return 0.0
     sub = points if n <= max_points else points[rng.choice(n, max_points, replace=False)]
-    d, _ = cKDTree(sub).query(sub[: min(len(sub), queries)], k=2)
+    # A tree split at the midpoints without shrunk node boxes, built for one query: the
+    # distances found are the same numbers (each is computed from its two points alone,
+    # whatever the tree), and the 22 objects of four test frames (osd_learn, scene3) took
+    # 12.7 instead of 13.8 ms.
+    tree = cKDTree(sub, balanced_tree=False, compact_nodes=False)
+    d, _ = tree.query(sub[: min(len(sub), queries)], k=2)
     return float(np.median(d[:, 1]) * math.sqrt(len(sub) / n))
 
 

@@ -122,8 +122,18 @@ def edge_gap(values: NDArray[np.float64], spacing: float) -> float:
     """
     if values.size < 2 or spacing <= 0:
         return 0.0
-    top = values.max()
-    band = np.sort(values[values >= top - EDGE_BAND * spacing])
+    return _gap(values, float(values.max()), spacing, below=False)
+
+
+def _gap(values: NDArray[np.float64], extreme: float, spacing: float, below: bool) -> float:
+    """Return :func:`edge_gap` of ``values`` (n >= 2) whose largest is ``extreme`` [m].
+
+    With ``below`` the gap below the smallest, ``extreme``: ``edge_gap(-values)``
+    without the negated copy (the same band and steps: negation is exact).
+    """
+    reach = EDGE_BAND * spacing
+    near = values <= extreme + reach if below else values >= extreme - reach
+    band = np.sort(values[near])
     if band.size < 2:
         return EDGE_GAP_SHARE * spacing
     return EDGE_GAP_SHARE * float(np.max(np.diff(band)))
@@ -146,10 +156,11 @@ def interval(values: NDArray[np.float64], spacing: float, closed_low: float | No
     """
     lo = float(values.min()) if closed_low is None else float(closed_low)
     hi = float(values.max()) if closed_high is None else float(closed_high)
-    if correct and closed_low is None:
-        lo -= edge_gap(-values, spacing)
-    if correct and closed_high is None:
-        hi += edge_gap(values, spacing)
+    measured = correct and values.size >= 2 and spacing > 0
+    if measured and closed_low is None:
+        lo -= _gap(values, lo, spacing, below=True)
+    if measured and closed_high is None:
+        hi += _gap(values, hi, spacing, below=False)
     return lo, hi
 
 

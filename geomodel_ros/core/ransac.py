@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Callable, ClassVar, Generic, NamedTuple, Protocol, TypeVar
 
 import numpy as np
@@ -239,6 +240,18 @@ class RefinableModel(SurfaceModel, Protocol):
         """Return d distance / d x (P, M) at ``from_vector(x)`` for points (3, M)."""
         ...
 
+    def parts_t(self, pt: Array) -> Any:
+        """Return what the distances and the Jacobian of points (3, M) share."""
+        ...
+
+    def distance_from(self, parts: Any) -> Array:
+        """Return :meth:`distance_t` of the points whose :meth:`parts_t` are ``parts``."""
+        ...
+
+    def jacobian_from(self, x: Array, m: Any, parts: Any) -> Array:
+        """Return :meth:`jacobian_t` at ``x`` from ``m = from_vector(x)`` and ``m.parts_t``."""
+        ...
+
 
 # ----------------------------------------------------------------------------------------
 # Models
@@ -329,7 +342,19 @@ class SphereModel:
 
     def distance_t(self, pt: Array) -> Array:
         """:meth:`distance` of points given as (3, M)."""
-        return _col_norms(pt - self.center[:, None]) - self.radius
+        return self.distance_from(self.parts_t(pt))
+
+    def parts_t(self, pt: Array) -> tuple[Array, Array]:
+        """Offsets (3, M) [m] of points (3, M) from the centre, and their lengths (M,) [m].
+
+        What :meth:`distance_from` and :meth:`jacobian_from` share.
+        """
+        v = pt - self.center[:, None]
+        return v, _col_norms(v)
+
+    def distance_from(self, parts: tuple[Array, Array]) -> Array:
+        """Return :meth:`distance_t` of the points whose :meth:`parts_t` are ``parts``."""
+        return parts[1] - self.radius
 
     @staticmethod
     def from_batch(h: SphereBatch, i: int) -> SphereModel:
@@ -350,9 +375,15 @@ class SphereModel:
 
     def jacobian_t(self, x: Array, pt: Array) -> Array:
         """Return :meth:`jacobian` transposed, (P, M), for points given as (3, M)."""
-        v = pt - x[:3, None]
-        u = v / np.maximum(_col_norms(v), EPS)
-        jt = np.empty((4, pt.shape[1]))
+        m = self.from_vector(x)
+        return self.jacobian_from(x, m, m.parts_t(pt))
+
+    def jacobian_from(self, x: Array, m: SphereModel,  # noqa: ARG002 (protocol signature)
+                      parts: tuple[Array, Array]) -> Array:
+        """Return :meth:`jacobian_t` at ``x`` given ``m = from_vector(x)`` and its ``parts``."""
+        v, norms = parts
+        u = v / np.maximum(norms, EPS)
+        jt = np.empty((4, v.shape[1]))
         np.negative(u, out=jt[:3])
         jt[3] = -1.0
         return jt
@@ -416,12 +447,33 @@ class CylinderModel:
 
     def distance_t(self, pt: Array) -> Array:
         """:meth:`distance` of points given as (3, M)."""
-        return _axial_parts_t(pt - self.point[:, None], self.axis)[2] - self.radius
+        return self.distance_from(self.parts_t(pt))
+
+    def parts_t(self, pt: Array) -> tuple[Array, Array, Array]:
+        """Radial parts (3, M), axial coordinates (M,) and radial distances (M,) [m].
+
+        Of points (3, M) about the axis (:func:`_axial_parts_t`); what
+        :meth:`distance_from` and :meth:`jacobian_from` share.
+        """
+        return _axial_parts_t(pt - self.point[:, None], self.axis)
+
+    def distance_from(self, parts: tuple[Array, Array, Array]) -> Array:
+        """Return :meth:`distance_t` of the points whose :meth:`parts_t` are ``parts``."""
+        return parts[2] - self.radius
 
     @staticmethod
     def from_batch(h: CylinderBatch, i: int) -> CylinderModel:
         """Return the cylinder of row ``i``."""
         return CylinderModel(h.point[i].copy(), h.axis[i].copy(), float(h.radius[i]))
+
+    @cached_property
+    def basis(self) -> tuple[Array, Array]:
+        """Unit vectors ``e1, e2`` (3,) perpendicular to the axis (:func:`perpendicular_basis`).
+
+        Computed once per model: a least-squares refinement perturbs one model through
+        :meth:`from_vector` and :meth:`jacobian_t` at every evaluation.
+        """
+        return perpendicular_basis(self.axis)
 
     def to_vector(self) -> Array:
         """Return zeros (5,): x perturbs this model (axis tilt 2, axis shift 2, radius)."""
@@ -429,7 +481,7 @@ class CylinderModel:
 
     def from_vector(self, x: Array) -> CylinderModel:
         """Return this cylinder with axis tilt x[:2], shift x[2:4] [m], radius + x[4] [m]."""
-        e1, e2 = perpendicular_basis(self.axis)
+        e1, e2 = self.basis
         axis = unit3(self.axis + x[0] * e1 + x[1] * e2)
         point = self.point + x[2] * e1 + x[3] * e2
         return CylinderModel(point, axis, float(self.radius + x[4]))
@@ -440,12 +492,17 @@ class CylinderModel:
 
     def jacobian_t(self, x: Array, pt: Array) -> Array:
         """Return :meth:`jacobian` transposed, (P, M), for points given as (3, M)."""
-        e1, e2 = perpendicular_basis(self.axis)
         m = self.from_vector(x)
+        return self.jacobian_from(x, m, m.parts_t(pt))
+
+    def jacobian_from(self, x: Array, m: CylinderModel,  # noqa: ARG002 (protocol signature)
+                      parts: tuple[Array, Array, Array]) -> Array:
+        """Return :meth:`jacobian_t` at ``x`` given ``m = from_vector(x)`` and its ``parts``."""
+        e1, e2 = self.basis
         scale = float(np.linalg.norm(self.axis + x[0] * e1 + x[1] * e2))
-        radial, t, rho = _axial_parts_t(pt - m.point[:, None], m.axis)
+        radial, t, rho = parts
         u = _radial_units_t(radial, rho)
-        jt = np.empty((5, pt.shape[1]))
+        jt = np.empty((5, t.shape[0]))
         np.negative(e1 @ u, out=jt[2])
         np.negative(e2 @ u, out=jt[3])
         np.multiply(jt[2], t, out=jt[0])
@@ -505,7 +562,20 @@ class ConeModel:
 
     def distance_t(self, pt: Array) -> Array:
         """:meth:`distance` of points given as (3, M)."""
-        _, along, rn = _axial_parts_t(pt - self.apex[:, None], self.axis)
+        return self.distance_from(self.parts_t(pt))
+
+    def parts_t(self, pt: Array) -> tuple[Array, Array, Array, Array]:
+        """Offsets, radial parts (3, M), axial coordinates, radial distances (M,) [m].
+
+        Of points (3, M) from the apex and about the axis; what :meth:`distance_from` and
+        :meth:`jacobian_from` share.
+        """
+        v = pt - self.apex[:, None]
+        return (v, *_axial_parts_t(v, self.axis))
+
+    def distance_from(self, parts: tuple[Array, Array, Array, Array]) -> Array:
+        """Return :meth:`distance_t` of the points whose :meth:`parts_t` are ``parts``."""
+        _, _, along, rn = parts
         return rn * math.cos(self.half_angle) - along * math.sin(self.half_angle)
 
     @staticmethod
@@ -513,13 +583,22 @@ class ConeModel:
         """Return the cone of row ``i``."""
         return ConeModel(h.apex[i].copy(), h.axis[i].copy(), float(h.half_angle[i]))
 
+    @cached_property
+    def basis(self) -> tuple[Array, Array]:
+        """Unit vectors ``e1, e2`` (3,) perpendicular to the axis (:func:`perpendicular_basis`).
+
+        Computed once per model: a least-squares refinement perturbs one model through
+        :meth:`from_vector` and :meth:`jacobian_t` at every evaluation.
+        """
+        return perpendicular_basis(self.axis)
+
     def to_vector(self) -> Array:
         """Return zeros (6,): x perturbs this model (axis tilt 2, apex 3 [m], angle [rad])."""
         return np.zeros(6)
 
     def from_vector(self, x: Array) -> ConeModel:
         """Return this cone with axis tilt x[:2], apex + x[2:5] [m], angle + x[5] [rad]."""
-        e1, e2 = perpendicular_basis(self.axis)
+        e1, e2 = self.basis
         axis = unit3(self.axis + x[0] * e1 + x[1] * e2)
         return ConeModel(self.apex + x[2:5], axis, float(self.half_angle + x[5]))
 
@@ -529,15 +608,19 @@ class ConeModel:
 
     def jacobian_t(self, x: Array, pt: Array) -> Array:
         """Return :meth:`jacobian` transposed, (P, M), for points given as (3, M)."""
-        e1, e2 = perpendicular_basis(self.axis)
         m = self.from_vector(x)
+        return self.jacobian_from(x, m, m.parts_t(pt))
+
+    def jacobian_from(self, x: Array, m: ConeModel,
+                      parts: tuple[Array, Array, Array, Array]) -> Array:
+        """Return :meth:`jacobian_t` at ``x`` given ``m = from_vector(x)`` and its ``parts``."""
+        e1, e2 = self.basis
         scale = float(np.linalg.norm(self.axis + x[0] * e1 + x[1] * e2))
         a = m.axis
-        v = pt - m.apex[:, None]
-        radial, t, rho = _axial_parts_t(v, a)
+        v, radial, t, rho = parts
         u = _radial_units_t(radial, rho)
         c, s = math.cos(m.half_angle), math.sin(m.half_angle)
-        jt = np.empty((6, pt.shape[1]))
+        jt = np.empty((6, v.shape[1]))
         for row, e in enumerate((e1, e2)):  # axis tilts: d axis = (e - a (a . e)) / scale
             ve = (e @ v - t * float(a @ e)) / scale
             jt[row] = -c * t * (e @ u) / scale - s * ve
@@ -688,22 +771,29 @@ def ransac(model_cls: type[ModelT], points: Array, normals: Array, threshold: fl
 
 def _refine_plane(model: PlaneModel, points: Array, threshold: float, rounds: int
                   ) -> PlaneModel:
-    """Total least squares on the plane's inliers, re-selected ``rounds`` times."""
+    """Total least squares on the plane's inliers, re-selected ``rounds`` times.
+
+    A round whose inliers are those of the round before would fit the same points again
+    and return the same plane: the rounds stop there.
+    """
+    fitted = None
     for _ in range(rounds):
         inl = np.abs(model.distance(points)) <= threshold
-        if inl.sum() < _MIN_PLANE_POINTS:
+        if inl.sum() < _MIN_PLANE_POINTS or (fitted is not None and np.array_equal(inl, fitted)):
             break
-        model = fit_plane_svd(points[inl])
+        model, fitted = fit_plane_svd(points[inl]), inl
     return model
 
 
 def _least_squares(ref: RefinableModel, sub: Array) -> Any:
     """One Levenberg-Marquardt minimisation of the distances of ``sub`` (3, M) [m]."""
     # leastsq evaluates the function and the Jacobian once at x0 to check their
-    # shapes before MINPACK evaluates them there again: keep the last of each.
-    last: dict[str, tuple[Array, Array]] = {}
+    # shapes before MINPACK evaluates them there again: keep the last of each. MINPACK
+    # asks for the Jacobian where it has just evaluated the function: the model there and
+    # the points' parts about it (offsets, axial and radial parts) serve both.
+    last: dict[str, tuple[Array, Any]] = {}
 
-    def cached(name: str, compute: Callable[[Array], Array], x: Array) -> Array:
+    def cached(name: str, compute: Callable[[Array], Any], x: Array) -> Any:
         hit = last.get(name)
         if hit is not None and np.array_equal(hit[0], x):
             return hit[1]
@@ -711,11 +801,15 @@ def _least_squares(ref: RefinableModel, sub: Array) -> Any:
         last[name] = (x.copy(), value)
         return value
 
+    def at(v: Array) -> tuple[Any, Any]:
+        m = ref.from_vector(v)
+        return m, m.parts_t(sub)
+
     def fun(x: Array) -> Array:
-        return cached("f", lambda v: ref.from_vector(v).distance_t(sub), x)
+        return cached("f", lambda v: (lambda m, p: m.distance_from(p))(*cached("m", at, v)), x)
 
     def jac(x: Array) -> Array:
-        return cached("j", lambda v: ref.jacobian_t(v, sub), x)
+        return cached("j", lambda v: ref.jacobian_from(v, *cached("m", at, v)), x)
 
     # Levenberg-Marquardt (MINPACK lmder) with the Jacobian as (P, M) rows
     # (col_deriv) and variables scaled by its column norms, at most MAX_EVALUATIONS
