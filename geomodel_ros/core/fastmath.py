@@ -18,7 +18,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["row_norms", "centroid", "rows_finite", "take_rows", "robust_sigma", "knn", "knn_among",
-           "retain_freed_memory", "single_threaded_blas", "blas_libraries"]
+           "link_components", "retain_freed_memory", "single_threaded_blas", "blas_libraries"]
+
+#: :func:`link_components` first joins each point to its nearest this many neighbours
+#: (the point itself among them): on voxel grids those few links already hold nearly all
+#: of a surface together (Kinect frames' supports: 50,000 points in 2-7 pieces, 0-20 of
+#: the other links joining two of them), so the other links are only checked, not built
+#: into the graph.
+FIRST_LINKS = 6
 
 
 def row_norms(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -98,6 +105,54 @@ def knn_among(points: NDArray[np.float64], sel: NDArray[np.int64], neighbors: ND
         sub = take_rows(points, sel)
         out[again], out_sq[again] = knn(sub, k, return_sqdist=True, queries=sub[again])
     return out, out_sq
+
+
+def link_components(neighbors: NDArray[np.int64], keep: NDArray[np.bool_]
+                    ) -> tuple[int, NDArray[np.int32]]:
+    """Label the connected components of the links ``i -> neighbors[i, j]`` kept.
+
+    Parameters
+    ----------
+    neighbors : (M, k) int array
+        Neighbours of every point, indices 0 .. M-1 (nearest first, e.g. from :func:`knn`);
+        entries that are not kept may hold any value.
+    keep : (M, k) bool array
+        The links of the graph, where ``keep[i, j]`` (undirected: a link joins its two
+        ends either way).
+
+    Returns
+    -------
+    n, labels : int, (M,) int32 array
+        As :func:`scipy.sparse.csgraph.connected_components` (``directed=False``) gives
+        them for the whole graph: components numbered in the order of their first point.
+
+    Notes
+    -----
+    The components of the first :data:`FIRST_LINKS` columns are found first; a link of the
+    other columns then matters only where it joins two of them, and those few links are
+    joined on the graph of the components. Each step numbers its components by their
+    first member (scipy's traversal starts at every point not yet labelled, in order), so
+    the numbering is the whole graph's.
+    """
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m, k = neighbors.shape
+    f = min(FIRST_LINKS, k)
+    first, first_keep = neighbors[:, :f], keep[:, :f]
+    indptr = np.zeros(m + 1, dtype=np.int64)
+    np.cumsum(first_keep.sum(axis=1), out=indptr[1:])
+    graph = csr_matrix((np.ones(int(indptr[-1])), first[first_keep], indptr), shape=(m, m))
+    n, labels = connected_components(graph, directed=False)
+    if f == k:
+        return n, labels
+    other = labels[neighbors[:, f:]]
+    rows, cols = np.nonzero(keep[:, f:] & (other != labels[:, None]))
+    if not len(rows):
+        return n, labels
+    joins = csr_matrix((np.ones(len(rows)), (labels[rows], other[rows, cols])), shape=(n, n))
+    n, merged = connected_components(joins, directed=False)
+    return n, merged[labels]
 
 
 def take_rows(a: NDArray, which: NDArray) -> NDArray:
