@@ -21,11 +21,10 @@ __all__ = ["row_norms", "centroid", "rows_finite", "take_rows", "robust_sigma", 
            "link_components", "retain_freed_memory", "single_threaded_blas", "blas_libraries"]
 
 #: :func:`link_components` first joins each point to its nearest this many neighbours
-#: (the point itself among them): on voxel grids those few links already hold nearly all
-#: of a surface together (Kinect frames' supports: 50,000 points in 2-7 pieces, 0-20 of
-#: the other links joining two of them), so the other links are only checked, not built
-#: into the graph.
-FIRST_LINKS = 6
+#: (besides itself): on voxel grids those few links already hold nearly all of a surface
+#: together (osd_learn supports: 50,000 points in 4-9 pieces, 34-43 of the other links
+#: joining two of them), so the other links are only checked, not built into the graph.
+FIRST_LINKS = 4
 
 
 def row_norms(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -128,8 +127,9 @@ def link_components(neighbors: NDArray[np.int64], keep: NDArray[np.bool_]
 
     Notes
     -----
-    The components of the first :data:`FIRST_LINKS` columns are found first; a link of the
-    other columns then matters only where it joins two of them, and those few links are
+    The components of columns 1 .. :data:`FIRST_LINKS` (column 0 of a kNN list is the point
+    itself) are found first; a link of the other columns then matters only where it joins
+    two of them, and those few links are
     joined on the graph of the components. Each step numbers its components by their
     first member (scipy's traversal starts at every point not yet labelled, in order), so
     the numbering is the whole graph's.
@@ -138,20 +138,25 @@ def link_components(neighbors: NDArray[np.int64], keep: NDArray[np.bool_]
     from scipy.sparse.csgraph import connected_components
 
     m, k = neighbors.shape
-    f = min(FIRST_LINKS, k)
-    first, first_keep = neighbors[:, :f], keep[:, :f]
-    indptr = np.zeros(m + 1, dtype=np.int64)
-    np.cumsum(first_keep.sum(axis=1), out=indptr[1:])
-    graph = csr_matrix((np.ones(int(indptr[-1])), first[first_keep], indptr), shape=(m, m))
+    # Column 0 is the point itself in a kNN list: the first links are columns 1 .. f.
+    f = min(FIRST_LINKS, k - 1)
+    # Every row holds f entries: a link not kept becomes a loop on its own point, which
+    # joins nothing (no masked gather, no row counts).
+    first = np.where(keep[:, 1:f + 1], neighbors[:, 1:f + 1], np.arange(m)[:, None])
+    graph = csr_matrix((np.ones(m * f), first.ravel(), np.arange(0, m * f + 1, f)),
+                       shape=(m, m))
     n, labels = connected_components(graph, directed=False)
-    if f == k:
+    a, b = [], []
+    for cols in (slice(0, 1), slice(f + 1, k)):
+        other = np.take(labels, neighbors[:, cols])
+        cross = np.flatnonzero(keep[:, cols] & (other != labels[:, None]))
+        a.append(labels[cross // other.shape[1]])
+        b.append(other.ravel()[cross])
+    a, b = np.concatenate(a), np.concatenate(b)
+    if not len(a):
         return n, labels
-    other = labels[neighbors[:, f:]]
-    rows, cols = np.nonzero(keep[:, f:] & (other != labels[:, None]))
-    if not len(rows):
-        return n, labels
-    joins = csr_matrix((np.ones(len(rows)), (labels[rows], other[rows, cols])), shape=(n, n))
-    n, merged = connected_components(joins, directed=False)
+    n, merged = connected_components(csr_matrix((np.ones(len(a)), (a, b)), shape=(n, n)),
+                                     directed=False)
     return n, merged[labels]
 
 
