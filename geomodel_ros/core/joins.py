@@ -640,16 +640,19 @@ def _round_footprint(xy: NDArray[np.float64], n_xy: NDArray[np.float64]
     if r2 <= 0:
         return None
     r = float(np.sqrt(r2))
+    # The tests in order of their cost; the first that fails decides.
+    if not r < ROUND_MAX_RADIUS:
+        return None
     offsets = xy - center
     radial = offsets / np.maximum(np.linalg.norm(offsets, axis=1), _TINY)[:, None]
-    spread = np.median(np.abs(np.linalg.norm(offsets, axis=1) - r))
+    if not np.median(np.abs(np.linalg.norm(offsets, axis=1) - r)) < ROUND_MAX_SPREAD * r:
+        return None
     n_xy = n_xy / np.maximum(np.linalg.norm(n_xy, axis=1), _TINY)[:, None]
-    along = np.median(np.abs(np.einsum("ij,ij->i", n_xy, radial)))
+    if not np.median(np.abs(np.einsum("ij,ij->i", n_xy, radial))) > ROUND_MIN_RADIAL_ALIGNMENT:
+        return None
     ang = np.arctan2(radial[:, 1], radial[:, 0])
     arc = np.ptp(np.unwrap(np.sort(ang))) if len(ang) > 1 else 0.0
-    if spread < ROUND_MAX_SPREAD * r and along > ROUND_MIN_RADIAL_ALIGNMENT \
-            and r < ROUND_MAX_RADIUS and arc > ROUND_MIN_ARC \
-            and _turning_bins(n_xy) >= ROUND_MIN_TURNING_BINS:
+    if arc > ROUND_MIN_ARC and _turning_bins(n_xy) >= ROUND_MIN_TURNING_BINS:
         return center, r
     return None
 
