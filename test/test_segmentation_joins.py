@@ -396,6 +396,43 @@ def test_patch_normals_keep_each_face_apart_at_a_crease():
     assert err.max() < 1e-6
 
 
+
+def test_patch_normals_replace_only_the_normals_whose_neighbourhood_is_off_its_plane():
+    from geomodel_ros.core.faces import estimate_normals, smallest_eigenpairs
+    from geomodel_ros.core.segmentation import PATCH_NORMAL_MIN_NEIGHBORS, _patch_normals
+
+    # The floor-and-wall crease with 0.3 mm of noise along z: at the crease the
+    # neighbourhoods straddle both faces (far off any plane) and take their own face's
+    # normal, each the plane fit of its own-patch neighbours; inside the faces they lie
+    # within the noise (given as 0.6 mm: twice the floor's) and keep the given normals
+    # exactly.
+    rng = np.random.default_rng(3)
+    floor = _grid(-0.06, -0.002, 0.0)
+    wall = _grid(-0.06, -0.002, 0.0)[:, [2, 1, 0]] * np.array([1.0, 1.0, -1.0])
+    points = np.vstack([floor, wall]) - np.array([-1.0, 0.0, 1.0])
+    points[:, 2] += rng.normal(0.0, 0.0003, len(points))
+    patches = np.r_[np.zeros(len(floor)), np.ones(len(wall))].astype(np.int64)
+    raw, _, nbrs, _ = estimate_normals(points, 16, return_sqdist=True)
+    refined = _patch_normals(points, raw, nbrs, patches, np.full(len(points), 0.0006))
+    changed = np.flatnonzero(np.any(refined != raw, axis=1))
+    straddle = np.flatnonzero((patches[nbrs] != patches[:, None]).sum(axis=1) >= 4)
+    assert len(straddle) and np.isin(straddle, changed).all()
+    # Every replaced normal is the plane fit of its neighbours on its own patch (the point
+    # itself counted in place of each one on the other), towards the sensor.
+    for i in changed:
+        same = patches[nbrs[i]] == patches[i]
+        assert same.sum() >= PATCH_NORMAL_MIN_NEIGHBORS
+        hood = points[np.where(same, nbrs[i], i)]
+        q = hood - hood.mean(axis=0)
+        _, v = smallest_eigenpairs((q.T @ q)[None] / len(hood))
+        assert abs(abs(float(v[0] @ refined[i])) - 1.0) < 1e-9
+        assert refined[i] @ points[i] < 0
+    # Far from the crease (every neighbour on the own face) nothing changes.
+    inside = np.flatnonzero((patches[nbrs] == patches[:, None]).all(axis=1)
+                            & (np.abs(points[:, 0] + 1.0) > 0.02)
+                            & (np.abs(points[:, 2] + 1.0) > 0.02))
+    assert len(inside) > 100 and not np.isin(inside, changed).any()
+
 class _QuadraticNoise:
     """Depth noise sigma = b z^2 [m] (a DepthNoise)."""
 
