@@ -19,8 +19,8 @@ import pytest
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core.joins import (DisjointSets, _closest_gap, _gap_candidates, _round_footprint,
-                                     _Segments, merge_patches, segment_members)
+from geomodel_ros.core.joins import (GAP_DIRECT_POINTS, DisjointSets, _closest_gap, _gap_candidates,
+                                     _round_footprint, _Segments, merge_patches, segment_members)
 from geomodel_ros.core.params import ModelingParams, load_params_file
 from geomodel_ros.core.segmentation import segment_scene
 from geomodel_ros.tools.synth import SENSOR_NOISE, Box, Cylinder, Sphere, apply_noise
@@ -548,16 +548,18 @@ def test_segment_members_are_each_segments_valid_rows_in_order():
 @pytest.mark.parametrize("seed", range(8))
 def test_closest_gap_is_the_brute_force_nearest_pair(seed):
     # Two random blobs of grid points (coordinates on a 1 mm grid: many equal distances)
-    # 2-20 cm apart: the gap's ends are the brute-force nearest pair, the first of the
-    # smaller segment's points in its order among equally near ones, or no gap when the
-    # nearest pair is within a link or beyond seg_max_occlusion_gap.
+    # 2-20 cm apart, the smaller one large enough to be searched through its cells: the
+    # gap's ends are the brute-force nearest pair, the first of the smaller segment's
+    # points in its order among equally near ones, or no gap when the nearest pair is
+    # within a link or beyond seg_max_occlusion_gap.
     rng = np.random.default_rng(seed)
     params = ModelingParams()
-    a = np.round(rng.normal(0.0, 0.03, (300, 3)), 3) + [0.0, 0.0, 1.0]
-    b = np.round(rng.normal(0.0, 0.05, (700, 3)), 3) + [rng.uniform(0.1, 0.3), 0.0, 1.0]
+    n_a = GAP_DIRECT_POINTS + 200  # searched through its cells
+    a = np.round(rng.normal(0.0, 0.03, (n_a, 3)), 3) + [0.0, 0.0, 1.0]
+    b = np.round(rng.normal(0.0, 0.05, (900, 3)), 3) + [rng.uniform(0.1, 0.3), 0.0, 1.0]
     points = np.vstack([a, b])
-    comp = np.repeat([0, 1], [300, 700])
-    segs = _Segments(points, comp, np.ones(1000, dtype=bool))
+    comp = np.repeat([0, 1], [n_a, 900])
+    segs = _Segments(points, comp, np.ones(len(points), dtype=bool))
     d = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
     k = int(np.argmin(d.min(axis=1)))
     length = d[k].min()

@@ -85,6 +85,11 @@ OCCLUSION_GAP_SAMPLES.setflags(write=False)
 #: bounds all its points' distances, so only the few cells facing the other segment are
 #: searched point by point (2: cells of 2 cm with the defaults, tens of points each).
 GAP_CELL_LINKS = 2.0
+#: ... unless the smaller segment has at most this many points: then all of them are
+#: searched at once, as the cells' own search costs about as much (measured on the pairs
+#: of osd_learn learn0/20/40 and the paper's scene3: 0.05-0.3 ms a pair either way below
+#: 330 points; above 1000 the cells took 2-2.5 ms where the search of all took 12-13 ms).
+GAP_DIRECT_POINTS = 400
 #: Distances within this [m] of the nearest are kept as candidates: far above the
 #: rounding of a distance between points metres from the origin (about 1e-15 m).
 GAP_MARGIN = 1e-9
@@ -458,10 +463,11 @@ def _closest_gap(segs: _Segments, a: int, b: int, params: ModelingParams) -> _Ga
     small, big = (a, b) if len(segs.members[a]) <= len(segs.members[b]) else (b, a)
     rows = segs.members[small]
     # Only gaps up to seg_max_occlusion_gap matter: farther pairs come back inf.
-    rows = rows[_gap_candidates(segs.points[rows], segs.tree(big), GAP_CELL_LINKS * link,
-                                params.seg_max_occlusion_gap)]
-    if not len(rows):
-        return None
+    if len(rows) > GAP_DIRECT_POINTS:
+        rows = rows[_gap_candidates(segs.points[rows], segs.tree(big), GAP_CELL_LINKS * link,
+                                    params.seg_max_occlusion_gap)]
+        if not len(rows):
+            return None
     d, j = segs.tree(big).query(segs.points[rows], k=1,
                                 distance_upper_bound=params.seg_max_occlusion_gap)
     k = int(np.argmin(d))
