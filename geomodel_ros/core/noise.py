@@ -250,8 +250,7 @@ def _neighbourhoods(sub: NDArray[np.float64], fraction: float
     neighbourhoods would bias it low.
     """
     k = min(NOISE_NEIGHBORS, len(sub))
-    # Each query is answered alone: split over the cores, the same neighbours.
-    dist, nb = cKDTree(sub).query(sub[:NOISE_QUERIES], k=k, workers=-1)
+    dist, nb = cKDTree(sub).query(sub[:NOISE_QUERIES], k=k)
     hood = np.take(sub, nb, axis=0)                            # (Q, k, 3)
     centre = hood.mean(axis=1)
     d = hood - centre[:, None, :]

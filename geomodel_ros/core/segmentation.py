@@ -724,7 +724,7 @@ def _image_seam(points: NDArray[np.float64], rows: NDArray[np.int64],
     ranges = np.linalg.norm(points, axis=1)
     dirs = points[rows] / np.maximum(ranges[rows], np.finfo(float).tiny)[:, None]
     k = min(SEAM_NEIGHBORS, len(rows))
-    angle, nb = cKDTree(dirs).query(dirs, k=k, workers=-1)  # the same split over the cores
+    angle, nb = cKDTree(dirs).query(dirs, k=k)
     i = np.repeat(rows, k)
     j = rows[nb.ravel()]
     near = angle.ravel() * np.minimum(ranges[i], ranges[j]) <= SEAM_RADIUS_SPACINGS * spacing
