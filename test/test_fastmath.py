@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from geomodel_ros.core.fastmath import knn, knn_among
+import pytest
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
+
+from geomodel_ros.core.fastmath import FIRST_LINKS, knn, knn_among, link_components
 
 
 def test_knn_gives_the_nearest_points_in_order_with_their_squared_distances():
@@ -70,3 +74,49 @@ def test_knn_among_never_returns_a_neighbour_outside_the_subset():
     # Fewer subset points than neighbours asked for: all of them.
     got, _ = knn_among(p, np.array([3, 7]), nb, sq, 4)
     np.testing.assert_array_equal(got, [[0, 1], [1, 0]])
+
+
+def _scipy_components(nb, keep):
+    m = len(nb)
+    rows = np.repeat(np.arange(m), nb.shape[1])[keep.ravel()]
+    graph = csr_matrix((np.ones(len(rows)), (rows, nb[keep])), shape=(m, m))
+    return connected_components(graph, directed=False)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_link_components_are_scipys_on_the_whole_graph(seed):
+    # Random clusters linked by their nearest points, links dropped at random (so the
+    # first columns alone leave pieces that only the later columns join), some links of
+    # the later columns pointing to arbitrary values where they are not kept: the same
+    # components, numbered the same way, as scipy gives for all the links.
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(0.0, 1.0, (12, 3))
+    p = (centres[rng.integers(0, 12, 800)] + rng.normal(0.0, 0.03, (800, 3)))
+    nb, sq = knn(p, 16, return_sqdist=True)
+    keep = (sq <= 0.03 ** 2) & (rng.random(nb.shape) < 0.6)
+    nb = np.where(keep | (rng.random(nb.shape) < 0.5), nb, -1)
+    n, labels = link_components(nb, keep)
+    want_n, want = _scipy_components(nb, keep)
+    assert n == want_n and 1 < n < 800
+    np.testing.assert_array_equal(labels, want)
+    # The later columns did join pieces of the first ones here.
+    first_n, _ = _scipy_components(nb[:, 1:FIRST_LINKS + 1], keep[:, 1:FIRST_LINKS + 1])
+    assert first_n > n
+
+
+def test_link_components_join_through_a_late_link_only():
+    # Points 0-1 and 2-3 are linked in the first column; the only link between the two
+    # pairs is 1 -> 2 in the last column: one component. Without it, two, numbered by
+    # their first point.
+    k = FIRST_LINKS + 2
+    nb = np.tile(np.arange(4)[:, None], (1, k))
+    nb[0, 1], nb[1, 1], nb[2, 1], nb[3, 1] = 1, 0, 3, 2
+    nb[1, -1] = 2
+    keep = np.zeros((4, k), dtype=bool)
+    keep[:, :2] = True
+    keep[1, -1] = True
+    n, labels = link_components(nb, keep)
+    assert n == 1 and labels.tolist() == [0, 0, 0, 0]
+    keep[1, -1] = False
+    n, labels = link_components(nb, keep)
+    assert n == 2 and labels.tolist() == [0, 0, 1, 1]

@@ -17,8 +17,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
-from geomodel_ros.core.joins import DisjointSets, _round_footprint, merge_patches
+from geomodel_ros.core.joins import (GAP_DIRECT_POINTS, DisjointSets, _closest_gap, _gap_candidates,
+                                     _round_footprint, _Segments, merge_patches, segment_members)
 from geomodel_ros.core.params import ModelingParams, load_params_file
 from geomodel_ros.core.segmentation import segment_scene
 from geomodel_ros.tools.synth import SENSOR_NOISE, Box, Cylinder, Sphere, apply_noise
@@ -394,6 +396,43 @@ def test_patch_normals_keep_each_face_apart_at_a_crease():
     assert err.max() < 1e-6
 
 
+
+def test_patch_normals_replace_only_the_normals_whose_neighbourhood_is_off_its_plane():
+    from geomodel_ros.core.faces import estimate_normals, smallest_eigenpairs
+    from geomodel_ros.core.segmentation import PATCH_NORMAL_MIN_NEIGHBORS, _patch_normals
+
+    # The floor-and-wall crease with 0.3 mm of noise along z: at the crease the
+    # neighbourhoods straddle both faces (far off any plane) and take their own face's
+    # normal, each the plane fit of its own-patch neighbours; inside the faces they lie
+    # within the noise (given as 0.6 mm: twice the floor's) and keep the given normals
+    # exactly.
+    rng = np.random.default_rng(3)
+    floor = _grid(-0.06, -0.002, 0.0)
+    wall = _grid(-0.06, -0.002, 0.0)[:, [2, 1, 0]] * np.array([1.0, 1.0, -1.0])
+    points = np.vstack([floor, wall]) - np.array([-1.0, 0.0, 1.0])
+    points[:, 2] += rng.normal(0.0, 0.0003, len(points))
+    patches = np.r_[np.zeros(len(floor)), np.ones(len(wall))].astype(np.int64)
+    raw, _, nbrs, _ = estimate_normals(points, 16, return_sqdist=True)
+    refined = _patch_normals(points, raw, nbrs, patches, np.full(len(points), 0.0006))
+    changed = np.flatnonzero(np.any(refined != raw, axis=1))
+    straddle = np.flatnonzero((patches[nbrs] != patches[:, None]).sum(axis=1) >= 4)
+    assert len(straddle) and np.isin(straddle, changed).all()
+    # Every replaced normal is the plane fit of its neighbours on its own patch (the point
+    # itself counted in place of each one on the other), towards the sensor.
+    for i in changed:
+        same = patches[nbrs[i]] == patches[i]
+        assert same.sum() >= PATCH_NORMAL_MIN_NEIGHBORS
+        hood = points[np.where(same, nbrs[i], i)]
+        q = hood - hood.mean(axis=0)
+        _, v = smallest_eigenpairs((q.T @ q)[None] / len(hood))
+        assert abs(abs(float(v[0] @ refined[i])) - 1.0) < 1e-9
+        assert refined[i] @ points[i] < 0
+    # Far from the crease (every neighbour on the own face) nothing changes.
+    inside = np.flatnonzero((patches[nbrs] == patches[:, None]).all(axis=1)
+                            & (np.abs(points[:, 0] + 1.0) > 0.02)
+                            & (np.abs(points[:, 2] + 1.0) > 0.02))
+    assert len(inside) > 100 and not np.isin(inside, changed).any()
+
 class _QuadraticNoise:
     """Depth noise sigma = b z^2 [m] (a DepthNoise)."""
 
@@ -495,3 +534,54 @@ def test_a_link_takes_the_smaller_step_of_its_two_ends():
     assert not no_step.any()
     # Both ends noisy (10 mm): 3 mm is within their noise.
     assert _step_free(points, normals, np.array([0]), np.array([1]), np.full(2, 0.01))[2][0]
+
+
+def test_segment_members_are_each_segments_valid_rows_in_order():
+    comp = np.array([3, 1, 3, -1, 1, 7, 3, 7])
+    valid = np.array([True, True, True, False, False, True, True, True])
+    got = segment_members(comp, valid)
+    assert list(got) == [1, 3, 7]
+    assert [g.tolist() for g in got.values()] == [[1], [0, 2, 6], [5, 7]]
+    assert segment_members(comp, np.zeros(8, dtype=bool)) == {}
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_closest_gap_is_the_brute_force_nearest_pair(seed):
+    # Two random blobs of grid points (coordinates on a 1 mm grid: many equal distances)
+    # 2-20 cm apart, the smaller one large enough to be searched through its cells: the
+    # gap's ends are the brute-force nearest pair, the first of the smaller segment's
+    # points in its order among equally near ones, or no gap when the nearest pair is
+    # within a link or beyond seg_max_occlusion_gap.
+    rng = np.random.default_rng(seed)
+    params = ModelingParams()
+    n_a = GAP_DIRECT_POINTS + 200  # searched through its cells
+    a = np.round(rng.normal(0.0, 0.03, (n_a, 3)), 3) + [0.0, 0.0, 1.0]
+    b = np.round(rng.normal(0.0, 0.05, (900, 3)), 3) + [rng.uniform(0.1, 0.3), 0.0, 1.0]
+    points = np.vstack([a, b])
+    comp = np.repeat([0, 1], [n_a, 900])
+    segs = _Segments(points, comp, np.ones(len(points), dtype=bool))
+    d = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+    k = int(np.argmin(d.min(axis=1)))
+    length = d[k].min()
+    gap = _closest_gap(segs, 1, 0, params)
+    link = params.seg_max_edge_factor * params.seg_voxel_size
+    if length <= link or length > params.seg_max_occlusion_gap:
+        assert gap is None
+        return
+    assert gap is not None and (gap.small, gap.big, gap.pa) == (0, 1, k)
+    assert gap.length == pytest.approx(length, abs=1e-12)
+    assert np.linalg.norm(points[gap.pb] - a[k]) == pytest.approx(length, abs=1e-12)
+
+
+def test_gap_candidates_keep_every_equally_near_point():
+    # A row of points 1 cm apart along x facing a single point 5 cm above the row's middle
+    # pair: both middle points are equally near and both are candidates; the far ends of
+    # the row (cells farther than the nearest cell's reach) are not.
+    q = np.column_stack([np.arange(-0.105, 0.11, 0.01), np.zeros(22), np.zeros(22)])
+    tree = cKDTree(np.array([[0.0, 0.05, 0.0]]))
+    got = _gap_candidates(q, tree, 0.02, 0.15)
+    assert {10, 11} <= set(got.tolist())
+    assert 0 not in got and 21 not in got
+    assert np.all(np.diff(got) > 0)
+    # Nothing within the largest gap: no candidates.
+    assert len(_gap_candidates(q, tree, 0.02, 0.01)) == 0

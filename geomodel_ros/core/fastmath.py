@@ -18,7 +18,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["row_norms", "centroid", "rows_finite", "take_rows", "robust_sigma", "knn", "knn_among",
-           "retain_freed_memory", "single_threaded_blas", "blas_libraries"]
+           "link_components", "retain_freed_memory", "single_threaded_blas", "blas_libraries"]
+
+#: :func:`link_components` first joins each point to its nearest this many neighbours
+#: (besides itself): on voxel grids those few links already hold nearly all of a surface
+#: together (osd_learn supports: 50,000 points in 4-9 pieces, 34-43 of the other links
+#: joining two of them), so the other links are only checked, not built into the graph.
+FIRST_LINKS = 4
 
 
 def row_norms(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -98,6 +104,60 @@ def knn_among(points: NDArray[np.float64], sel: NDArray[np.int64], neighbors: ND
         sub = take_rows(points, sel)
         out[again], out_sq[again] = knn(sub, k, return_sqdist=True, queries=sub[again])
     return out, out_sq
+
+
+def link_components(neighbors: NDArray[np.int64], keep: NDArray[np.bool_]
+                    ) -> tuple[int, NDArray[np.int32]]:
+    """Label the connected components of the links ``i -> neighbors[i, j]`` kept.
+
+    Parameters
+    ----------
+    neighbors : (M, k) int array
+        Neighbours of every point, indices 0 .. M-1 (nearest first, e.g. from :func:`knn`);
+        entries that are not kept may hold any value.
+    keep : (M, k) bool array
+        The links of the graph, where ``keep[i, j]`` (undirected: a link joins its two
+        ends either way).
+
+    Returns
+    -------
+    n, labels : int, (M,) int32 array
+        As :func:`scipy.sparse.csgraph.connected_components` (``directed=False``) gives
+        them for the whole graph: components numbered in the order of their first point.
+
+    Notes
+    -----
+    The components of columns 1 .. :data:`FIRST_LINKS` (column 0 of a kNN list is the point
+    itself) are found first; a link of the other columns then matters only where it joins
+    two of them, and those few links are
+    joined on the graph of the components. Each step numbers its components by their
+    first member (scipy's traversal starts at every point not yet labelled, in order), so
+    the numbering is the whole graph's.
+    """
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m, k = neighbors.shape
+    # Column 0 is the point itself in a kNN list: the first links are columns 1 .. f.
+    f = min(FIRST_LINKS, k - 1)
+    # Every row holds f entries: a link not kept becomes a loop on its own point, which
+    # joins nothing (no masked gather, no row counts).
+    first = np.where(keep[:, 1:f + 1], neighbors[:, 1:f + 1], np.arange(m)[:, None])
+    graph = csr_matrix((np.ones(m * f), first.ravel(), np.arange(0, m * f + 1, f)),
+                       shape=(m, m))
+    n, labels = connected_components(graph, directed=False)
+    a, b = [], []
+    for cols in (slice(0, 1), slice(f + 1, k)):
+        other = np.take(labels, neighbors[:, cols])
+        cross = np.flatnonzero(keep[:, cols] & (other != labels[:, None]))
+        a.append(labels[cross // other.shape[1]])
+        b.append(other.ravel()[cross])
+    a, b = np.concatenate(a), np.concatenate(b)
+    if not len(a):
+        return n, labels
+    n, merged = connected_components(csr_matrix((np.ones(len(a)), (a, b)), shape=(n, n)),
+                                     directed=False)
+    return n, merged[labels]
 
 
 def take_rows(a: NDArray, which: NDArray) -> NDArray:

@@ -46,7 +46,7 @@ from numpy.typing import NDArray
 from scipy.optimize import nnls
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core.fastmath import rows_finite
+from geomodel_ros.core.fastmath import rows_finite, take_rows
 from geomodel_ros.core.input import in_range
 from geomodel_ros.core.params import ModelingParams
 
@@ -220,7 +220,7 @@ def _sample(points: NDArray[np.float64], rng: np.random.Generator, max_range: fl
     if fraction < 1.0:
         rows = rows[rng.random(len(rows)) < fraction]
     # Random order: the first NOISE_QUERIES rows are the neighbourhoods' centres.
-    return points[rows[rng.permutation(len(rows))]], fraction
+    return take_rows(points, rows[rng.permutation(len(rows))]), fraction
 
 
 def _neighbourhoods(sub: NDArray[np.float64], fraction: float
@@ -251,7 +251,7 @@ def _neighbourhoods(sub: NDArray[np.float64], fraction: float
     """
     k = min(NOISE_NEIGHBORS, len(sub))
     dist, nb = cKDTree(sub).query(sub[:NOISE_QUERIES], k=k)
-    hood = sub[nb]                                             # (Q, k, 3)
+    hood = np.take(sub, nb, axis=0)                            # (Q, k, 3)
     centre = hood.mean(axis=1)
     d = hood - centre[:, None, :]
     w, v = np.linalg.eigh(np.matmul(d.transpose(0, 2, 1), d) / k)

@@ -364,13 +364,15 @@ def _claim_contact_rims(p: NDArray[np.float64], finite: NDArray[np.int64],
         Plane of each support, normal towards the sensor.
     """
     planes: dict[int, tuple[NDArray[np.float64], float]] = {}
+    own_labels = labels[finite]
     for sid in range(n_supports):
-        own = np.flatnonzero(labels[finite] == sid)
+        own = np.flatnonzero(own_labels == sid)
         if len(own) > REFIT_MAX_POINTS:
             own = rng.choice(own, REFIT_MAX_POINTS, replace=False)
         nrm, d = planes[sid] = support_plane_equation(take_rows(p, own), params)
-        obj_pts = labels[finite] >= n_supports
-        near = obj_pts & (np.abs(p @ nrm + d) <= params.seg_plane_threshold)
+        obj = np.flatnonzero(own_labels >= n_supports)
+        near = obj[np.abs(take_rows(p, obj) @ nrm + d) <= params.seg_plane_threshold]
+        own_labels[near] = sid
         labels[finite[near]] = sid
     return planes
 
@@ -909,11 +911,15 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
     """
     same = patches[nbrs] == patches[:, None]
     off_plane, _ = smallest_eigenpairs_sym(*neighborhood_moments(points, nbrs))
-    own = np.where(same, nbrs, np.arange(len(points))[:, None])
-    _, refined = smallest_eigenpairs_sym(*neighborhood_moments(points, own))
-    refined[np.einsum("ij,ij->i", refined, points) > 0] *= -1
-    keep = (same.sum(axis=1) < PATCH_NORMAL_MIN_NEIGHBORS) | (off_plane <= noise * noise)
-    refined[keep] = normals[keep]
+    # Only the points that do not keep their normal are refitted (row by row, the same
+    # values as refitting all of them).
+    rows = np.flatnonzero((same.sum(axis=1) >= PATCH_NORMAL_MIN_NEIGHBORS)
+                          & (off_plane > noise * noise))
+    own = np.where(same[rows], nbrs[rows], rows[:, None])
+    _, own_normals = smallest_eigenpairs_sym(*neighborhood_moments(points, own))
+    own_normals[np.einsum("ij,ij->i", own_normals, points[rows]) > 0] *= -1
+    refined = normals.copy()
+    refined[rows] = own_normals
     return refined
 
 

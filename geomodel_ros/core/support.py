@@ -11,10 +11,8 @@ import math
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse.csgraph import connected_components
 
-from geomodel_ros.core.faces import link_graph
-from geomodel_ros.core.fastmath import take_rows
+from geomodel_ros.core.fastmath import link_components, take_rows
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, ransac, refine
 
@@ -57,7 +55,7 @@ def _components(n: int, sel: NDArray[np.int64], radius: float, neighbors: NDArra
     local[sel] = np.arange(m)
     nb = local[take_rows(neighbors, sel)]
     keep = (nb >= 0) & (take_rows(sqdist, sel) <= radius * radius)
-    return connected_components(link_graph(nb, keep, m), directed=False)
+    return link_components(nb, keep)
 
 
 def support_planes(wp: NDArray[np.float64], wn: NDArray[np.float64],
