@@ -23,7 +23,11 @@ the same share), so exactly one of them accepts a truncated cone. Open cups and 
 candidates through their curvatures. Where the surface looks conical (normals at a
 constant angle, k1 varying) the frustum comes before the cylinder, which would fit a
 tapered side only loosely (a bowl as a cylinder of its mean radius); where it looks
-cylindrical (normals perpendicular to the plane, k1 constant) it comes last.
+cylindrical (normals perpendicular to the plane, k1 constant) it comes last -- unless the
+side's normals, though within the tolerance of the perpendicular (which under correlated
+sensor noise holds a frustum's half-angle), all lean to one side of it by at least the
+least half-angle a cone or frustum may have (:func:`side_tilt`, ``frustum_tilt``): then the
+frustum comes first and its unit's taper test tells the two apart.
 
 An object no rule accepts gets no candidate and becomes ``unknown``.
 """
