@@ -23,7 +23,11 @@ the same share), so exactly one of them accepts a truncated cone. Open cups and 
 candidates through their curvatures. Where the surface looks conical (normals at a
 constant angle, k1 varying) the frustum comes before the cylinder, which would fit a
 tapered side only loosely (a bowl as a cylinder of its mean radius); where it looks
-cylindrical (normals perpendicular to the plane, k1 constant) it comes last.
+cylindrical (normals perpendicular to the plane, k1 constant) it comes last -- unless the
+side's normals, though within the tolerance of the perpendicular (which under correlated
+sensor noise holds a frustum's half-angle), all lean to one side of it by at least the
+least half-angle a cone or frustum may have (:func:`side_tilt`, ``frustum_tilt``): then the
+frustum comes first and its unit's taper test tells the two apart.
 
 An object no rule accepts gets no candidate and becomes ``unknown``.
 """
@@ -38,7 +42,7 @@ from numpy.typing import NDArray
 
 from geomodel_ros.core.params import ModelingParams
 
-__all__ = ["FaceInfo", "GraphDecision", "curvature_candidates", "decide_type"]
+__all__ = ["FaceInfo", "GraphDecision", "curvature_candidates", "decide_type", "side_tilt"]
 
 
 @dataclass(frozen=True)
@@ -142,7 +146,22 @@ def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: f
                          "planar faces neither perpendicular nor parallel to the main face")
 
 
-def _mixed_decision(faces: list[FaceInfo], tol: float) -> GraphDecision:
+def side_tilt(normals: NDArray[np.float64], axis: NDArray[np.float64]) -> float:
+    """Return the tilt [rad] of a round side's normals (M, 3) to one side of ``axis`` (3,).
+
+    The arcsine of the median of their components along the axis, signed: the point
+    normals are oriented towards the sensor, so a frustum's (or cone's) side normals all
+    lean towards its top, by its half-angle, while a cylinder's scatter to both sides of
+    the perpendicular by the noise and their median stays near zero. The unsigned
+    angles (:func:`_mixed_decision`'s perpendicularity test) grow with the noise instead.
+    """
+    if not len(normals):
+        return 0.0
+    return math.asin(min(1.0, abs(float(np.median(normals @ axis)))))
+
+
+def _mixed_decision(faces: list[FaceInfo], tol: float,
+                    frustum_tilt: float | None = None) -> GraphDecision:
     planar = [i for i, f in enumerate(faces) if f.planar]
     main = max(planar, key=lambda i: faces[i].size)
     n0 = faces[main].normal
@@ -158,6 +177,11 @@ def _mixed_decision(faces: list[FaceInfo], tol: float) -> GraphDecision:
     median = float(np.median(angles))
     q1, q3 = np.percentile(angles, [25, 75])
     if median <= tol:
+        tilt = side_tilt(curved_normals, n0)
+        if frustum_tilt is not None and tilt >= frustum_tilt:
+            return GraphDecision("mixed", ("frustum", "cylinder", "cone"), main, (),
+                                 "curved normals perpendicular to the plane normal, tilted "
+                                 f"{math.degrees(tilt):.1f} deg to one side")
         return GraphDecision("mixed", ("cylinder", "cone", "frustum"), main, (),
                              "curved normals perpendicular to the plane normal")
     if q3 - q1 <= CONE_ANGLE_SPREAD * tol:
@@ -207,8 +231,8 @@ def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
                 coplanar_tol: float, curvature: tuple[NDArray, NDArray] | None = None,
                 sphere_ratio: float = ModelingParams.sphere_curvature_ratio,
                 developable_ratio: float = ModelingParams.developable_curvature_ratio,
-                cone_variation: float = ModelingParams.cone_curvature_variation
-                ) -> GraphDecision:
+                cone_variation: float = ModelingParams.cone_curvature_variation,
+                frustum_tilt: float | None = None) -> GraphDecision:
     """Apply the model graph.
 
     Parameters
@@ -226,6 +250,11 @@ def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
         See :func:`curvature_candidates`; defaults: the :class:`ModelingParams` defaults
         ``sphere_curvature_ratio``, ``developable_curvature_ratio`` and
         ``cone_curvature_variation``.
+    frustum_tilt : float [rad], optional
+        A planar + curved object whose curved normals pass as perpendicular to the plane
+        but lean to one side of it by at least this angle (:func:`side_tilt`) gets the
+        frustum first: its unit's taper test (``fitting.frustum``) then tells a tapered
+        side from a cylinder's. None (the default) keeps the cylinder first.
 
     Returns
     -------
@@ -245,7 +274,7 @@ def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
             d = _planar_decision(faces, adjacency, tol, coplanar_tol)
             return GraphDecision(d.category, d.candidates, d.main_face, d.axis_of_face,
                                  d.reason + " (curved slivers ignored)")
-        return _mixed_decision(faces, tol)
+        return _mixed_decision(faces, tol, frustum_tilt)
     if curvature is None:
         return GraphDecision("curved", ("cylinder", "cone", "sphere", "frustum"), -1, (),
                              "all faces curved")

@@ -90,11 +90,18 @@ FLAT_TYPES = (PrimitiveType.PLANE, PrimitiveType.CUBOID)
 def graph_decision(infos: list[FaceInfo], adjacency: NDArray[np.bool_],
                    curvature: tuple[NDArray, NDArray] | None,
                    params: ModelingParams) -> GraphDecision:
-    """Return the model graph's decision with the thresholds of ``params``."""
+    """Return the model graph's decision with the thresholds of ``params``.
+
+    With a measured noise (``noise_model = auto``) a side that passes as perpendicular to
+    its cap but leans to one side of it by at least ``min_cone_half_angle`` (the least
+    half-angle the cone and frustum units accept) is tried as a frustum first, and the
+    frustum unit's taper test decides; ``fixed`` keeps the cylinder first.
+    """
+    tilt = params.min_cone_half_angle if params.noise_model == "auto" else None
     return decide_type(infos, adjacency, params.angle_tolerance,
                        COPLANAR_FACTOR * params.ransac_threshold, curvature,
                        params.sphere_curvature_ratio, params.developable_curvature_ratio,
-                       params.cone_curvature_variation)
+                       params.cone_curvature_variation, tilt)
 
 
 def curvatures(cloud: ObjectCloud, which: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
