@@ -105,10 +105,8 @@ def test_closed_ends_are_kept_as_given():
     assert obb.interval(values, 0.001, closed_low=-0.05, closed_high=0.07) == (-0.05, 0.07)
 
 
-def test_plane_refinement_stops_when_the_inliers_repeat(monkeypatch):
-    rng = np.random.default_rng(3)
-    xy = rng.uniform(-0.1, 0.1, (400, 2))
-    points = np.column_stack([xy, 0.5 + rng.normal(0.0, 0.0005, 400)])
+def _count_plane_fits(monkeypatch):
+    """Count the points of every plane fit ``refine`` makes; return the growing list."""
     calls = []
     plain = ransac.fit_plane_svd
 
@@ -117,6 +115,15 @@ def test_plane_refinement_stops_when_the_inliers_repeat(monkeypatch):
         return plain(p)
 
     monkeypatch.setattr(ransac, "fit_plane_svd", counted)
+    return calls
+
+
+def test_plane_refinement_stops_when_the_inliers_repeat(monkeypatch):
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-0.1, 0.1, (400, 2))
+    points = np.column_stack([xy, 0.5 + rng.normal(0.0, 0.0005, 400)])
+    plain = ransac.fit_plane_svd
+    calls = _count_plane_fits(monkeypatch)
     start = PlaneModel(np.array([0.0, 0.0, 1.0]), -0.5)
     model = refine(start, points, 0.01, rounds=5)
     # Every point is within 10 mm of the start and of each fit: the second round would
@@ -132,14 +139,7 @@ def test_plane_refinement_goes_on_while_the_inliers_change(monkeypatch):
     plane = np.column_stack([xy, np.zeros(300)])
     strays = np.column_stack([rng.uniform(-0.1, 0.1, (30, 2)), np.full(30, 0.0045)])
     points = np.vstack([plane, strays])
-    calls = []
-    plain = ransac.fit_plane_svd
-
-    def counted(p):
-        calls.append(len(p))
-        return plain(p)
-
-    monkeypatch.setattr(ransac, "fit_plane_svd", counted)
+    calls = _count_plane_fits(monkeypatch)
     start = PlaneModel(np.array([0.0, 0.0, 1.0]), -0.003)   # 3 mm up: strays inside
     model = refine(start, points, 0.0035, rounds=5)
     # Round 1 takes all 330 points (plane lifted by ~0.4 mm, strays 4.1 mm above it);
