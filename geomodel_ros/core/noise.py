@@ -526,11 +526,6 @@ DISPARITY_MIN_LEVEL_GAP = 0.5
 #: Stable runs count as a period only over at least this many levels: clumps that happen
 #: to keep every gap within the bound above are 1 in 200 at this count (0.707 ** 15).
 DISPARITY_MIN_LEVELS = 16
-#: The points of a level spread (standard deviation about its mean) less than this share
-#: of a step: two equal normal densities make a bimodal mixture only when their means lie
-#: more than two standard deviations apart (Schilling, Watkins and Watkins 2002, The
-#: American Statistician 56(3) 223-229); wider, the levels are blurred into one continuum.
-DISPARITY_MAX_LEVEL_SD = 0.5
 
 
 def disparity_step(points: NDArray[np.float64]) -> float | None:
@@ -551,8 +546,8 @@ def disparity_step(points: NDArray[np.float64]) -> float | None:
     -------
     float or None
         The step in 1/z [1/m] (a depth step of ``step * z**2`` [m] at depth z), or None for
-        a frame whose depths are not quantised, whose levels are blurred into a continuum
-        (a jitter of half a step or more), or with too few points.
+        a frame whose depths are not quantised, whose levels are blurred into a continuum,
+        or with too few points.
     """
     z = np.asarray(points, dtype=np.float64).reshape(-1, 3)[:, 2]
     z = np.abs(z[::max(1, len(z) // DISPARITY_SAMPLE)])
@@ -562,12 +557,11 @@ def disparity_step(points: NDArray[np.float64]) -> float | None:
         return None
     if len(inv) <= DISPARITY_MAX_DISTINCT_SHARE * len(z):
         return float(np.median(np.diff(inv)))
-    levels = _blurred_levels(np.sort(1.0 / z))
-    return None if levels is None else _level_step(*levels)
+    centres = _blurred_levels(np.sort(1.0 / z))
+    return None if centres is None else _level_step(centres)
 
 
-def _blurred_levels(inv: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]] | None:
+def _blurred_levels(inv: NDArray[np.float64]) -> NDArray[np.float64] | None:
     """Split sorted 1/z into levels at the finest gap resolution where the split is stable.
 
     Parameters
@@ -577,11 +571,11 @@ def _blurred_levels(inv: NDArray[np.float64]
 
     Returns
     -------
-    (inv, centres, counts) or None
-        The input, the levels' mean 1/z (L,) [1/m] and their point counts (L,), or None
-        when no resolution gives at least :data:`DISPARITY_MIN_LEVELS` levels, at most
-        :data:`DISPARITY_MAX_DISTINCT_SHARE` of the points, that doubling the resolution
-        leaves nearly unmerged (:data:`DISPARITY_STABLE_SHARE`).
+    (L,) float64 array [1/m] or None
+        The levels' mean 1/z, ascending, or None when no resolution gives at least
+        :data:`DISPARITY_MIN_LEVELS` levels, at most :data:`DISPARITY_MAX_DISTINCT_SHARE`
+        of the points, that doubling the resolution leaves nearly unmerged
+        (:data:`DISPARITY_STABLE_SHARE`).
     """
     n = len(inv)
     gaps = np.diff(inv)
@@ -597,35 +591,26 @@ def _blurred_levels(inv: NDArray[np.float64]
     if not stable.any():
         return None
     starts = np.concatenate(([0], np.flatnonzero(gaps > 2.0 * taus[np.argmax(stable)]) + 1))
-    counts = np.diff(np.append(starts, n))
-    return inv, np.add.reduceat(inv, starts) / counts, counts
+    return np.add.reduceat(inv, starts) / np.diff(np.append(starts, n))
 
 
-def _level_step(inv: NDArray[np.float64], centres: NDArray[np.float64],
-                counts: NDArray[np.int64]) -> float | None:
+def _level_step(centres: NDArray[np.float64]) -> float | None:
     """Step of levels found in blurred 1/z: the median gap between their centres.
 
     Parameters
     ----------
-    inv : (n,) float64 array [1/m]
-        Sorted inverse depths.
     centres : (L,) float64 array [1/m]
-        Mean 1/z of each level, ascending (the levels are consecutive runs of ``inv``).
-    counts : (L,) int64 array
-        Points per level.
+        Mean 1/z of each level, ascending.
 
     Returns
     -------
     float or None
         The step [1/m], or None when the levels are no lattice: more than
         :data:`DISPARITY_STABLE_SHARE` of the neighbouring levels closer than
-        :data:`DISPARITY_MIN_LEVEL_GAP` steps, or their points spread more than
-        :data:`DISPARITY_MAX_LEVEL_SD` of a step.
+        :data:`DISPARITY_MIN_LEVEL_GAP` steps. (Their spread needs no test: levels split at
+        empty gaps are narrower than the gaps between their centres.)
     """
     gaps = np.diff(centres)
     step = float(np.median(gaps))
-    spread = math.sqrt(float(np.mean(np.square(inv - np.repeat(centres, counts)))))
     close = np.count_nonzero(gaps < DISPARITY_MIN_LEVEL_GAP * step)
-    if close > DISPARITY_STABLE_SHARE * len(gaps) or spread > DISPARITY_MAX_LEVEL_SD * step:
-        return None
-    return step
+    return None if close > DISPARITY_STABLE_SHARE * len(gaps) else step
