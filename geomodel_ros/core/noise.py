@@ -575,7 +575,8 @@ def _blurred_levels(inv: NDArray[np.float64]) -> NDArray[np.float64] | None:
         The levels' mean 1/z, ascending, or None when no resolution gives at least
         :data:`DISPARITY_MIN_LEVELS` levels, at most :data:`DISPARITY_MAX_DISTINCT_SHARE`
         of the points, that doubling the resolution leaves nearly unmerged
-        (:data:`DISPARITY_STABLE_SHARE`).
+        (:data:`DISPARITY_STABLE_SHARE`). The levels are taken at the coarser resolution of
+        the finest stable pair.
     """
     n = len(inv)
     gaps = np.diff(inv)
@@ -607,8 +608,8 @@ def _level_step(centres: NDArray[np.float64]) -> float | None:
     float or None
         The step [1/m], or None when the levels are no lattice: more than
         :data:`DISPARITY_STABLE_SHARE` of the neighbouring levels closer than
-        :data:`DISPARITY_MIN_LEVEL_GAP` steps. (Their spread needs no test: levels split at
-        empty gaps are narrower than the gaps between their centres.)
+        :data:`DISPARITY_MIN_LEVEL_GAP` steps. (Their width needs no test of its own: the
+        runs are split at gaps wider than any inside them, stable under a doubling.)
     """
     gaps = np.diff(centres)
     step = float(np.median(gaps))
