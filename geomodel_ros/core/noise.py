@@ -552,12 +552,14 @@ def disparity_step(points: NDArray[np.float64]) -> float | None:
     z = np.asarray(points, dtype=np.float64).reshape(-1, 3)[:, 2]
     z = np.abs(z[::max(1, len(z) // DISPARITY_SAMPLE)])
     z = z[np.isfinite(z) & (z > 0.0)]
-    inv = np.unique(np.round(1.0 / z, DISPARITY_DECIMALS))
+    ordered = np.sort(1.0 / z)
+    rounded = np.round(ordered, DISPARITY_DECIMALS)  # sorted too: rounding keeps the order
+    inv = rounded[np.concatenate(([True], rounded[1:] != rounded[:-1]))]
     if len(inv) < 2:
         return None
     if len(inv) <= DISPARITY_MAX_DISTINCT_SHARE * len(z):
         return float(np.median(np.diff(inv)))
-    centres = _blurred_levels(np.sort(1.0 / z))
+    centres = _blurred_levels(ordered)
     return None if centres is None else _level_step(centres)
 
 
@@ -580,13 +582,15 @@ def _blurred_levels(inv: NDArray[np.float64]) -> NDArray[np.float64] | None:
     """
     n = len(inv)
     gaps = np.diff(inv)
-    ordered = np.sort(gaps)
-    finest = max(float(ordered[len(ordered) // 2]), 10.0 ** -DISPARITY_DECIMALS)
-    octaves = math.log2(max(float(ordered[-1]), finest) / finest)
-    taus = finest * 2.0 ** (np.arange(int(octaves * DISPARITY_SCAN_PER_OCTAVE) + 1)
-                            / DISPARITY_SCAN_PER_OCTAVE)
-    runs = n - np.searchsorted(ordered, taus, side="right")
-    merged = n - np.searchsorted(ordered, 2.0 * taus, side="right")
+    finest = max(float(np.partition(gaps, len(gaps) // 2)[len(gaps) // 2]),
+                 10.0 ** -DISPARITY_DECIMALS)
+    # Gaps per scan interval (tau_k, tau_k+1]: runs(tau_k) = n - gaps no wider than tau_k.
+    grade = np.ceil(np.log2(np.maximum(gaps, finest) / finest) * DISPARITY_SCAN_PER_OCTAVE)
+    count = np.cumsum(np.bincount(grade.astype(np.int64)))
+    taus = finest * 2.0 ** (np.arange(len(count)) / DISPARITY_SCAN_PER_OCTAVE)
+    runs = n - count
+    merged = n - np.append(count[DISPARITY_SCAN_PER_OCTAVE:],
+                           np.full(min(DISPARITY_SCAN_PER_OCTAVE, len(count)), n - 1))
     stable = ((runs - merged <= DISPARITY_STABLE_SHARE * runs)
               & (runs <= DISPARITY_MAX_DISTINCT_SHARE * n) & (merged >= DISPARITY_MIN_LEVELS))
     if not stable.any():
