@@ -52,6 +52,7 @@ def test_no_disparity_step_for_unquantised_depths():
     pts = np.stack([0.1 * z, 0.2 * z, z], axis=1)
     assert disparity_step(pts) is None
     assert disparity_step(pts[:1]) is None
+    assert disparity_step(pts[:0]) is None
     with_nan = pts.copy()
     with_nan[::2] = np.nan
     assert disparity_step(with_nan) is None

@@ -552,6 +552,8 @@ def disparity_step(points: NDArray[np.float64]) -> float | None:
     z = np.asarray(points, dtype=np.float64).reshape(-1, 3)[:, 2]
     z = np.abs(z[::max(1, len(z) // DISPARITY_SAMPLE)])
     z = z[np.isfinite(z) & (z > 0.0)]
+    if len(z) < 2:
+        return None
     ordered = np.sort(1.0 / z)
     rounded = np.round(ordered, DISPARITY_DECIMALS)  # sorted too: rounding keeps the order
     inv = rounded[np.concatenate(([True], rounded[1:] != rounded[:-1]))]
