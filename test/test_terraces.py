@@ -52,6 +52,7 @@ def test_no_disparity_step_for_unquantised_depths():
     pts = np.stack([0.1 * z, 0.2 * z, z], axis=1)
     assert disparity_step(pts) is None
     assert disparity_step(pts[:1]) is None
+    assert disparity_step(pts[:0]) is None
     with_nan = pts.copy()
     with_nan[::2] = np.nan
     assert disparity_step(with_nan) is None
@@ -118,3 +119,127 @@ def test_terraces_of_a_curved_surface_stay_apart():
     left = set(out[outer & (side == 0)].tolist())
     right = set(out[outer & (side == 1)].tolist())
     assert left and right and not left & right
+
+
+# --------------------------------------------------------------------------- blurred levels
+# A small jitter of the depths (a cloud averaged, filtered, transformed or stored with float
+# noise) makes every 1/z distinct while the levels stay far apart compared with their width.
+# Levels 1/z = (k + 0.37) STEP: a camera's levels need not pass through 1/z = 0.
+
+
+def _levels(rng: np.random.Generator, size: int = 30000, low: int = 80, high: int = 1100
+            ) -> np.ndarray:
+    """Points on random levels (k + 0.37) STEP, k in [low, high), rays in a 0.2 rad cone."""
+    inv = (rng.integers(low, high, size=size) + 0.37) * STEP
+    return inv
+
+
+def _cloud(inv: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Points (N, 3) at the inverse depths ``inv`` along random rays."""
+    z = 1.0 / inv
+    return np.stack([z * rng.uniform(-0.2, 0.2, z.size), z * rng.uniform(-0.15, 0.15, z.size),
+                     z], axis=1)
+
+
+def _all_distinct(pts: np.ndarray) -> bool:
+    """More distinct 1/z (to 1e-6) than half the points: the distinct-value test sees no levels."""
+    return np.unique(np.round(1.0 / np.abs(pts[:, 2]), 6)).size > 0.5 * len(pts)
+
+
+@pytest.mark.parametrize("jitter", [0.01, 0.03, 0.1])
+def test_disparity_step_of_levels_blurred_by_a_small_jitter(jitter):
+    # About 30 points per level, each level's mean off by jitter / sqrt(30) <= 0.02 STEP;
+    # the median of ~1000 neighbouring differences is within a fraction of that.
+    rng = np.random.default_rng(2)
+    inv = _levels(rng)
+    pts = _cloud(inv + rng.normal(0.0, jitter * STEP, inv.size), rng)
+    assert _all_distinct(pts)
+    assert disparity_step(pts) == pytest.approx(STEP, rel=0.02)
+    pts[:, 2] *= -1.0
+    assert disparity_step(pts) == pytest.approx(STEP, rel=0.02)
+
+
+def test_disparity_step_of_unevenly_rounded_levels():
+    # Stored depths rounded (a Kinect's millimetres) move each level by up to 0.3 of a step
+    # (neighbours 0.4-1.6 steps apart, median 1); then a jitter of 0.03 STEP.
+    rng = np.random.default_rng(3)
+    k = rng.integers(88, 351, size=30000)
+    shift = rng.uniform(-0.3, 0.3, 351) * STEP
+    inv = (k + 0.37) * STEP + shift[k] + rng.normal(0.0, 0.03 * STEP, k.size)
+    pts = _cloud(inv, rng)
+    assert _all_distinct(pts)
+    assert disparity_step(pts) == pytest.approx(STEP, rel=0.03)
+
+
+@pytest.mark.parametrize("jitter", [0.5, 1.0])
+def test_no_disparity_step_when_the_jitter_blurs_the_levels(jitter):
+    # Two normal densities one step apart make one mode once their sd reaches half a step:
+    # the levels are gone, and so is the step.
+    rng = np.random.default_rng(4)
+    inv = _levels(rng)
+    pts = _cloud(inv + rng.normal(0.0, jitter * STEP, inv.size), rng)
+    assert disparity_step(pts) is None
+
+
+def test_no_disparity_step_for_clumps_or_sparse_tails_of_continuous_depths():
+    rng = np.random.default_rng(5)
+    # 40 objects at random ranges, each a continuum of 1/z 2e-3 1/m wide: far apart
+    # compared with their width, but not a lattice (randomly spaced).
+    centres = rng.uniform(0.25, 2.0, 40)
+    inv = np.repeat(centres, 750) + rng.uniform(-1e-3, 1e-3, 30000)
+    pts = _cloud(inv, rng)
+    assert _all_distinct(pts)
+    assert disparity_step(pts) is None
+    # A dense desk at 0.8-1 m and 300 scattered far points (1-6 m).
+    z = np.concatenate([rng.uniform(0.8, 1.0, 29700), rng.uniform(1.0, 6.0, 300)])
+    assert disparity_step(_cloud(1.0 / z, rng)) is None
+
+
+def test_no_disparity_step_for_the_suite_with_continuous_noise():
+    from geomodel_ros.tools.synth.suite import render_case, suite_cases
+    for case in suite_cases((1,), ("mid", "kinect", "kinect-real")):
+        if case.layout != "set_a" or case.distance != 1.0:
+            continue
+        pts = render_case(case).organized.reshape(-1, 3)
+        step = disparity_step(pts[np.isfinite(pts).all(axis=1)])
+        # kinect-real quantises 1/z exactly: its distinct values give the step.
+        assert step == (pytest.approx(STEP, abs=1e-6) if case.noise == "kinect-real" else None)
+
+
+def test_terraces_of_a_jittered_far_wall_are_joined():
+    # A floor receding from 1.5 to 3.8 m (about 140 levels) and the tilted far wall, every
+    # 1/z jittered by 0.02 STEP (0.9 mm in depth at 4 m): the step is found and the wall's
+    # bands join as the exact wall's do.
+    rng = np.random.default_rng(6)
+    wall, level = _quantised(*_tilted_wall_rays(4.0, 30.0))
+    floor_z = rng.uniform(1.5, 3.8, 20000)
+    floor, _ = _quantised(np.stack([rng.uniform(-0.2, 0.2, floor_z.size),
+                                    np.full(floor_z.size, 0.3), np.ones(floor_z.size)], 1),
+                          floor_z)
+    frame = np.concatenate([wall, floor])
+    inv = 1.0 / frame[:, 2] + rng.normal(0.0, 0.02 * STEP, len(frame))
+    frame *= (1.0 / inv / frame[:, 2])[:, None]  # moved along the rays
+    assert _all_distinct(frame)
+    step = disparity_step(frame)
+    assert step == pytest.approx(STEP, rel=0.03)
+    comp = level - level.min()
+    assert comp.max() >= 3
+    out = join_terraces(frame[:len(wall)], comp, np.ones(len(wall), dtype=bool), step,
+                        ModelingParams())
+    assert np.unique(out).size == 1
+
+
+def _tilted_wall_rays(depth: float, tilt_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rays of an 81 x 61 pixel window and the depths of the plane z = depth + tan(tilt) y."""
+    rays = _rays(40, 30)
+    return rays, depth / (1.0 - math.tan(math.radians(tilt_deg)) * rays[:, 1])
+
+
+def test_no_disparity_step_for_a_few_evenly_spaced_objects():
+    # Three objects, each a continuum 0.04 1/m wide, at 1/z = 0.5, 0.9 and 1.3 1/m: their
+    # gaps are even, but three levels are no period.
+    rng = np.random.default_rng(7)
+    inv = np.repeat([0.5, 0.9, 1.3], 10000) + rng.uniform(-0.02, 0.02, 30000)
+    pts = _cloud(inv, rng)
+    assert _all_distinct(pts)
+    assert disparity_step(pts) is None
