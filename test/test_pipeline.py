@@ -493,13 +493,13 @@ def test_a_frustum_is_not_modeled_as_a_cone():
 
 @pytest.mark.parametrize("top", [5, 40_000])
 def test_points_are_grouped_by_label_in_input_order(top):
-    from geomodel_ros.core.modeling import _group_by_label
+    from geomodel_ros.core.fastmath import group_by_label
 
     rng = np.random.default_rng(top)
     lab = rng.integers(0, top, 2000)
     lab[lab == 3] = 7  # a gap in the ids
     idx = np.arange(2000) * 2
-    order, ids, starts, ends = _group_by_label(idx, lab)
+    order, ids, starts, ends = group_by_label(idx, lab)
     np.testing.assert_array_equal(ids, np.unique(lab))
     assert ends[-1] == len(idx) and np.all(starts[1:] == ends[:-1])
     for k, oid in enumerate(ids):

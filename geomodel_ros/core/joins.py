@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core.fastmath import row_norms
+from geomodel_ros.core.fastmath import group_by_label, row_norms
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel
@@ -335,21 +335,18 @@ def _crease_partners(a: NDArray[np.int64], b: NDArray[np.int64], crease: NDArray
 
 def segment_members(comp: NDArray[np.int64], valid: NDArray[np.bool_]
                     ) -> dict[int, NDArray[np.int64]]:
-    """Map every segment id of ``comp[valid]`` to its ``valid`` rows, in increasing order.
+    """Map every segment id of ``comp[valid]`` (>= 0) to its ``valid`` rows, in increasing order.
 
-    ``comp`` (M,) holds the segment ids, ``valid`` (M,) the rows that take part. One stable
-    sort groups the rows of all segments (the same arrays as ``np.flatnonzero(valid & (comp
-    == i))`` for each id ``i``, at the cost of one pass instead of one per segment).
+    ``comp`` (M,) holds the segment ids, ``valid`` (M,) the rows that take part. One
+    grouping of all rows (:func:`~geomodel_ros.core.fastmath.group_by_label`) gives the same
+    arrays as ``np.flatnonzero(valid & (comp == i))`` for each id ``i``, at the cost of one
+    pass instead of one per segment.
     """
     rows = np.flatnonzero(valid)
-    ids = comp[rows]
-    order = np.argsort(ids, kind="stable")
-    ids, rows = ids[order], rows[order]
     if not len(rows):
         return {}
-    cut = np.flatnonzero(ids[1:] != ids[:-1]) + 1
-    starts = [0, *cut.tolist()]
-    return {int(ids[s]): part for s, part in zip(starts, np.split(rows, cut))}
+    order, ids, starts, ends = group_by_label(rows, comp[rows])
+    return {int(i): order[s:e] for i, s, e in zip(ids.tolist(), starts.tolist(), ends.tolist())}
 
 
 class _Segments:

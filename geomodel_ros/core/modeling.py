@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 
 from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, with_confidence
 from geomodel_ros.core.errors import InputError, as_points
-from geomodel_ros.core.fastmath import centroid, single_threaded_blas, take_rows
+from geomodel_ros.core.fastmath import centroid, group_by_label, single_threaded_blas, take_rows
 from geomodel_ros.core.fitting.cloud import (SUPPORT_END_FACTOR, ObjectCloud, Plane, build_faces,
                                              independent_noise)
 from geomodel_ros.core.fitting.slow_bend import SlowBendNull, slow_bend_null
@@ -58,8 +58,6 @@ SPACING_QUERIES = 500
 OBJECT_RANGE_SAMPLE = 1000
 #: A uniform distribution of length L has standard deviation L / sqrt(12).
 UNIFORM_SPAN = math.sqrt(12.0)
-#: Labels up to this are grouped by counting and a 16-bit radix sort.
-MAX_INT16_LABEL = int(np.iinfo(np.int16).max)
 
 
 _pool_lock = threading.Lock()
@@ -166,29 +164,6 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
         prim = with_confidence(prim, points, params.ransac_threshold)
         return dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons))
     return _unknown(object_id, points, "; ".join(reasons), summaries)
-
-
-def _group_by_label(idx: NDArray[np.int64], lab: NDArray[np.int64]
-                    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64],
-                               NDArray[np.int64]]:
-    """Group ``idx`` by their labels ``lab`` (>= 0): (order, ids, starts, ends).
-
-    ``order[starts[k]:ends[k]]`` are the indices labelled ``ids[k]``, in input order.
-    """
-    top = int(lab.max())
-    if top <= MAX_INT16_LABEL:
-        # Few small labels (the usual case): counting, and numpy's radix sort for int16.
-        counts = np.bincount(lab, minlength=top + 1)
-        ids = np.flatnonzero(counts)
-        ends = np.cumsum(counts)[ids]
-        starts = ends - counts[ids]
-        order = idx[np.argsort(lab.astype(np.int16), kind="stable")]
-    else:
-        srt = np.argsort(lab, kind="stable")
-        order = idx[srt]
-        ids, starts = np.unique(lab[srt], return_index=True)
-        ends = np.r_[starts[1:], len(order)]
-    return order, ids, starts, ends
 
 
 def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
@@ -326,7 +301,7 @@ def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArr
     """
     objects: list[Primitive] = []
     if idx_all.size:
-        order, ids, starts, ends = _group_by_label(idx_all, lab[idx_all])
+        order, ids, starts, ends = group_by_label(idx_all, lab[idx_all])
         # Hidden ends are completed only where the sensor sits at the origin.
         view = SceneView(pts, lab, params.max_range) if supports and \
             params.reproject_along_rays else None

@@ -805,8 +805,12 @@ def _least_squares(ref: RefinableModel, sub: Array) -> Any:
         m = ref.from_vector(v)
         return m, m.parts_t(sub)
 
+    def distances(v: Array) -> Array:
+        m, parts = cached("m", at, v)
+        return m.distance_from(parts)
+
     def fun(x: Array) -> Array:
-        return cached("f", lambda v: (lambda m, p: m.distance_from(p))(*cached("m", at, v)), x)
+        return cached("f", distances, x)
 
     def jac(x: Array) -> Array:
         return cached("j", lambda v: ref.jacobian_from(v, *cached("m", at, v)), x)
