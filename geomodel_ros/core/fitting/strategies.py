@@ -9,7 +9,10 @@ box side with a gable, fold or shrink-wrap ripples over part of it), the other c
 faces left out as outliers (:func:`box_rival`); the shape with the smaller truncated
 residual over all the object's points (MSAC cost at the noise band) is taken
 (:func:`prefer_box`). A box, in turn, has to beat the round model of all the object's
-faces taken as curved, on the same cost (:func:`prefer_round`).
+faces taken as curved, on the same cost (:func:`prefer_round`). Last, an object that no
+strategy typed but whose surface showed itself curved two ways (a side rejected for a
+bowed profile, or curvatures neither developable nor spherical) is tried as a sphere
+(:class:`DoublyCurvedAsSphere`).
 """
 
 from __future__ import annotations
@@ -31,8 +34,9 @@ from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.units import fit_first
-from geomodel_ros.core.model_graph import (FaceInfo, GraphDecision, curvature_candidates,
-                                           decide_type)
+from geomodel_ros.core.fitting.verify import bowed_profile
+from geomodel_ros.core.model_graph import (NO_CURVATURE, FaceInfo, GraphDecision,
+                                           curvature_candidates, decide_type)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
 from geomodel_ros.core.surface_type import face_feature, principal_curvatures
@@ -40,7 +44,7 @@ from geomodel_ros.core.surface_type import face_feature, principal_curvatures
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
            "UprightAboveSupport", "BoxRival", "PlanarPatchesOfCurvedObjects", "BoxOfFlatCores",
-           "flat_faces",
+           "DoublyCurvedAsSphere", "flat_faces",
            "flat_core_faces", "box_rival", "support_below", "truncated_cost", "truncated_costs",
            "prefer_box",
            "prefer_round", "round_rival", "thinned", "all_faces_curved", "as_curved"]
@@ -641,10 +645,52 @@ class BoxOfFlatCores:
                        note=f"no round model explains the points; {rival.note}")
 
 
+class DoublyCurvedAsSphere:
+    """Try a sphere on an object whose surface is curved two ways, when nothing else fitted.
+
+    A cylinder, cone or frustum bends around its axis only; a sphere bends along every
+    direction. Two observations show the second bend when no strategy typed the object:
+    an axial model whose side's profile bows (:func:`~.verify.check_profile_bow`: its
+    tangent turns by more than ``min_arc`` along the axis, significantly; the profile of a
+    sphere is a circle arc), or principal curvatures whose ratio lies between the
+    developable and the spherical bound (:attr:`Situation.no_round_shape`; depth noise
+    pulls the smaller curvature of a sphere's points down, the larger one up). A small
+    sphere far from the sensor shows both: part of its cap passes as planar, or its
+    curvature ratio falls below ``sphere_curvature_ratio``. Every face is then taken as
+    curved and the sphere unit's own checks (inliers, radius, scatter against the
+    measured noise) decide; a torus, whose profile bows as well, scatters about its best
+    sphere far beyond the noise. Tried last, so it only types objects that would
+    otherwise be ``unknown``; only with ``noise_model = auto`` (``fixed`` keeps the
+    previous strategies exactly).
+    """
+
+    name = "doubly curved as a sphere"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True when a bowed profile or non-developable curvatures were seen."""
+        if situation.cloud.params.noise_model != "auto":
+            return False
+        bowed = any(bowed_profile(r) for r in situation.rejected)
+        return bowed or (situation.no_round_shape and
+                         situation.fit_decision.reason != NO_CURVATURE)
+
+    def attempt(self, situation: Situation) -> Attempt:
+        """Fit a sphere to every face taken as curved."""
+        cloud = situation.cloud
+        bowed = any(bowed_profile(r) for r in situation.rejected)
+        why = "a side's profile bows" if bowed else \
+            "curvatures neither developable nor spherical"
+        faces = [as_curved(f) for f in cloud.faces]
+        return Attempt(dataclasses.replace(cloud, faces=faces),
+                       GraphDecision("curved", (PrimitiveType.SPHERE.value,), -1, (), why),
+                       note=f"curved two ways ({why}): every face taken as curved")
+
+
 #: The strategies in the order they are tried.
 STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
                                     FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
-                                    PlanarPatchesOfCurvedObjects(), BoxOfFlatCores())
+                                    PlanarPatchesOfCurvedObjects(), BoxOfFlatCores(),
+                                    DoublyCurvedAsSphere())
 
 
 def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES

@@ -28,7 +28,7 @@ __all__ = ["OUTLIER_FACTOR", "MIN_COVERAGE", "CONE_APEX_REACH", "CONE_BEHIND_APE
            "BULK_FACTOR", "BULK_MARGIN", "axis_within", "check_inlier_ratio",
            "check_coverage", "check_radius", "check_axis", "check_arc", "check_bulk_length",
            "check_apex", "check_bulk_reach", "NOISE_SCATTER_BOUND", "check_noise_scatter",
-           "check_profile_bow"]
+           "check_profile_bow", "PROFILE_BOWS", "bowed_profile"]
 
 #: Points farther than this many RANSAC thresholds from the fitted surfaces are outliers
 #: for sizing.
@@ -57,6 +57,9 @@ BULK_MARGIN = 0.02
 #: in stereo 1.8); wrong fits on the suite: tori as cones or cylinders 1.96-2.91 (an open
 #: cup as a cylinder of its mean radius 1.34-1.41: passes).
 NOISE_SCATTER_BOUND = 2.0
+#: Words of a rejection by :func:`check_profile_bow` (a side curved along its axis as well
+#: as around it), by which :func:`bowed_profile` recognises one.
+PROFILE_BOWS = "rejected: its profile bows"
 
 
 def axis_within(axis: NDArray[np.float64], prior: NDArray[np.float64] | None,
@@ -202,6 +205,11 @@ def check_profile_bow(points: NDArray[np.float64], model: ConeModel | CylinderMo
                                     shape.radius))
         if bow <= least:
             return None
-    return Rejected(kind, f"{kind} rejected: its profile bows {bow * 1000:.1f} mm (beyond "
+    return Rejected(kind, f"{kind} {PROFILE_BOWS} {bow * 1000:.1f} mm (beyond "
                           f"{least * 1000:.1f} mm) and turns by "
                           f"{math.degrees(shape.turn):.0f} deg along its axis")
+
+
+def bowed_profile(rejection: Rejected) -> bool:
+    """Return True for a rejection by :func:`check_profile_bow` (a side curved two ways)."""
+    return PROFILE_BOWS in rejection.reason
