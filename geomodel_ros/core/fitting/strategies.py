@@ -34,7 +34,7 @@ from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.units import fit_first
-from geomodel_ros.core.fitting.verify import bowed_profile
+from geomodel_ros.core.fitting.verify import bowed_profile, standing_on
 from geomodel_ros.core.model_graph import (NO_CURVATURE, FaceInfo, GraphDecision,
                                            curvature_candidates, decide_type)
 from geomodel_ros.core.params import ModelingParams
@@ -79,11 +79,6 @@ RIVAL_FIT_POINTS = 400
 #: Fewest point normals and smallest mean-normal norm for which flatness is judged.
 MIN_FLAT_NORMALS = 3
 MIN_FLAT_MEAN_NORM = 1e-9
-#: An object stands above a support plane when at most SUPPORT_BELOW_PERCENTILE per cent
-#: of its points lie below the plane by more than the tolerance (twice
-#: ``seg_plane_threshold`` plus the RANSAC threshold) and its median lies above it by more.
-SUPPORT_BELOW_PERCENTILE = 1.0
-SUPPORT_TOLERANCE_FACTOR = 2.0
 #: The planar faces of a mixed object may be patches of its curved surface when its curved
 #: faces hold more than this share of its working points (the curved surface dominates).
 CURVED_MAJORITY = 0.5
@@ -402,21 +397,10 @@ def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, 
 def support_below(cloud: ObjectCloud) -> NDArray[np.float64] | None:
     """Return the normal (3,) of a support plane that ``cloud`` stands above, or None.
 
-    Its bulk above the plane by more than SUPPORT_TOLERANCE_FACTOR ``seg_plane_threshold``
-    plus the RANSAC threshold, nothing of it below by more than that. Objects stacked on
-    others count too.
+    The plane of :func:`~.verify.standing_on` (objects stacked on others count too).
     """
-    params = cloud.params
-    tol = SUPPORT_TOLERANCE_FACTOR * params.seg_plane_threshold + params.ransac_threshold
-    sub = every_kth(cloud.points)
-    for n, d in cloud.supports:
-        h = sub @ n + d
-        if np.median(h) < 0:
-            h = -h
-        if float(np.percentile(h, SUPPORT_BELOW_PERCENTILE)) >= -tol and \
-                float(np.median(h)) > tol:
-            return np.asarray(n, dtype=np.float64)
-    return None
+    plane = standing_on(cloud)
+    return None if plane is None else np.asarray(plane[0], dtype=np.float64)
 
 
 class UprightAboveSupport:

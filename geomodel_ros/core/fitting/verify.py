@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fitting.cloud import ObjectCloud, independent_noise
-from geomodel_ros.core.fitting.measure import noise_scatter_ratio
+from geomodel_ros.core.fitting.measure import every_kth, noise_scatter_ratio
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.slow_taper import slow_bow
 from geomodel_ros.core.fitting.taper_spread import least_bow, profile_bow
@@ -28,7 +28,8 @@ __all__ = ["OUTLIER_FACTOR", "MIN_COVERAGE", "CONE_APEX_REACH", "CONE_BEHIND_APE
            "BULK_FACTOR", "BULK_MARGIN", "axis_within", "check_inlier_ratio",
            "check_coverage", "check_radius", "check_axis", "check_arc", "check_bulk_length",
            "check_apex", "check_bulk_reach", "NOISE_SCATTER_BOUND", "check_noise_scatter",
-           "check_profile_bow", "PROFILE_BOWS", "bowed_profile"]
+           "check_profile_bow", "PROFILE_BOWS", "bowed_profile", "SUPPORT_BELOW_PERCENTILE",
+           "SUPPORT_TOLERANCE_FACTOR", "standing_on", "check_sunk_in_support"]
 
 #: Points farther than this many RANSAC thresholds from the fitted surfaces are outliers
 #: for sizing.
@@ -60,6 +61,11 @@ NOISE_SCATTER_BOUND = 2.0
 #: Words of a rejection by :func:`check_profile_bow` (a side curved along its axis as well
 #: as around it), by which :func:`bowed_profile` recognises one.
 PROFILE_BOWS = "rejected: its profile bows"
+#: An object stands above a support plane when at most SUPPORT_BELOW_PERCENTILE per cent
+#: of its points lie below the plane by more than the tolerance (twice
+#: ``seg_plane_threshold`` plus the RANSAC threshold) and its median lies above it by more.
+SUPPORT_BELOW_PERCENTILE = 1.0
+SUPPORT_TOLERANCE_FACTOR = 2.0
 
 
 def axis_within(axis: NDArray[np.float64], prior: NDArray[np.float64] | None,
@@ -213,3 +219,52 @@ def check_profile_bow(points: NDArray[np.float64], model: ConeModel | CylinderMo
 def bowed_profile(rejection: Rejected) -> bool:
     """Return True for a rejection by :func:`check_profile_bow` (a side curved two ways)."""
     return PROFILE_BOWS in rejection.reason
+
+
+def standing_on(cloud: ObjectCloud) -> tuple[NDArray[np.float64], float] | None:
+    """Return the support plane (normal (3,), d) that ``cloud`` stands above, or None.
+
+    Its bulk above the plane by more than SUPPORT_TOLERANCE_FACTOR ``seg_plane_threshold``
+    plus the RANSAC threshold, nothing of it below by more than that (at most
+    SUPPORT_BELOW_PERCENTILE per cent of its points). The plane is returned as given
+    (its normal may point either way).
+    """
+    params = cloud.params
+    tol = SUPPORT_TOLERANCE_FACTOR * params.seg_plane_threshold + params.ransac_threshold
+    sub = every_kth(cloud.points)
+    for n, d in cloud.supports:
+        h = sub @ n + d
+        if np.median(h) < 0:
+            h = -h
+        if float(np.percentile(h, SUPPORT_BELOW_PERCENTILE)) >= -tol and \
+                float(np.median(h)) > tol:
+            return n, float(d)
+    return None
+
+
+def check_sunk_in_support(center: NDArray[np.float64], radius: float, cloud: ObjectCloud,
+                          kind: PrimitiveType) -> Rejected | None:
+    """Reject a sphere that reaches into a support its object rests on or above.
+
+    A solid on one side of a support plane (its points there, at most
+    SUPPORT_BELOW_PERCENTILE per cent of them beyond the plane by more than the tolerance
+    of :func:`standing_on`) cannot pass through it: a sphere whose ``center`` (3,) [m]
+    lies less than its ``radius`` [m] minus the RANSAC threshold (the noise band) on that
+    side of the plane is rejected. Such a sphere explains only a cap of points above the
+    support (a ring, a flat mound), not a ball. Only with ``noise_model = auto``.
+    """
+    params = cloud.params
+    if params.noise_model != "auto":
+        return None
+    tol = SUPPORT_TOLERANCE_FACTOR * params.seg_plane_threshold + params.ransac_threshold
+    sub = every_kth(cloud.points)
+    for n, d in cloud.supports:
+        h = sub @ n + d
+        side = 1.0 if np.median(h) >= 0 else -1.0
+        if float(np.percentile(side * h, SUPPORT_BELOW_PERCENTILE)) < -tol:
+            continue
+        sunk = radius - side * (float(center @ n) + d)
+        if sunk > params.ransac_threshold:
+            return Rejected(kind, f"{kind} rejected: it reaches {sunk * 1000:.0f} mm into "
+                                  "the support beneath it", misfit=True)
+    return None
