@@ -19,6 +19,7 @@ from geomodel_ros.core.fitting.measure import every_kth, noise_scatter_ratio
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.slow_taper import slow_bow
 from geomodel_ros.core.fitting.taper_spread import least_bow, profile_bow
+from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.noise import K_AMPLITUDE
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import PrimitiveType
@@ -29,7 +30,8 @@ __all__ = ["OUTLIER_FACTOR", "MIN_COVERAGE", "CONE_APEX_REACH", "CONE_BEHIND_APE
            "check_coverage", "check_radius", "check_axis", "check_arc", "check_bulk_length",
            "check_apex", "check_bulk_reach", "NOISE_SCATTER_BOUND", "check_noise_scatter",
            "check_profile_bow", "PROFILE_BOWS", "bowed_profile", "SUPPORT_BELOW_PERCENTILE",
-           "SUPPORT_TOLERANCE_FACTOR", "standing_on", "check_sunk_in_support"]
+           "SUPPORT_TOLERANCE_FACTOR", "standing_on", "check_sunk_in_support", "SEE_THROUGH_CORE",
+           "SEE_THROUGH_CELL_SPACINGS", "sphere_cap_targets", "check_seen_through"]
 
 #: Points farther than this many RANSAC thresholds from the fitted surfaces are outliers
 #: for sizing.
@@ -61,6 +63,13 @@ NOISE_SCATTER_BOUND = 2.0
 #: Words of a rejection by :func:`check_profile_bow` (a side curved along its axis as well
 #: as around it), by which :func:`bowed_profile` recognises one.
 PROFILE_BOWS = "rejected: its profile bows"
+#: A sphere's visible cap is looked along within this share of its silhouette's angular
+#: radius: near the silhouette its surface runs along the rays, where a return a little
+#: off the fitted radius lies far along the ray from it.
+SEE_THROUGH_CORE = 0.8
+#: Rays are binned in angular cells of this many of the object's point spacings (about
+#: four returns per cell on an image grid, so that a cell has a return despite dropouts).
+SEE_THROUGH_CELL_SPACINGS = 2.0
 #: An object stands above a support plane when at most SUPPORT_BELOW_PERCENTILE per cent
 #: of its points lie below the plane by more than the tolerance (twice
 #: ``seg_plane_threshold`` plus the RANSAC threshold) and its median lies above it by more.
@@ -267,4 +276,62 @@ def check_sunk_in_support(center: NDArray[np.float64], radius: float, cloud: Obj
         if sunk > params.ransac_threshold:
             return Rejected(kind, f"{kind} rejected: it reaches {sunk * 1000:.0f} mm into "
                                   "the support beneath it", misfit=True)
+    return None
+
+
+def sphere_cap_targets(center: NDArray[np.float64], radius: float, cell: float
+                       ) -> NDArray[np.float64]:
+    """Return points (m, 3) [m] on the near side of a sphere, one per angular ``cell`` [rad].
+
+    The rays from the origin (the sensor) to the sphere's ``center`` (3,) [m] and around
+    it on a square grid of ``cell`` in gnomonic coordinates, within SEE_THROUGH_CORE of
+    the silhouette's angular radius; each target is where its ray first meets the sphere.
+    Empty when the origin is inside the sphere.
+    """
+    dist = float(np.linalg.norm(center))
+    if dist <= radius or cell <= 0:
+        return np.empty((0, 3))
+    axis = center / dist
+    e1, e2 = perpendicular_basis(axis)
+    reach = SEE_THROUGH_CORE * radius / math.sqrt(dist * dist - radius * radius)
+    steps = np.arange(-math.floor(reach / cell), math.floor(reach / cell) + 1) * cell
+    a, b = (g.ravel() for g in np.meshgrid(steps, steps))
+    keep = a * a + b * b <= reach * reach
+    rays = axis + a[keep, None] * e1 + b[keep, None] * e2
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    along = rays @ center
+    depth = along - np.sqrt(np.maximum(radius * radius - dist * dist + along * along, 0.0))
+    return rays * depth[:, None]
+
+
+def check_seen_through(center: NDArray[np.float64], radius: float, cloud: ObjectCloud,
+                       kind: PrimitiveType) -> Rejected | None:
+    """Reject a sphere through whose visible cap the sensor saw the scene behind it.
+
+    A sphere is solid: every ray through its silhouette ends on its near side or in front
+    of it. Along rays through the middle of the silhouette (:func:`sphere_cap_targets`),
+    the scene's nearest return (``cloud.view``) lies behind the cap by more than
+    OUTLIER_FACTOR RANSAC thresholds where the sensor looked past it (the space above an
+    open bowl, the desk beside a cap of a larger sphere). The sphere is rejected when more
+    of the rays with a return do so than ``1 - min_inlier_ratio`` (the share of its own
+    points a model may leave off it). Only with ``noise_model = auto`` and the scene's
+    returns at hand.
+    """
+    params, view = cloud.params, cloud.view
+    if params.noise_model != "auto" or view is None:
+        return None
+    dist = float(np.linalg.norm(center))
+    cell = SEE_THROUGH_CELL_SPACINGS * cloud.spacing / max(dist, np.finfo(float).tiny)
+    targets = sphere_cap_targets(center, radius, cell)
+    if not len(targets):
+        return None
+    found = view.returns(targets, cell)
+    seen = np.isfinite(found.nearest)
+    if not seen.any():
+        return None
+    behind = found.nearest[seen] > found.ranges[seen] + OUTLIER_FACTOR * params.ransac_threshold
+    share = float(np.mean(behind))
+    if share > 1.0 - params.min_inlier_ratio:
+        return Rejected(kind, f"{kind} rejected: the sensor saw past it along {share:.0%} of "
+                              "the rays through its middle", misfit=True)
     return None
