@@ -1,8 +1,8 @@
-"""A surface curved two ways is tried as a sphere; a sphere may not sink into its support.
+"""A surface curved two ways is tried as a sphere; a sphere is solid and rests on its support.
 
 Modules: core.fitting.strategies (DoublyCurvedAsSphere, the last strategy) and
-core.fitting.verify (bowed_profile, standing_on, check_sunk_in_support, used by the
-sphere unit).
+core.fitting.verify (bowed_profile, standing_on, check_sunk_in_support and
+check_seen_through, used by the sphere unit).
 
 Geometry by hand: a ball of radius R resting on the plane z = 0 has its centre at z = R;
 a sphere of radius R centred at height h above the plane reaches R - h into it. The
@@ -18,13 +18,19 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from data_helpers import DATA, require
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.strategies import (STRATEGIES, DoublyCurvedAsSphere,
                                                   support_below)
-from geomodel_ros.core.fitting.verify import bowed_profile, check_sunk_in_support, standing_on
+from geomodel_ros.core.fitting.verify import (SEE_THROUGH_CORE, bowed_profile,
+                                              check_seen_through, check_sunk_in_support,
+                                              sphere_cap_targets, standing_on)
 from geomodel_ros.core.model_graph import NO_CURVATURE, GraphDecision
+from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import PrimitiveType
+from geomodel_ros.core.view import SceneView
+from geomodel_ros.tools.io import load_osd
 from suite_helpers import suite_true_labels
 
 MM = 1e-3
@@ -165,3 +171,94 @@ def test_the_suite_torus_is_no_sphere_sunk_into_the_desk(distance, seed):
     ring = objs[3]
     assert ring.type == PrimitiveType.UNKNOWN
     assert "into the support beneath it" in ring.reason
+
+
+# A sensor at the origin looking along +z on a grid of rays 2 mm apart at 1 m; a ball of
+# radius R centred at (0, 0, 1 m), a wall at z = 1.3 m behind it.
+BALL = np.array([0.0, 0.0, 1.0])
+WALL = 1.3
+STEP = 0.002
+
+
+def rendered(keep):
+    """Return the returns (N, 3) of the rays: the ball where ``keep(hit)`` holds, else the wall."""
+    g = np.arange(-0.08, 0.08 + STEP / 2, STEP)
+    u, v = (a.ravel() for a in np.meshgrid(g, g))
+    rays = np.c_[u, v, np.ones_like(u)]
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    along = rays @ BALL
+    disc = R * R - BALL @ BALL + along * along
+    t_ball = along - np.sqrt(np.maximum(disc, 0.0))
+    hit = rays * t_ball[:, None]
+    on_ball = (disc > 0) & keep(hit)
+    t = np.where(on_ball, t_ball, WALL / rays[:, 2])
+    return rays * t[:, None], on_ball
+
+
+def view_cloud(keep, noise_model="auto"):
+    """Return the parts of an ObjectCloud the see-through check reads, for ``rendered(keep)``."""
+    pts, on_ball = rendered(keep)
+    params = ModelingParams(noise_model=noise_model, ransac_threshold=2 * MM)
+    view = SceneView(pts, np.where(on_ball, 1, 0).astype(np.int64), 10.0)
+    return SimpleNamespace(params=params, view=view, spacing=STEP)
+
+
+def test_sphere_cap_targets_lie_on_the_near_side_within_the_core():
+    cell = STEP / 1.0
+    t = sphere_cap_targets(BALL, R, cell)
+    assert len(t) > 100
+    np.testing.assert_allclose(np.linalg.norm(t - BALL, axis=1), R, atol=1e-12)
+    # Near side: closer to the sensor than the centre; within the core of the silhouette
+    # (its angular radius R / sqrt(d^2 - R^2) in gnomonic units).
+    assert np.all(np.linalg.norm(t, axis=1) < np.linalg.norm(BALL))
+    gnomonic = np.hypot(t[:, 0] / t[:, 2], t[:, 1] / t[:, 2])
+    assert gnomonic.max() <= SEE_THROUGH_CORE * R / np.sqrt(1.0 - R * R) + 1e-12
+    assert len(sphere_cap_targets(np.array([0.0, 0.0, 0.01]), R, cell)) == 0
+
+
+def test_a_whole_ball_is_not_seen_through():
+    assert check_seen_through(BALL, R, view_cloud(lambda p: np.ones(len(p), bool)),
+                              SPHERE) is None
+
+
+def test_a_bowl_with_the_wall_seen_above_it_is_no_ball():
+    # Only the lower half of the ball is there (an open bowl): through the upper half of
+    # the silhouette the sensor sees the wall 300 mm behind.
+    out = check_seen_through(BALL, R, view_cloud(lambda p: p[:, 1] > 0.0), SPHERE)
+    assert isinstance(out, Rejected) and out.misfit
+    share = int(out.reason.split("along ")[1].split("%")[0])
+    assert 40 <= share <= 60
+
+
+def test_a_ball_with_a_small_hole_is_still_a_ball():
+    # 10 % of the core's rays see past it: within the 20 % a model may leave off it.
+    core = SEE_THROUGH_CORE * R
+    out = check_seen_through(BALL, R, view_cloud(
+        lambda p: np.hypot(p[:, 0], p[:, 1]) > np.sqrt(0.1) * core), SPHERE)
+    assert out is None
+
+
+def test_a_ring_seen_through_its_hole_and_beside_it_is_no_ball():
+    out = check_seen_through(BALL, R, view_cloud(
+        lambda p: np.abs(np.hypot(p[:, 0], p[:, 1]) - 0.7 * R) < 0.12 * R), SPHERE)
+    assert isinstance(out, Rejected)
+
+
+def test_no_see_through_check_with_fixed_noise_or_without_the_scene():
+    bowl = view_cloud(lambda p: p[:, 1] > 0.0, "fixed")
+    assert check_seen_through(BALL, R, bowl, SPHERE) is None
+    bowl = view_cloud(lambda p: p[:, 1] > 0.0)
+    assert check_seen_through(BALL, R, SimpleNamespace(params=bowl.params, view=None,
+                                                       spacing=STEP), SPHERE) is None
+
+
+@pytest.mark.parametrize("frame", ["learn33", "learn34"])
+def test_the_real_bowls_of_osd_learn_are_no_balls(frame):
+    # Their outer sides curve two ways, and a sphere fits them; but the sensor sees the
+    # desk through the upper part of that sphere's silhouette.
+    points, gt = load_osd(require(DATA / "osd_learn" / f"{frame}.pcd"))
+    labels, result = model_scene(points, ModelingParams(), organized_shape=(480, 640))
+    bowl = np.bincount(labels[(gt == 4) & (labels >= 0)]).argmax()
+    obj = {o.id: o for o in result.objects}[bowl]
+    assert obj.type != PrimitiveType.SPHERE
+    assert "sphere rejected: the sensor saw past it" in obj.reason
