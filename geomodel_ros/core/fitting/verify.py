@@ -3,7 +3,8 @@
 A model that RANSAC and least squares found is only accepted when it describes the
 object: enough inliers on the fitted faces, enough of the object's points on it, a wide
 enough arc round a curved side, a straight profile along it, no length or radius beyond
-the object's bulk, and (for a cone) points that reach towards its apex.
+the object's bulk, (for a cone) points that reach towards its apex, and (for a sphere) no
+reach into the support beneath it and no view of the scene through it.
 """
 
 from __future__ import annotations
