@@ -42,7 +42,8 @@ from numpy.typing import NDArray
 
 from geomodel_ros.core.params import ModelingParams
 
-__all__ = ["FaceInfo", "GraphDecision", "curvature_candidates", "decide_type", "side_tilt"]
+__all__ = ["FaceInfo", "GraphDecision", "curvature_candidates", "decide_type", "side_tilt",
+           "NO_CURVATURE"]
 
 
 @dataclass(frozen=True)
@@ -104,6 +105,8 @@ MIXED_VETO_SHARE = 2 * SLIVER_SHARE
 #: interquartile spread is at most this many angle tolerances (+- one tolerance about
 #: the median).
 CONE_ANGLE_SPREAD = 2
+#: Reason of :func:`curvature_candidates` when no point has a curvature to judge.
+NO_CURVATURE = "no curvature"
 
 
 def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
@@ -214,7 +217,7 @@ def curvature_candidates(k_max: NDArray[np.float64], k_min: NDArray[np.float64],
     a_max = np.abs(k_max[np.isfinite(k_max)])
     a_min = np.abs(k_min[np.isfinite(k_min)])
     if a_max.size == 0 or np.median(a_max) <= 0:
-        return (), "no curvature"
+        return (), NO_CURVATURE
     ratio = float(np.median(a_min) / np.median(a_max))
     if ratio >= sphere_ratio:
         return ("sphere",), f"k1 ~ k2 (median ratio {ratio:.2f})"

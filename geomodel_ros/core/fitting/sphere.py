@@ -8,7 +8,8 @@ import numpy as np
 
 from geomodel_ros.core.fitting.curved import CurvedFit, fit_curved
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted
-from geomodel_ros.core.fitting.verify import check_noise_scatter, check_radius
+from geomodel_ros.core.fitting.verify import (check_noise_scatter, check_radius,
+                                              check_seen_through, check_sunk_in_support)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.core.ransac import SphereModel
@@ -26,7 +27,9 @@ def sphere_hypothesis_ok(model: SphereModel, params: ModelingParams) -> bool:
 def fit_sphere(task: FitTask) -> FitOutcome:
     """Fit a sphere to the curved faces of ``task.cloud`` (a sphere has no axis).
 
-    Returns a sphere with identity rotation, or the rejection.
+    Returns a sphere with identity rotation, or the rejection (also when it would reach
+    into the support its object stands on, :func:`~.verify.check_sunk_in_support`, or when
+    the sensor saw past its visible cap, :func:`~.verify.check_seen_through`).
     """
     cloud = task.cloud
     side = fit_curved(cloud, SPHERE, SphereModel,
@@ -35,7 +38,9 @@ def fit_sphere(task: FitTask) -> FitOutcome:
         return side
     model = side.model
     bad = check_radius(model.radius, cloud.params, SPHERE) or \
-        check_noise_scatter(cloud.points, model.distance, cloud.params, SPHERE)
+        check_noise_scatter(cloud.points, model.distance, cloud.params, SPHERE) or \
+        check_sunk_in_support(model.center, float(model.radius), cloud, SPHERE) or \
+        check_seen_through(model.center, float(model.radius), cloud, SPHERE)
     if bad:
         return bad
     prim = Primitive(cloud.oid, SPHERE, model.center.copy(), np.eye(3),

@@ -9,7 +9,10 @@ box side with a gable, fold or shrink-wrap ripples over part of it), the other c
 faces left out as outliers (:func:`box_rival`); the shape with the smaller truncated
 residual over all the object's points (MSAC cost at the noise band) is taken
 (:func:`prefer_box`). A box, in turn, has to beat the round model of all the object's
-faces taken as curved, on the same cost (:func:`prefer_round`).
+faces taken as curved, on the same cost (:func:`prefer_round`). Last, an object that no
+strategy typed but whose surface showed itself curved two ways (a side rejected for a
+bowed profile, or curvatures neither developable nor spherical) is tried as a sphere
+(:class:`DoublyCurvedAsSphere`).
 """
 
 from __future__ import annotations
@@ -31,8 +34,9 @@ from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.units import fit_first
-from geomodel_ros.core.model_graph import (FaceInfo, GraphDecision, curvature_candidates,
-                                           decide_type)
+from geomodel_ros.core.fitting.verify import bowed_profile, standing_on
+from geomodel_ros.core.model_graph import (NO_CURVATURE, FaceInfo, GraphDecision,
+                                           curvature_candidates, decide_type)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
 from geomodel_ros.core.surface_type import face_feature, principal_curvatures
@@ -40,7 +44,7 @@ from geomodel_ros.core.surface_type import face_feature, principal_curvatures
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
            "UprightAboveSupport", "BoxRival", "PlanarPatchesOfCurvedObjects", "BoxOfFlatCores",
-           "flat_faces",
+           "DoublyCurvedAsSphere", "flat_faces",
            "flat_core_faces", "box_rival", "support_below", "truncated_cost", "truncated_costs",
            "prefer_box",
            "prefer_round", "round_rival", "thinned", "all_faces_curved", "as_curved"]
@@ -75,11 +79,6 @@ RIVAL_FIT_POINTS = 400
 #: Fewest point normals and smallest mean-normal norm for which flatness is judged.
 MIN_FLAT_NORMALS = 3
 MIN_FLAT_MEAN_NORM = 1e-9
-#: An object stands above a support plane when at most SUPPORT_BELOW_PERCENTILE per cent
-#: of its points lie below the plane by more than the tolerance (twice
-#: ``seg_plane_threshold`` plus the RANSAC threshold) and its median lies above it by more.
-SUPPORT_BELOW_PERCENTILE = 1.0
-SUPPORT_TOLERANCE_FACTOR = 2.0
 #: The planar faces of a mixed object may be patches of its curved surface when its curved
 #: faces hold more than this share of its working points (the curved surface dominates).
 CURVED_MAJORITY = 0.5
@@ -398,21 +397,10 @@ def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, 
 def support_below(cloud: ObjectCloud) -> NDArray[np.float64] | None:
     """Return the normal (3,) of a support plane that ``cloud`` stands above, or None.
 
-    Its bulk above the plane by more than SUPPORT_TOLERANCE_FACTOR ``seg_plane_threshold``
-    plus the RANSAC threshold, nothing of it below by more than that. Objects stacked on
-    others count too.
+    The plane of :func:`~.verify.standing_on` (objects stacked on others count too).
     """
-    params = cloud.params
-    tol = SUPPORT_TOLERANCE_FACTOR * params.seg_plane_threshold + params.ransac_threshold
-    sub = every_kth(cloud.points)
-    for n, d in cloud.supports:
-        h = sub @ n + d
-        if np.median(h) < 0:
-            h = -h
-        if float(np.percentile(h, SUPPORT_BELOW_PERCENTILE)) >= -tol and \
-                float(np.median(h)) > tol:
-            return np.asarray(n, dtype=np.float64)
-    return None
+    plane = standing_on(cloud)
+    return None if plane is None else np.asarray(plane[0], dtype=np.float64)
 
 
 class UprightAboveSupport:
@@ -641,10 +629,52 @@ class BoxOfFlatCores:
                        note=f"no round model explains the points; {rival.note}")
 
 
+class DoublyCurvedAsSphere:
+    """Try a sphere on an object whose surface is curved two ways, when nothing else fitted.
+
+    A cylinder, cone or frustum bends around its axis only; a sphere bends along every
+    direction. Two observations show the second bend when no strategy typed the object:
+    an axial model whose side's profile bows (:func:`~.verify.check_profile_bow`: its
+    tangent turns by more than ``min_arc`` along the axis, significantly; the profile of a
+    sphere is a circle arc), or principal curvatures whose ratio lies between the
+    developable and the spherical bound (:attr:`Situation.no_round_shape`; depth noise
+    pulls the smaller curvature of a sphere's points down, the larger one up). A small
+    sphere far from the sensor shows both: part of its cap passes as planar, or its
+    curvature ratio falls below ``sphere_curvature_ratio``. Every face is then taken as
+    curved and the sphere unit's own checks (inliers, radius, scatter against the
+    measured noise) decide; a torus, whose profile bows as well, scatters about its best
+    sphere far beyond the noise. Tried last, so it only types objects that would
+    otherwise be ``unknown``; only with ``noise_model = auto`` (``fixed`` keeps the
+    previous strategies exactly).
+    """
+
+    name = "doubly curved as a sphere"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True when a bowed profile or non-developable curvatures were seen."""
+        if situation.cloud.params.noise_model != "auto":
+            return False
+        bowed = any(bowed_profile(r) for r in situation.rejected)
+        return bowed or (situation.no_round_shape and
+                         situation.fit_decision.reason != NO_CURVATURE)
+
+    def attempt(self, situation: Situation) -> Attempt:
+        """Fit a sphere to every face taken as curved."""
+        cloud = situation.cloud
+        bowed = any(bowed_profile(r) for r in situation.rejected)
+        why = "a side's profile bows" if bowed else \
+            "curvatures neither developable nor spherical"
+        faces = [as_curved(f) for f in cloud.faces]
+        return Attempt(dataclasses.replace(cloud, faces=faces),
+                       GraphDecision("curved", (PrimitiveType.SPHERE.value,), -1, (), why),
+                       note=f"curved two ways ({why}): every face taken as curved")
+
+
 #: The strategies in the order they are tried.
 STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
                                     FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
-                                    PlanarPatchesOfCurvedObjects(), BoxOfFlatCores())
+                                    PlanarPatchesOfCurvedObjects(), BoxOfFlatCores(),
+                                    DoublyCurvedAsSphere())
 
 
 def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES

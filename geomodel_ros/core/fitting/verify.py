@@ -3,7 +3,8 @@
 A model that RANSAC and least squares found is only accepted when it describes the
 object: enough inliers on the fitted faces, enough of the object's points on it, a wide
 enough arc round a curved side, a straight profile along it, no length or radius beyond
-the object's bulk, and (for a cone) points that reach towards its apex.
+the object's bulk, (for a cone) points that reach towards its apex, and (for a sphere) no
+reach into the support beneath it and no view of the scene through it.
 """
 
 from __future__ import annotations
@@ -15,10 +16,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fitting.cloud import ObjectCloud, independent_noise
-from geomodel_ros.core.fitting.measure import noise_scatter_ratio
+from geomodel_ros.core.fitting.measure import every_kth, noise_scatter_ratio
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.slow_taper import slow_bow
 from geomodel_ros.core.fitting.taper_spread import least_bow, profile_bow
+from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.noise import K_AMPLITUDE
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import PrimitiveType
@@ -28,7 +30,9 @@ __all__ = ["OUTLIER_FACTOR", "MIN_COVERAGE", "CONE_APEX_REACH", "CONE_BEHIND_APE
            "BULK_FACTOR", "BULK_MARGIN", "axis_within", "check_inlier_ratio",
            "check_coverage", "check_radius", "check_axis", "check_arc", "check_bulk_length",
            "check_apex", "check_bulk_reach", "NOISE_SCATTER_BOUND", "check_noise_scatter",
-           "check_profile_bow"]
+           "check_profile_bow", "PROFILE_BOWS", "bowed_profile", "SUPPORT_BELOW_PERCENTILE",
+           "SUPPORT_TOLERANCE_FACTOR", "standing_on", "check_sunk_in_support", "SEE_THROUGH_CORE",
+           "SEE_THROUGH_CELL_SPACINGS", "sphere_cap_targets", "check_seen_through"]
 
 #: Points farther than this many RANSAC thresholds from the fitted surfaces are outliers
 #: for sizing.
@@ -57,6 +61,21 @@ BULK_MARGIN = 0.02
 #: in stereo 1.8); wrong fits on the suite: tori as cones or cylinders 1.96-2.91 (an open
 #: cup as a cylinder of its mean radius 1.34-1.41: passes).
 NOISE_SCATTER_BOUND = 2.0
+#: Words of a rejection by :func:`check_profile_bow` (a side curved along its axis as well
+#: as around it), by which :func:`bowed_profile` recognises one.
+PROFILE_BOWS = "rejected: its profile bows"
+#: A sphere's visible cap is looked along within this share of its silhouette's angular
+#: radius: near the silhouette its surface runs along the rays, where a return a little
+#: off the fitted radius lies far along the ray from it.
+SEE_THROUGH_CORE = 0.8
+#: Rays are binned in angular cells of this many of the object's point spacings (about
+#: four returns per cell on an image grid, so that a cell has a return despite dropouts).
+SEE_THROUGH_CELL_SPACINGS = 2.0
+#: An object stands above a support plane when at most SUPPORT_BELOW_PERCENTILE per cent
+#: of its points lie below the plane by more than the tolerance (twice
+#: ``seg_plane_threshold`` plus the RANSAC threshold) and its median lies above it by more.
+SUPPORT_BELOW_PERCENTILE = 1.0
+SUPPORT_TOLERANCE_FACTOR = 2.0
 
 
 def axis_within(axis: NDArray[np.float64], prior: NDArray[np.float64] | None,
@@ -202,6 +221,118 @@ def check_profile_bow(points: NDArray[np.float64], model: ConeModel | CylinderMo
                                     shape.radius))
         if bow <= least:
             return None
-    return Rejected(kind, f"{kind} rejected: its profile bows {bow * 1000:.1f} mm (beyond "
+    return Rejected(kind, f"{kind} {PROFILE_BOWS} {bow * 1000:.1f} mm (beyond "
                           f"{least * 1000:.1f} mm) and turns by "
                           f"{math.degrees(shape.turn):.0f} deg along its axis")
+
+
+def bowed_profile(rejection: Rejected) -> bool:
+    """Return True for a rejection by :func:`check_profile_bow` (a side curved two ways)."""
+    return PROFILE_BOWS in rejection.reason
+
+
+def standing_on(cloud: ObjectCloud) -> tuple[NDArray[np.float64], float] | None:
+    """Return the support plane (normal (3,), d) that ``cloud`` stands above, or None.
+
+    Its bulk above the plane by more than SUPPORT_TOLERANCE_FACTOR ``seg_plane_threshold``
+    plus the RANSAC threshold, nothing of it below by more than that (at most
+    SUPPORT_BELOW_PERCENTILE per cent of its points). The plane is returned as given
+    (its normal may point either way).
+    """
+    params = cloud.params
+    tol = SUPPORT_TOLERANCE_FACTOR * params.seg_plane_threshold + params.ransac_threshold
+    sub = every_kth(cloud.points)
+    for n, d in cloud.supports:
+        h = sub @ n + d
+        if np.median(h) < 0:
+            h = -h
+        if float(np.percentile(h, SUPPORT_BELOW_PERCENTILE)) >= -tol and \
+                float(np.median(h)) > tol:
+            return n, float(d)
+    return None
+
+
+def check_sunk_in_support(center: NDArray[np.float64], radius: float, cloud: ObjectCloud,
+                          kind: PrimitiveType) -> Rejected | None:
+    """Reject a sphere that reaches into a support its object rests on or above.
+
+    A solid on one side of a support plane (its points there, at most
+    SUPPORT_BELOW_PERCENTILE per cent of them beyond the plane by more than the tolerance
+    of :func:`standing_on`) cannot pass through it: a sphere whose ``center`` (3,) [m]
+    lies less than its ``radius`` [m] minus the RANSAC threshold (the noise band) on that
+    side of the plane is rejected. Such a sphere explains only a cap of points above the
+    support (a ring, a flat mound), not a ball. Only with ``noise_model = auto``.
+    """
+    params = cloud.params
+    if params.noise_model != "auto":
+        return None
+    tol = SUPPORT_TOLERANCE_FACTOR * params.seg_plane_threshold + params.ransac_threshold
+    sub = every_kth(cloud.points)
+    for n, d in cloud.supports:
+        h = sub @ n + d
+        side = 1.0 if np.median(h) >= 0 else -1.0
+        if float(np.percentile(side * h, SUPPORT_BELOW_PERCENTILE)) < -tol:
+            continue
+        sunk = radius - side * (float(center @ n) + d)
+        if sunk > params.ransac_threshold:
+            return Rejected(kind, f"{kind} rejected: it reaches {sunk * 1000:.0f} mm into "
+                                  "the support beneath it", misfit=True)
+    return None
+
+
+def sphere_cap_targets(center: NDArray[np.float64], radius: float, cell: float
+                       ) -> NDArray[np.float64]:
+    """Return points (m, 3) [m] on the near side of a sphere, one per angular ``cell`` [rad].
+
+    The rays from the origin (the sensor) to the sphere's ``center`` (3,) [m] and around
+    it on a square grid of ``cell`` in gnomonic coordinates, within SEE_THROUGH_CORE of
+    the silhouette's angular radius; each target is where its ray first meets the sphere.
+    Empty when the origin is inside the sphere.
+    """
+    dist = float(np.linalg.norm(center))
+    if dist <= radius or cell <= 0:
+        return np.empty((0, 3))
+    axis = center / dist
+    e1, e2 = perpendicular_basis(axis)
+    reach = SEE_THROUGH_CORE * radius / math.sqrt(dist * dist - radius * radius)
+    steps = np.arange(-math.floor(reach / cell), math.floor(reach / cell) + 1) * cell
+    a, b = (g.ravel() for g in np.meshgrid(steps, steps))
+    keep = a * a + b * b <= reach * reach
+    rays = axis + a[keep, None] * e1 + b[keep, None] * e2
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    along = rays @ center
+    depth = along - np.sqrt(np.maximum(radius * radius - dist * dist + along * along, 0.0))
+    return rays * depth[:, None]
+
+
+def check_seen_through(center: NDArray[np.float64], radius: float, cloud: ObjectCloud,
+                       kind: PrimitiveType) -> Rejected | None:
+    """Reject a sphere through whose visible cap the sensor saw the scene behind it.
+
+    A sphere is solid: every ray through its silhouette ends on its near side or in front
+    of it. Along rays through the middle of the silhouette (:func:`sphere_cap_targets`),
+    the scene's nearest return (``cloud.view``) lies behind the cap by more than
+    OUTLIER_FACTOR RANSAC thresholds where the sensor looked past it (the space above an
+    open bowl, the desk beside a cap of a larger sphere). The sphere is rejected when more
+    of the rays with a return do so than ``1 - min_inlier_ratio`` (the share of its own
+    points a model may leave off it). Only with ``noise_model = auto`` and the scene's
+    returns at hand.
+    """
+    params, view = cloud.params, cloud.view
+    if params.noise_model != "auto" or view is None:
+        return None
+    dist = float(np.linalg.norm(center))
+    cell = SEE_THROUGH_CELL_SPACINGS * cloud.spacing / max(dist, np.finfo(float).tiny)
+    targets = sphere_cap_targets(center, radius, cell)
+    if not len(targets):
+        return None
+    found = view.returns(targets, cell)
+    seen = np.isfinite(found.nearest)
+    if not seen.any():
+        return None
+    behind = found.nearest[seen] > found.ranges[seen] + OUTLIER_FACTOR * params.ransac_threshold
+    share = float(np.mean(behind))
+    if share > 1.0 - params.min_inlier_ratio:
+        return Rejected(kind, f"{kind} rejected: the sensor saw past it along {share:.0%} of "
+                              "the rays through its middle", misfit=True)
+    return None
