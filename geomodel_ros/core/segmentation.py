@@ -33,8 +33,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
-                                     neighborhood_moments, smallest_eigenpairs_sym, split_faces,
-                                     voxelize)
+                                     neighborhood_moments, pca_normals, smallest_eigenpairs_sym,
+                                     split_faces, voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.fastmath import knn_among, robust_sigma, rows_finite, take_rows
 from geomodel_ros.core.noise import NoiseEstimate, disparity_step, resolve_params
@@ -416,9 +416,14 @@ def _rest_neighbourhood(wp: NDArray[np.float64], rest_idx: NDArray[np.int64],
     normals (R, 3), variation (R,), neighbors (R, k'), sqdist (R, k')
         As :func:`geomodel_ros.core.faces.estimate_normals` returns them (k' = min(k, R);
         indices into ``rest_idx``).
+    off_plane : (R,) float64 array [m^2]
+        Mean squared distance of each neighbourhood from its plane (its covariance's
+        smallest eigenvalue, :func:`geomodel_ros.core.faces.pca_normals`).
     """
-    return estimate_normals(wp[rest_idx], k, return_sqdist=True,
-                            neighbours=knn_among(wp, rest_idx, nbrs, sqdist, k))
+    rest = take_rows(wp, rest_idx)
+    near, near_sq = knn_among(wp, rest_idx, nbrs, sqdist, k)
+    normals, variation, off_plane = pca_normals(rest, near)
+    return normals, variation, near, near_sq, off_plane
 
 
 def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
@@ -440,7 +445,8 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     neighbourhood : (normals, variation, neighbors, sqdist), optional
         The points' normals, surface variation and neighbour lists when known (organized
         path); by default they are estimated over the ``normal_neighbors`` nearest points
-        (given as ``own``, the same from :func:`_rest_neighbourhood`, when known).
+        (given as ``own``, the same from :func:`_rest_neighbourhood`, when known, followed
+        by each neighbourhood's mean squared distance from its plane).
 
     Returns
     -------
@@ -456,8 +462,9 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     is a crease whatever its votes.
     """
     m = len(points)
-    normals, variation, nbrs, sqdist = neighbourhood if neighbourhood is not None else \
-        own if own is not None else \
+    # ``own`` also holds the neighbourhoods' squared distances from their planes.
+    normals, variation, nbrs, sqdist, *off_plane = neighbourhood if neighbourhood is not None \
+        else own if own is not None else \
         estimate_normals(points, params.normal_neighbors, return_sqdist=True)
     cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
                          np.arange(m), sqdist)
@@ -473,7 +480,7 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                          min_piece=params.min_face_points,
                          noisy=STEP_NOISE_SIGMAS * noise_w > floor, parallel_cos=parallel)
     n_p = int(patches.max()) + 1
-    normals = _patch_normals(points, normals, nbrs, patches, noise_w)
+    normals = _patch_normals(points, normals, nbrs, patches, noise_w, *off_plane)
     a, b, votes, yes, creased = _border_votes(
         points, normals, nbrs, sqdist, patches, n_p, max_edge,
         params.seg_concavity_tolerance, step, parallel,
@@ -879,7 +886,8 @@ def _creased_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
 
 def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
                    nbrs: NDArray[np.int64], patches: NDArray[np.int64],
-                   noise: NDArray[np.float64]) -> NDArray[np.float64]:
+                   noise: NDArray[np.float64], off_plane: NDArray[np.float64] | None = None
+                   ) -> NDArray[np.float64]:
     """Re-estimate the normals of points next to a crease from their own patch.
 
     Near a crease a point's neighbourhood straddles both surfaces and its normal blends
@@ -903,6 +911,9 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
         Noise [m] of the surface along its normal at each point (e.g.
         :func:`working_noise`; 0 where unknown: every border point takes its own patch's
         normal).
+    off_plane : (M,) float64 array [m^2], optional
+        Mean squared distance of every point's neighbourhood from its plane, when known
+        (:func:`geomodel_ros.core.faces.pca_normals` over ``nbrs``); computed otherwise.
 
     Returns
     -------
@@ -910,7 +921,8 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
         Unit normals oriented towards the sensor.
     """
     same = patches[nbrs] == patches[:, None]
-    off_plane, _ = smallest_eigenpairs_sym(*neighborhood_moments(points, nbrs))
+    if off_plane is None:
+        off_plane, _ = smallest_eigenpairs_sym(*neighborhood_moments(points, nbrs))
     # Only the points that do not keep their normal are refitted (row by row, the same
     # values as refitting all of them).
     rows = np.flatnonzero((same.sum(axis=1) >= PATCH_NORMAL_MIN_NEIGHBORS)
