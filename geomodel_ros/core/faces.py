@@ -16,17 +16,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from geomodel_ros.core.errors import InputError
-from geomodel_ros.core.fastmath import centroid, knn, robust_sigma
+from geomodel_ros.core.fastmath import centroid, knn, link_components, robust_sigma
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, refine
 
 __all__ = ["WorkingCloud", "FaceSet", "voxelize", "count_voxels", "estimate_normals",
            "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
-           "split_faces", "faces_from_labels", "pca_normals", "working_voxel_size", "link_graph",
+           "split_faces", "faces_from_labels", "pca_normals", "working_voxel_size",
            "split_plane_unions", "face_plane"]
 
 
@@ -513,18 +512,6 @@ def _pair_sqdist(p: NDArray[np.float64], neighbors: NDArray[np.int64]) -> NDArra
     return out
 
 
-def link_graph(neighbors: NDArray[np.int64], keep: NDArray[np.bool_], n: int) -> csr_matrix:
-    """Return the (M, n) sparse graph of the links ``i -> neighbors[i, j]`` kept.
-
-    ``keep[i, j]`` (both (M, k)) selects the links; they are grouped by their first
-    point, so the graph is built in CSR form directly.
-    """
-    indptr = np.zeros(len(neighbors) + 1, dtype=np.int64)
-    np.cumsum(keep.sum(axis=1), out=indptr[1:])
-    return csr_matrix((np.ones(int(indptr[-1])), neighbors[keep], indptr),
-                      shape=(len(neighbors), n))
-
-
 def _adjacency(labels: NDArray[np.int64], neighbors: NDArray[np.int64], n_faces: int,
                min_links: int = MIN_ADJACENCY_LINKS) -> NDArray[np.bool_]:
     a = np.repeat(labels, neighbors.shape[1])
@@ -588,7 +575,7 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
     keep = (cos >= limit) & smooth[nb] & smooth[:, None] & (nb != np.arange(m)[:, None])
     if max_edge is not None:
         keep &= d2 <= max_edge * max_edge
-    _, comp = connected_components(link_graph(nb, keep, m), directed=False)
+    _, comp = link_components(nb, keep)
     comp = np.where(smooth, comp, -1).astype(np.int64)
     labels = _relabel_small(comp, cloud.points, min_face_points)
     n_faces = int(labels.max()) + 1 if labels.size else 0

@@ -29,14 +29,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.errors import InputError, as_points
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
-                                     neighborhood_moments, pca_normals, smallest_eigenpairs_sym,
-                                     split_faces, voxelize)
+from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, neighborhood_moments,
+                                     pca_normals, smallest_eigenpairs_sym, split_faces, voxelize)
 from geomodel_ros.core.input import without_far_points
-from geomodel_ros.core.fastmath import knn_among, robust_sigma, rows_finite, take_rows
+from geomodel_ros.core.fastmath import (knn_among, link_components, robust_sigma, rows_finite,
+                                        take_rows)
 from geomodel_ros.core.noise import NoiseEstimate, disparity_step, resolve_params
 from geomodel_ros.core.joins import (join_contained_parts, join_occluded_parts, join_terraces,
                                      merge_patches)
@@ -1034,7 +1033,7 @@ def _cut_steps(points: NDArray[np.float64], normals: NDArray[np.float64],
     same = (patches[i] == patches[j]) & (sqdist.ravel() <= max_edge * max_edge)
     keep = same.copy()
     keep[same] = _step_free(points, normals, i[same], j[same], step, parallel_cos)[2]
-    _, comp = connected_components(link_graph(nbrs, keep.reshape(m, k), m), directed=False)
+    _, comp = link_components(nbrs, keep.reshape(m, k))
     if min_piece > 1 and noisy is not None and noisy.any():
         comp = _rejoin_shreds(comp, i[same], j[same], min_piece, noisy)
     return comp.astype(np.int64)
