@@ -34,8 +34,8 @@ from scipy.spatial import cKDTree
 from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, neighborhood_moments,
                                      pca_normals, smallest_eigenpairs_sym, split_faces, voxelize)
 from geomodel_ros.core.input import without_far_points
-from geomodel_ros.core.fastmath import (knn_among, link_components, robust_sigma, rows_finite,
-                                        take_rows)
+from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, knn_among, link_components,
+                                        robust_sigma, rows_finite, take_rows)
 from geomodel_ros.core.noise import NoiseEstimate, disparity_step, resolve_params
 from geomodel_ros.core.joins import (join_contained_parts, join_occluded_parts, join_terraces,
                                      merge_patches)
@@ -123,6 +123,10 @@ RIM_OFFSET_SPACINGS = 0.25
 #: itself take 9, and a surface behind it across an outline is denser in viewing angle
 #: (farther), so 16 reach past the own surface's ring to the next one (a 5 x 5 block has 25).
 SEAM_NEIGHBORS = 16
+#: The image-neighbour search stops this share beyond the widest angle a pair can be
+#: kept at (:func:`_image_seam`): far above the rounding of that bound's arithmetic
+#: (about 1e-16), far below any difference of angles that matters.
+SEAM_BOUND_MARGIN = 1e-6
 #: A patch border is an outline in front of the other patch when more than this share of
 #: its image seam are depth jumps longer than a link: the two surfaces meet in 3-D only
 #: along a minority of the seam, and the convexity votes of those few links say nothing
@@ -726,15 +730,22 @@ def _image_seam(points: NDArray[np.float64], rows: NDArray[np.int64],
 
     Neighbours by viewing direction (the :data:`SEAM_NEIGHBORS` nearest), kept within
     :data:`SEAM_RADIUS_SPACINGS` working-grid ``spacing`` [m] as seen from the nearer
-    point; also returns the farther point of each pair (the one behind).
+    point; also returns the farther point of each pair (the one behind). The search
+    stops at the widest angle any pair can be kept at (that seen from the nearest point
+    of ``rows``, with :data:`SEAM_BOUND_MARGIN`): the nearest within it are the first of
+    the :data:`SEAM_NEIGHBORS` nearest, the others would not be kept.
     """
     ranges = np.linalg.norm(points, axis=1)
-    dirs = points[rows] / np.maximum(ranges[rows], np.finfo(float).tiny)[:, None]
+    tiny = np.finfo(float).tiny
+    dirs = points[rows] / np.maximum(ranges[rows], tiny)[:, None]
     k = min(SEAM_NEIGHBORS, len(rows))
-    angle, nb = cKDTree(dirs).query(dirs, k=k)
-    i = np.repeat(rows, k)
-    j = rows[nb.ravel()]
-    near = angle.ravel() * np.minimum(ranges[i], ranges[j]) <= SEAM_RADIUS_SPACINGS * spacing
+    radius = SEAM_RADIUS_SPACINGS * spacing
+    widest = radius / max(float(ranges[rows].min()), tiny) * (1.0 + SEAM_BOUND_MARGIN)
+    angle, nb = cKDTree(dirs).query(dirs, k=k, distance_upper_bound=widest)
+    found = nb.ravel() < len(rows)  # beyond the bound: index len(rows), angle inf
+    i = np.repeat(rows, k)[found]
+    j = rows[nb.ravel()[found]]
+    near = angle.ravel()[found] * np.minimum(ranges[i], ranges[j]) <= radius
     near &= patches[i] != patches[j]
     i, j = i[near], j[near]
     return i, j, np.where(ranges[i] > ranges[j], i, j)
@@ -806,8 +817,11 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
     if not len(inside):
         return concave
     fold = _link_folds(points, normals, i[inside], j[inside])
-    ids, group = np.unique(patches[i[inside]], return_inverse=True)
-    concave[ids] = _group_median(group.ravel(), fold, len(ids)) < 0.0
+    own = patches[i[inside]]
+    present = np.bincount(own, minlength=n_p) > 0
+    ids = np.flatnonzero(present)
+    # The rank of each link's patch among those present (np.unique's inverse, no sort).
+    concave[ids] = _group_median((np.cumsum(present) - 1)[own], fold, len(ids)) < 0.0
     return concave
 
 
@@ -822,9 +836,14 @@ def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
                   ) -> NDArray[np.float64]:
     """Return the median (n,) of ``values`` (L,) within each ``group`` (L,) id 0 .. n-1.
 
-    Every group must hold at least one value.
+    Every group must hold at least one value. The values are sorted once, then grouped by
+    a stable sort of their groups (a radix sort for up to ``MAX_INT16_LABEL`` groups):
+    each group's values in ascending order, as a sort by group and value gives them.
     """
-    order = np.lexsort((values, group))
+    by_value = np.argsort(values)
+    within = group[by_value]
+    order = by_value[np.argsort(within.astype(np.int16) if n <= MAX_INT16_LABEL + 1 else within,
+                                kind="stable")]
     v = values[order]
     counts = np.bincount(group, minlength=n)
     start = np.cumsum(counts) - counts
