@@ -140,6 +140,34 @@ def test_nearest_face_search_gives_the_same_faces_on_one_thread_or_all(monkeypat
     assert set(np.unique(one)) == {0, 1}
 
 
+def _plain_relabel_small(labels, points, min_size):
+    """Faces of at least min_size points keep theirs, the rest take the nearest one's."""
+    ids, sizes = np.unique(labels[labels >= 0], return_counts=True)
+    big = ids[sizes >= min_size]
+    keep = np.isin(labels, big)
+    out = labels.copy()
+    _, j = cKDTree(points[keep]).query(points[~keep])
+    out[~keep] = labels[keep][j]
+    return np.unique(out, return_inverse=True)[1].ravel()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_small_faces_join_their_nearest_big_face_renumbered_in_order(seed):
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-0.1, 0.1, size=(3000, 3))
+    # Face ids with gaps (ids 0, 3, 7, 12 big; 5 and 9 small) and edge points (-1).
+    labels = rng.choice([0, 3, 7, 12], size=3000)
+    labels[rng.choice(3000, 600, replace=False)] = -1
+    labels[:8] = 5
+    labels[8:12] = 9
+    got = faces._relabel_small(labels, pts, 20)
+    np.testing.assert_array_equal(got, _plain_relabel_small(labels, pts, 20))
+    np.testing.assert_array_equal(np.unique(got), [0, 1, 2, 3])      # four big faces
+    np.testing.assert_array_equal(got[labels == 7], 2)               # 7 is the third id
+    # No big face: one face of everything.
+    np.testing.assert_array_equal(faces._relabel_small(labels, pts, 5000), 0)
+
+
 def _plain_group_median(group, values, n):
     return np.array([np.median(values[group == g]) for g in range(n)])
 

@@ -525,20 +525,25 @@ def _adjacency(labels: NDArray[np.int64], neighbors: NDArray[np.int64], n_faces:
 
 def _relabel_small(labels: NDArray[np.int64], points: NDArray[np.float64], min_size: int
                    ) -> NDArray[np.int64]:
-    """Give points of faces smaller than ``min_size`` (and label -1) their nearest big face."""
-    ids, sizes = np.unique(labels[labels >= 0], return_counts=True)
-    big = ids[sizes >= min_size]
-    if big.size == 0:
+    """Give points of faces smaller than ``min_size`` (and label -1) their nearest big face.
+
+    ``labels`` (M,) are -1 or face ids 0, 1, ...; the big faces are renumbered 0, 1, ... in
+    the order of their ids (``np.unique``'s), counted instead of sorted.
+    """
+    sizes = np.bincount(labels + 1)
+    # Indexed by label + 1, so that -1 (no face) is never big.
+    big = (sizes >= max(min_size, 1)) & (np.arange(len(sizes)) > 0)
+    if not big.any():
         return np.zeros(len(labels), dtype=np.int64)
-    keep = np.isin(labels, big)
+    keep = big[labels + 1]
     out = labels.copy()
     if not keep.all():
         tree = cKDTree(points[keep])
         queries = points[~keep]
         _, j = tree.query(queries, k=1, workers=-1 if len(queries) >= THREADED_QUERIES else 1)
         out[~keep] = labels[keep][j]
-    _, compact = np.unique(out, return_inverse=True)
-    return compact.ravel().astype(np.int64)
+    rank = np.cumsum(big) - 1
+    return rank[out + 1].astype(np.int64)
 
 
 def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: float,
