@@ -25,7 +25,7 @@ from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, refine
 __all__ = ["WorkingCloud", "FaceSet", "voxelize", "count_voxels", "estimate_normals",
            "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
-           "split_faces", "faces_from_labels", "pca_normals", "working_voxel_size",
+           "split_faces", "face_labels", "faces_from_labels", "pca_normals", "working_voxel_size",
            "split_plane_unions", "face_plane"]
 
 
@@ -549,7 +549,17 @@ def _relabel_small(labels: NDArray[np.int64], points: NDArray[np.float64], min_s
 def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: float,
                 min_face_points: int, max_edge: float | None = None,
                 crease_length: float | None = None) -> FaceSet:
-    """Split the working cloud into smooth faces.
+    """Split the working cloud into smooth faces: :func:`face_labels` and which faces touch."""
+    labels = face_labels(cloud, angle_threshold, edge_variation, min_face_points, max_edge,
+                         crease_length)
+    n_faces = int(labels.max()) + 1 if labels.size else 0
+    return FaceSet(labels, _adjacency(labels, cloud.neighbors, n_faces))
+
+
+def face_labels(cloud: WorkingCloud, angle_threshold: float, edge_variation: float,
+                min_face_points: int, max_edge: float | None = None,
+                crease_length: float | None = None) -> NDArray[np.int64]:
+    """Label the smooth faces of the working cloud: (M,) int64, faces 0 .. F-1.
 
     Neighbouring non-edge points whose normals differ by less than ``angle_threshold``
     [rad] are linked; faces are the connected components with at least
@@ -567,7 +577,7 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
     """
     m, k = cloud.neighbors.shape
     if m == 0:
-        return FaceSet(np.zeros(0, dtype=np.int64), np.zeros((0, 0), dtype=bool))
+        return np.zeros(0, dtype=np.int64)
     smooth = cloud.variation <= edge_variation
     nb = cloud.neighbors
     cos = _pair_dot(cloud.normals, nb)
@@ -582,9 +592,7 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
         keep &= d2 <= max_edge * max_edge
     _, comp = link_components(nb, keep)
     comp = np.where(smooth, comp, -1).astype(np.int64)
-    labels = _relabel_small(comp, cloud.points, min_face_points)
-    n_faces = int(labels.max()) + 1 if labels.size else 0
-    return FaceSet(labels, _adjacency(labels, cloud.neighbors, n_faces))
+    return _relabel_small(comp, cloud.points, min_face_points)
 
 
 def _link_angle_limits(sqdist: NDArray[np.float64], angle_threshold: float,

@@ -31,8 +31,9 @@ from numpy.typing import NDArray
 from geomodel_ros.core.errors import InputError, as_points
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, neighborhood_moments,
-                                     pca_normals, smallest_eigenpairs_sym, split_faces, voxelize)
+from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, face_labels,
+                                     neighborhood_moments, pca_normals, smallest_eigenpairs_sym,
+                                     voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, knn_among, link_components,
                                         robust_sigma, rows_finite, take_rows)
@@ -458,7 +459,7 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
 
     Notes
     -----
-    Patches are smooth regions (:func:`geomodel_ros.core.faces.split_faces`); they are
+    Patches are smooth regions (:func:`geomodel_ros.core.faces.face_labels`); they are
     grouped into objects from their border votes (:func:`_border_votes`,
     :func:`geomodel_ros.core.joins.merge_patches`). With the frame's noise known, a border
     seen mostly as one patch's outline in front of the other (:func:`_occluding_borders`)
@@ -472,9 +473,9 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
                          np.arange(m), sqdist)
     max_edge = params.seg_max_edge_factor * params.seg_voxel_size
-    patches = split_faces(cloud, params.face_angle_threshold, params.edge_variation_threshold,
+    patches = face_labels(cloud, params.face_angle_threshold, params.edge_variation_threshold,
                           params.min_face_points, max_edge,
-                          None if neighbourhood is None else params.seg_voxel_size).labels
+                          None if neighbourhood is None else params.seg_voxel_size)
     noise_w = working_noise(points, counts, noise)
     floor = STEP_SHARE * params.seg_plane_threshold
     step = np.maximum(floor, STEP_NOISE_SIGMAS * noise_w)
@@ -1051,10 +1052,11 @@ def _cut_steps(points: NDArray[np.float64], normals: NDArray[np.float64],
     j = nbrs.ravel()
     same = (patches[i] == patches[j]) & (sqdist.ravel() <= max_edge * max_edge)
     keep = same.copy()
-    keep[same] = _step_free(points, normals, i[same], j[same], step, parallel_cos)[2]
+    i, j = i[same], j[same]
+    keep[same] = _step_free(points, normals, i, j, step, parallel_cos)[2]
     _, comp = link_components(nbrs, keep.reshape(m, k))
     if min_piece > 1 and noisy is not None and noisy.any():
-        comp = _rejoin_shreds(comp, i[same], j[same], min_piece, noisy)
+        comp = _rejoin_shreds(comp, i, j, min_piece, noisy)
     return comp.astype(np.int64)
 
 
