@@ -145,10 +145,13 @@ def link_components(neighbors: NDArray[np.int64], keep: NDArray[np.bool_]
     f = min(FIRST_LINKS, k - 1)
     # Every row holds f entries: a link not kept becomes a loop on its own point, which
     # joins nothing (no masked gather, no row counts).
-    first = np.where(keep[:, 1:f + 1], neighbors[:, 1:f + 1], np.arange(m)[:, None])
-    graph = csr_matrix((np.ones(m * f), first.ravel(), np.arange(0, m * f + 1, f)),
-                       shape=(m, m))
-    n, labels = connected_components(graph, directed=False)
+    if f > 0:
+        first = np.where(keep[:, 1:f + 1], neighbors[:, 1:f + 1], np.arange(m)[:, None])
+        graph = csr_matrix((np.ones(m * f), first.ravel(), np.arange(0, m * f + 1, f)),
+                           shape=(m, m))
+        n, labels = connected_components(graph, directed=False)
+    else:  # one column (k = 1): no first links, every point its own component
+        n, labels = m, np.arange(m, dtype=np.int32)
     # The links that join two components, over all columns at once (a kept link of
     # columns 1 .. f never does; one gather costs less than two of column slices).
     other = np.take(labels, neighbors)
