@@ -120,3 +120,18 @@ def test_link_components_join_through_a_late_link_only():
     keep[1, -1] = False
     n, labels = link_components(nb, keep)
     assert n == 2 and labels.tolist() == [0, 0, 1, 1]
+
+
+@pytest.mark.parametrize("k", [1, 2])
+def test_link_components_of_one_or_two_columns_are_scipys(k):
+    # A kNN list of one column holds only the point itself: no link joins two points, each
+    # is its own component (as an object of one working point gives it). With a second
+    # column, the pairs linked there: {0, 1}, {2, 3}, {4, 5} (4 points to itself).
+    nb = np.column_stack([np.arange(6), [1, 0, 3, 2, 4, 4]])[:, :k]
+    keep = np.ones((6, k), dtype=bool)
+    n, labels = link_components(nb, keep)
+    want_n, want = _scipy_components(nb, keep)
+    assert n == want_n == (6 if k == 1 else 3)
+    assert labels.dtype == want.dtype
+    np.testing.assert_array_equal(labels, want)
+    np.testing.assert_array_equal(labels, range(6) if k == 1 else [0, 0, 1, 1, 2, 2])

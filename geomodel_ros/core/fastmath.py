@@ -117,7 +117,7 @@ def link_components(neighbors: NDArray[np.int64], keep: NDArray[np.bool_]
     ----------
     neighbors : (M, k) int array
         Neighbours of every point, indices 0 .. M-1 (nearest first, e.g. from :func:`knn`);
-        entries that are not kept may hold any value.
+        entries that are not kept may hold any index from -M to M-1 (e.g. -1 for none).
     keep : (M, k) bool array
         The links of the graph, where ``keep[i, j]`` (undirected: a link joins its two
         ends either way).
@@ -145,19 +145,20 @@ def link_components(neighbors: NDArray[np.int64], keep: NDArray[np.bool_]
     f = min(FIRST_LINKS, k - 1)
     # Every row holds f entries: a link not kept becomes a loop on its own point, which
     # joins nothing (no masked gather, no row counts).
-    first = np.where(keep[:, 1:f + 1], neighbors[:, 1:f + 1], np.arange(m)[:, None])
-    graph = csr_matrix((np.ones(m * f), first.ravel(), np.arange(0, m * f + 1, f)),
-                       shape=(m, m))
-    n, labels = connected_components(graph, directed=False)
-    a, b = [], []
-    for cols in (slice(0, 1), slice(f + 1, k)):
-        other = np.take(labels, neighbors[:, cols])
-        cross = np.flatnonzero(keep[:, cols] & (other != labels[:, None]))
-        a.append(labels[cross // other.shape[1]])
-        b.append(other.ravel()[cross])
-    a, b = np.concatenate(a), np.concatenate(b)
-    if not len(a):
+    if f > 0:
+        first = np.where(keep[:, 1:f + 1], neighbors[:, 1:f + 1], np.arange(m)[:, None])
+        graph = csr_matrix((np.ones(m * f), first.ravel(), np.arange(0, m * f + 1, f)),
+                           shape=(m, m))
+        n, labels = connected_components(graph, directed=False)
+    else:  # one column (k = 1): no first links, every point its own component
+        n, labels = m, np.arange(m, dtype=np.int32)
+    # The links that join two components, over all columns at once (a kept link of
+    # columns 1 .. f never does; one gather costs less than two of column slices).
+    other = np.take(labels, neighbors)
+    cross = np.flatnonzero(keep & (other != labels[:, None]))
+    if not len(cross):
         return n, labels
+    a, b = labels[cross // k], other.ravel()[cross]
     n, merged = connected_components(csr_matrix((np.ones(len(a)), (a, b)), shape=(n, n)),
                                      directed=False)
     return n, merged[labels]

@@ -29,14 +29,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.errors import InputError, as_points
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, link_graph,
-                                     neighborhood_moments, smallest_eigenpairs_sym, split_faces,
+from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, face_labels,
+                                     neighborhood_moments, pca_normals, smallest_eigenpairs_sym,
                                      voxelize)
 from geomodel_ros.core.input import without_far_points
-from geomodel_ros.core.fastmath import knn_among, robust_sigma, rows_finite, take_rows
+from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, knn_among, link_components,
+                                        robust_sigma, rows_finite, take_rows)
 from geomodel_ros.core.noise import NoiseEstimate, disparity_step, resolve_params
 from geomodel_ros.core.joins import (join_contained_parts, join_occluded_parts, join_terraces,
                                      merge_patches)
@@ -124,6 +124,10 @@ RIM_OFFSET_SPACINGS = 0.25
 #: itself take 9, and a surface behind it across an outline is denser in viewing angle
 #: (farther), so 16 reach past the own surface's ring to the next one (a 5 x 5 block has 25).
 SEAM_NEIGHBORS = 16
+#: The image-neighbour search stops this share beyond the widest angle a pair can be
+#: kept at (:func:`_image_seam`): far above the rounding of that bound's arithmetic
+#: (about 1e-16), far below any difference of angles that matters.
+SEAM_BOUND_MARGIN = 1e-6
 #: A patch border is an outline in front of the other patch when more than this share of
 #: its image seam are depth jumps longer than a link: the two surfaces meet in 3-D only
 #: along a minority of the seam, and the convexity votes of those few links say nothing
@@ -416,9 +420,14 @@ def _rest_neighbourhood(wp: NDArray[np.float64], rest_idx: NDArray[np.int64],
     normals (R, 3), variation (R,), neighbors (R, k'), sqdist (R, k')
         As :func:`geomodel_ros.core.faces.estimate_normals` returns them (k' = min(k, R);
         indices into ``rest_idx``).
+    off_plane : (R,) float64 array [m^2]
+        Mean squared distance of each neighbourhood from its plane (its covariance's
+        smallest eigenvalue, :func:`geomodel_ros.core.faces.pca_normals`).
     """
-    return estimate_normals(wp[rest_idx], k, return_sqdist=True,
-                            neighbours=knn_among(wp, rest_idx, nbrs, sqdist, k))
+    rest = take_rows(wp, rest_idx)
+    near, near_sq = knn_among(wp, rest_idx, nbrs, sqdist, k)
+    normals, variation, off_plane = pca_normals(rest, near)
+    return normals, variation, near, near_sq, off_plane
 
 
 def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
@@ -440,7 +449,8 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     neighbourhood : (normals, variation, neighbors, sqdist), optional
         The points' normals, surface variation and neighbour lists when known (organized
         path); by default they are estimated over the ``normal_neighbors`` nearest points
-        (given as ``own``, the same from :func:`_rest_neighbourhood`, when known).
+        (given as ``own``, the same from :func:`_rest_neighbourhood`, when known, followed
+        by each neighbourhood's mean squared distance from its plane).
 
     Returns
     -------
@@ -449,22 +459,23 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
 
     Notes
     -----
-    Patches are smooth regions (:func:`geomodel_ros.core.faces.split_faces`); they are
+    Patches are smooth regions (:func:`geomodel_ros.core.faces.face_labels`); they are
     grouped into objects from their border votes (:func:`_border_votes`,
     :func:`geomodel_ros.core.joins.merge_patches`). With the frame's noise known, a border
     seen mostly as one patch's outline in front of the other (:func:`_occluding_borders`)
     is a crease whatever its votes.
     """
     m = len(points)
-    normals, variation, nbrs, sqdist = neighbourhood if neighbourhood is not None else \
-        own if own is not None else \
+    # ``own`` also holds the neighbourhoods' squared distances from their planes.
+    normals, variation, nbrs, sqdist, *off_plane = neighbourhood if neighbourhood is not None \
+        else own if own is not None else \
         estimate_normals(points, params.normal_neighbors, return_sqdist=True)
     cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
                          np.arange(m), sqdist)
     max_edge = params.seg_max_edge_factor * params.seg_voxel_size
-    patches = split_faces(cloud, params.face_angle_threshold, params.edge_variation_threshold,
+    patches = face_labels(cloud, params.face_angle_threshold, params.edge_variation_threshold,
                           params.min_face_points, max_edge,
-                          None if neighbourhood is None else params.seg_voxel_size).labels
+                          None if neighbourhood is None else params.seg_voxel_size)
     noise_w = working_noise(points, counts, noise)
     floor = STEP_SHARE * params.seg_plane_threshold
     step = np.maximum(floor, STEP_NOISE_SIGMAS * noise_w)
@@ -473,7 +484,7 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                          min_piece=params.min_face_points,
                          noisy=STEP_NOISE_SIGMAS * noise_w > floor, parallel_cos=parallel)
     n_p = int(patches.max()) + 1
-    normals = _patch_normals(points, normals, nbrs, patches, noise_w)
+    normals = _patch_normals(points, normals, nbrs, patches, noise_w, *off_plane)
     a, b, votes, yes, creased = _border_votes(
         points, normals, nbrs, sqdist, patches, n_p, max_edge,
         params.seg_concavity_tolerance, step, parallel,
@@ -720,15 +731,22 @@ def _image_seam(points: NDArray[np.float64], rows: NDArray[np.int64],
 
     Neighbours by viewing direction (the :data:`SEAM_NEIGHBORS` nearest), kept within
     :data:`SEAM_RADIUS_SPACINGS` working-grid ``spacing`` [m] as seen from the nearer
-    point; also returns the farther point of each pair (the one behind).
+    point; also returns the farther point of each pair (the one behind). The search
+    stops at the widest angle any pair can be kept at (that seen from the nearest point
+    of ``rows``, with :data:`SEAM_BOUND_MARGIN`): the nearest within it are the first of
+    the :data:`SEAM_NEIGHBORS` nearest, the others would not be kept.
     """
     ranges = np.linalg.norm(points, axis=1)
-    dirs = points[rows] / np.maximum(ranges[rows], np.finfo(float).tiny)[:, None]
+    tiny = np.finfo(float).tiny
+    dirs = points[rows] / np.maximum(ranges[rows], tiny)[:, None]
     k = min(SEAM_NEIGHBORS, len(rows))
-    angle, nb = cKDTree(dirs).query(dirs, k=k)
-    i = np.repeat(rows, k)
-    j = rows[nb.ravel()]
-    near = angle.ravel() * np.minimum(ranges[i], ranges[j]) <= SEAM_RADIUS_SPACINGS * spacing
+    radius = SEAM_RADIUS_SPACINGS * spacing
+    widest = radius / max(float(ranges[rows].min()), tiny) * (1.0 + SEAM_BOUND_MARGIN)
+    angle, nb = cKDTree(dirs).query(dirs, k=k, distance_upper_bound=widest)
+    found = nb.ravel() < len(rows)  # beyond the bound: index len(rows), angle inf
+    i = np.repeat(rows, k)[found]
+    j = rows[nb.ravel()[found]]
+    near = angle.ravel()[found] * np.minimum(ranges[i], ranges[j]) <= radius
     near &= patches[i] != patches[j]
     i, j = i[near], j[near]
     return i, j, np.where(ranges[i] > ranges[j], i, j)
@@ -800,8 +818,11 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
     if not len(inside):
         return concave
     fold = _link_folds(points, normals, i[inside], j[inside])
-    ids, group = np.unique(patches[i[inside]], return_inverse=True)
-    concave[ids] = _group_median(group.ravel(), fold, len(ids)) < 0.0
+    own = patches[i[inside]]
+    present = np.bincount(own, minlength=n_p) > 0
+    ids = np.flatnonzero(present)
+    # The rank of each link's patch among those present (np.unique's inverse, no sort).
+    concave[ids] = _group_median((np.cumsum(present) - 1)[own], fold, len(ids)) < 0.0
     return concave
 
 
@@ -816,9 +837,14 @@ def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
                   ) -> NDArray[np.float64]:
     """Return the median (n,) of ``values`` (L,) within each ``group`` (L,) id 0 .. n-1.
 
-    Every group must hold at least one value.
+    Every group must hold at least one value. The values are sorted once, then grouped by
+    a stable sort of their groups (a radix sort for up to ``MAX_INT16_LABEL`` groups):
+    each group's values in ascending order, as a sort by group and value gives them.
     """
-    order = np.lexsort((values, group))
+    by_value = np.argsort(values)
+    within = group[by_value]
+    order = by_value[np.argsort(within.astype(np.int16) if n <= MAX_INT16_LABEL + 1 else within,
+                                kind="stable")]
     v = values[order]
     counts = np.bincount(group, minlength=n)
     start = np.cumsum(counts) - counts
@@ -879,7 +905,8 @@ def _creased_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
 
 def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
                    nbrs: NDArray[np.int64], patches: NDArray[np.int64],
-                   noise: NDArray[np.float64]) -> NDArray[np.float64]:
+                   noise: NDArray[np.float64], off_plane: NDArray[np.float64] | None = None
+                   ) -> NDArray[np.float64]:
     """Re-estimate the normals of points next to a crease from their own patch.
 
     Near a crease a point's neighbourhood straddles both surfaces and its normal blends
@@ -903,6 +930,9 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
         Noise [m] of the surface along its normal at each point (e.g.
         :func:`working_noise`; 0 where unknown: every border point takes its own patch's
         normal).
+    off_plane : (M,) float64 array [m^2], optional
+        Mean squared distance of every point's neighbourhood from its plane, when known
+        (:func:`geomodel_ros.core.faces.pca_normals` over ``nbrs``); computed otherwise.
 
     Returns
     -------
@@ -910,7 +940,8 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
         Unit normals oriented towards the sensor.
     """
     same = patches[nbrs] == patches[:, None]
-    off_plane, _ = smallest_eigenpairs_sym(*neighborhood_moments(points, nbrs))
+    if off_plane is None:
+        off_plane, _ = smallest_eigenpairs_sym(*neighborhood_moments(points, nbrs))
     # Only the points that do not keep their normal are refitted (row by row, the same
     # values as refitting all of them).
     rows = np.flatnonzero((same.sum(axis=1) >= PATCH_NORMAL_MIN_NEIGHBORS)
@@ -1021,10 +1052,11 @@ def _cut_steps(points: NDArray[np.float64], normals: NDArray[np.float64],
     j = nbrs.ravel()
     same = (patches[i] == patches[j]) & (sqdist.ravel() <= max_edge * max_edge)
     keep = same.copy()
-    keep[same] = _step_free(points, normals, i[same], j[same], step, parallel_cos)[2]
-    _, comp = connected_components(link_graph(nbrs, keep.reshape(m, k), m), directed=False)
+    i, j = i[same], j[same]
+    keep[same] = _step_free(points, normals, i, j, step, parallel_cos)[2]
+    _, comp = link_components(nbrs, keep.reshape(m, k))
     if min_piece > 1 and noisy is not None and noisy.any():
-        comp = _rejoin_shreds(comp, i[same], j[same], min_piece, noisy)
+        comp = _rejoin_shreds(comp, i, j, min_piece, noisy)
     return comp.astype(np.int64)
 
 
