@@ -99,8 +99,8 @@ def test_points_that_do_not_lie_flat_get_no_shortcut():
     assert build_flat_face(_box_corner(), ModelingParams()) is None
 
 
-def _model(pts, support, seed=7):
-    params = ModelingParams()
+def _model(pts, support, seed=7, params=None):
+    params = params or ModelingParams()
     return model_object(pts, 0, params, np.random.default_rng(seed), STEP, support=support)
 
 
@@ -164,3 +164,27 @@ def test_a_failed_shortcut_leaves_the_object_stream_as_it_was(monkeypatch):
     fast = _model(pts, True)
     assert len(calls) == 2
     assert _same(fast, plain)
+
+
+def _bent_rectangle(radius):
+    """Return the rectangle bent along its length round an axis ``radius`` [m] off, no noise."""
+    u, v, n = _frame()
+    a = np.arange(-LENGTH / 2 + STEP / 2, LENGTH / 2, STEP)
+    b = np.arange(-WIDTH / 2 + STEP / 2, WIDTH / 2, STEP)
+    aa, bb = (g.ravel() for g in np.meshgrid(a, b))
+    h = -aa * aa / (2.0 * radius)  # sagitta LENGTH^2 / (8 radius): 1 mm at 20 m
+    return CENTER + aa[:, None] * u + bb[:, None] * v + (h - h.mean())[:, None] * n
+
+
+def test_a_flat_face_the_surface_test_calls_curved_gets_no_shortcut():
+    # Bent by 1 mm over 400 mm: within the flat spread, but with every face's CF below
+    # cf_threshold = 1 and no least arc (min_arc = 0) its significant bend makes it
+    # curved; a curved face's tests need the point normals the shortcut does not estimate.
+    params = ModelingParams(min_arc=0.0, cf_threshold=1.0)
+    pts = _bent_rectangle(20.0)
+    _, plain, _ = build_faces(pts, params, None)
+    assert [f.info.planar for f in plain] == [False]
+    assert build_flat_face(pts, params) is None
+    assert _same(_model(pts, True, params=params), _model(pts, False, params=params))
+    # With the defaults the same surface is one planar face, and the shortcut takes it.
+    assert build_flat_face(pts, ModelingParams()) is not None

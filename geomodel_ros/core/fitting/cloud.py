@@ -368,7 +368,8 @@ def build_flat_face(points: NDArray[np.float64], params: ModelingParams,
     Returns
     -------
     The working cloud, its one face and the (1, 1) adjacency, or None when the working
-    points do not lie flat (their faces must then be found, :func:`build_faces`).
+    points do not lie flat or the face is not described as planar (the faces must then
+    be found, :func:`build_faces`).
     """
     # k = 0 neighbours: the voxels of build_faces' working cloud, no normals estimated.
     wc = build_working_cloud(points, params.voxel_size, 0, None, params.max_working_points)
@@ -379,6 +380,8 @@ def build_flat_face(points: NDArray[np.float64], params: ModelingParams,
     wc.normals = np.tile(normal, (len(wc.points), 1))
     face = _describe_face(wc, np.arange(len(wc.points)), np.arange(len(points)), params,
                           correlation, slow_null)
+    if not face.info.planar:
+        return None   # a curved face's tests read the point normals and neighbours
     return wc, [face], np.zeros((1, 1), dtype=bool)
 
 
