@@ -314,7 +314,8 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
     rng : Generator, seed or None
         Randomness for RANSAC; defaults to ``params.seed``.
     supports : dict id -> (normal (3,), d), optional
-        Support planes found by the segmentation; other objects may rest on them.
+        Support planes found by the segmentation; other objects may rest on them, and the
+        object of each id is modeled as a support (``model_object``'s ``support``).
     noise : NoiseEstimate, optional
         The frame's noise (e.g. ``Segmentation.noise``); with ``noise_model = auto`` and
         none given it is estimated from ``points``.
