@@ -18,6 +18,7 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -91,6 +92,16 @@ def _worker_pool() -> ThreadPoolExecutor:
         return _pool
 
 
+class _Setting(NamedTuple):
+    """What :func:`model_object` knows of an object's scene besides its points."""
+
+    spacing: float  #: median point spacing [m]
+    supports: tuple[Plane, ...]  #: support planes the object may rest on
+    view: SceneView | None  #: the scene's returns, sensor at the origin
+    correlation: float  #: the frame's ratio of slow to local depth noise (>= 1)
+    slow_null: SlowBendNull | None  #: the bends of the frame's slow errors
+
+
 def _check_labels(labels: NDArray, n: int, what: str) -> NDArray[np.int64]:
     """``labels`` as an (n,) int64 array, or InputError naming ``what``."""
     arr = np.asarray(labels)
@@ -161,7 +172,7 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
     why = _degenerate(points, params)
     if why:
         return _unknown(object_id, points, why)
-    setting = (spacing, supports, view, correlation, slow_null)
+    setting = _Setting(spacing, supports, view, correlation, slow_null)
     if support and face_labels is None:
         plane = _as_support_plane(points, object_id, params, rng, setting)
         if plane is not None:
@@ -173,18 +184,13 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
 def _fitted(points: NDArray[np.float64], object_id: int, params: ModelingParams,
             rng: np.random.Generator,
             built: tuple[WorkingCloud, list[ObjectFace], NDArray[np.bool_]],
-            setting: tuple[float, tuple[Plane, ...], SceneView | None, float,
-                           SlowBendNull | None]) -> Primitive:
-    """Fit the object of ``points`` (n, 3) [m] with its ``built`` faces (:func:`build_faces`).
-
-    ``setting`` holds :func:`model_object`'s spacing, supports, view, correlation and
-    slow_null.
-    """
+            setting: _Setting) -> Primitive:
+    """Fit the object of ``points`` (n, 3) [m] with its ``built`` faces (:func:`build_faces`)."""
     wc, faces, adjacency = built
     if len(wc.points) < MIN_WORKING_POINTS or not faces:
         return _unknown(object_id, points, "too few distinct points after voxelization")
-    cloud = ObjectCloud(object_id, points, wc, faces, adjacency, setting[0], params, rng,
-                        *setting[1:])
+    cloud = ObjectCloud(object_id, points, wc, faces, adjacency, setting.spacing, params, rng,
+                        setting.supports, setting.view, setting.correlation, setting.slow_null)
     prim, summaries, reasons = run_strategies(Situation(cloud, decide(cloud)))
     if prim is not None:
         prim = with_confidence(prim, points, params.ransac_threshold)
@@ -193,19 +199,17 @@ def _fitted(points: NDArray[np.float64], object_id: int, params: ModelingParams,
 
 
 def _as_support_plane(points: NDArray[np.float64], object_id: int, params: ModelingParams,
-                      rng: np.random.Generator,
-                      setting: tuple[float, tuple[Plane, ...], SceneView | None, float,
-                                     SlowBendNull | None]) -> Primitive | None:
+                      rng: np.random.Generator, setting: _Setting) -> Primitive | None:
     """Model a support plane's ``points`` (n, 3) [m] as one flat face, or None.
 
     The segmentation found these points in the band of one plane: when their working
     points lie flat (:func:`~geomodel_ros.core.fitting.cloud.build_flat_face`) they are
-    one planar face, which region growing over estimated normals finds on such a face as
-    well, and the model graph's plane is fitted to it. None (the object is then modeled
-    as any other, from the state ``rng`` had on entry) when they do not lie flat or no
-    verified plane results.
+    one planar face (as region growing over estimated normals finds them, unless the
+    support lies in pieces) and the model graph's plane is fitted to it. None (the object
+    is then modeled as any other, from the state ``rng`` had on entry) when they do not
+    lie flat or no verified plane results.
     """
-    built = build_flat_face(points, params, setting[3], setting[4])
+    built = build_flat_face(points, params, setting.correlation, setting.slow_null)
     if built is None:
         return None
     fresh = copy.deepcopy(rng)

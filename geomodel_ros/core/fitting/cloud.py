@@ -372,6 +372,8 @@ def build_flat_face(points: NDArray[np.float64], params: ModelingParams,
     be found, :func:`build_faces`).
     """
     # k = 0 neighbours: the voxels of build_faces' working cloud, no normals estimated.
+    # Their zero normals have no mean direction, so face_plane returns the least-squares
+    # plane and its spread whatever the spread.
     wc = build_working_cloud(points, params.voxel_size, 0, None, params.max_working_points)
     plane, spread = face_plane(wc.points, wc.normals, params.ransac_threshold)
     if len(wc.points) < 3 or spread > FLAT_SPREAD_SHARE * params.ransac_threshold:
