@@ -10,6 +10,7 @@ geometry, only for malformed arguments. The fitting itself is in
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import os
@@ -17,6 +18,7 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,8 +27,9 @@ from scipy.spatial import cKDTree
 from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, with_confidence
 from geomodel_ros.core.errors import InputError, as_points
 from geomodel_ros.core.fastmath import centroid, group_by_label, single_threaded_blas, take_rows
-from geomodel_ros.core.fitting.cloud import (SUPPORT_END_FACTOR, ObjectCloud, Plane, build_faces,
-                                             independent_noise)
+from geomodel_ros.core.faces import WorkingCloud
+from geomodel_ros.core.fitting.cloud import (SUPPORT_END_FACTOR, ObjectCloud, ObjectFace, Plane,
+                                             build_faces, build_flat_face, independent_noise)
 from geomodel_ros.core.fitting.slow_bend import SlowBendNull, slow_bend_null
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategies
@@ -89,6 +92,16 @@ def _worker_pool() -> ThreadPoolExecutor:
         return _pool
 
 
+class _Setting(NamedTuple):
+    """What :func:`model_object` knows of an object's scene besides its points."""
+
+    spacing: float  #: median point spacing [m]
+    supports: tuple[Plane, ...]  #: support planes the object may rest on
+    view: SceneView | None  #: the scene's returns, sensor at the origin
+    correlation: float  #: the frame's ratio of slow to local depth noise (>= 1)
+    slow_null: SlowBendNull | None  #: the bends of the frame's slow errors
+
+
 def _check_labels(labels: NDArray, n: int, what: str) -> NDArray[np.int64]:
     """``labels`` as an (n,) int64 array, or InputError naming ``what``."""
     arr = np.asarray(labels)
@@ -124,7 +137,8 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
                  rng: np.random.Generator, spacing: float,
                  face_labels: NDArray[np.int64] | None = None,
                  supports: tuple[Plane, ...] = (), view: SceneView | None = None,
-                 correlation: float = 1.0, slow_null: SlowBendNull | None = None) -> Primitive:
+                 correlation: float = 1.0, slow_null: SlowBendNull | None = None,
+                 support: bool = False) -> Primitive:
     """Model one segmented object.
 
     Parameters
@@ -148,22 +162,62 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
     slow_null : SlowBendNull, optional
         The bends the frame's slow errors give flat patches of its support, against which
         the bend test judges faces where ``correlation`` is high.
+    support : bool
+        Whether the segmentation found the object as a support plane: when its working
+        points lie flat they are one face and their normals are not estimated
+        (:func:`_as_support_plane`).
 
     The result's ``confidence`` is measured with ``ransac_threshold`` as the noise scale.
     """
     why = _degenerate(points, params)
     if why:
         return _unknown(object_id, points, why)
-    wc, faces, adjacency = build_faces(points, params, face_labels, correlation, slow_null)
+    setting = _Setting(spacing, supports, view, correlation, slow_null)
+    if support and face_labels is None:
+        plane = _as_support_plane(points, object_id, params, rng, setting)
+        if plane is not None:
+            return plane
+    built = build_faces(points, params, face_labels, correlation, slow_null)
+    return _fitted(points, object_id, params, rng, built, setting)
+
+
+def _fitted(points: NDArray[np.float64], object_id: int, params: ModelingParams,
+            rng: np.random.Generator,
+            built: tuple[WorkingCloud, list[ObjectFace], NDArray[np.bool_]],
+            setting: _Setting) -> Primitive:
+    """Fit the object of ``points`` (n, 3) [m] with its ``built`` faces (:func:`build_faces`)."""
+    wc, faces, adjacency = built
     if len(wc.points) < MIN_WORKING_POINTS or not faces:
         return _unknown(object_id, points, "too few distinct points after voxelization")
-    cloud = ObjectCloud(object_id, points, wc, faces, adjacency, spacing, params, rng, supports,
-                        view, correlation, slow_null)
+    cloud = ObjectCloud(object_id, points, wc, faces, adjacency, setting.spacing, params, rng,
+                        setting.supports, setting.view, setting.correlation, setting.slow_null)
     prim, summaries, reasons = run_strategies(Situation(cloud, decide(cloud)))
     if prim is not None:
         prim = with_confidence(prim, points, params.ransac_threshold)
         return dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons))
     return _unknown(object_id, points, "; ".join(reasons), summaries)
+
+
+def _as_support_plane(points: NDArray[np.float64], object_id: int, params: ModelingParams,
+                      rng: np.random.Generator, setting: _Setting) -> Primitive | None:
+    """Model a support plane's ``points`` (n, 3) [m] as one flat face, or None.
+
+    The segmentation found these points in the band of one plane: when their working
+    points lie flat (:func:`~geomodel_ros.core.fitting.cloud.build_flat_face`) they are
+    one planar face (as region growing over estimated normals finds them, unless the
+    support lies in pieces) and the model graph's plane is fitted to it. None (the object
+    is then modeled as any other, from the state ``rng`` had on entry) when they do not
+    lie flat or no verified plane results.
+    """
+    built = build_flat_face(points, params, setting.correlation, setting.slow_null)
+    if built is None:
+        return None
+    fresh = copy.deepcopy(rng)
+    prim = _fitted(points, object_id, params, fresh, built, setting)
+    if prim.type is not PrimitiveType.PLANE:
+        return None
+    rng.bit_generator.state = fresh.bit_generator.state
+    return prim
 
 
 def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
@@ -229,7 +283,8 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
         oparams = params if noise is None else object_params(params, noise, *object_range(opts))
         return model_object(opts, oid, oparams, orng, estimate_spacing(opts, orng),
                             None if flab is None else flab[sel], planes, view,
-                            1.0 if noise is None else max(noise.scale, 1.0), slow_null)
+                            1.0 if noise is None else max(noise.scale, 1.0), slow_null,
+                            support=oid in (supports or {}))
 
     workers = min(len(ids), os.cpu_count() or 1)
     if workers <= 1:
@@ -263,7 +318,8 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
     rng : Generator, seed or None
         Randomness for RANSAC; defaults to ``params.seed``.
     supports : dict id -> (normal (3,), d), optional
-        Support planes found by the segmentation; other objects may rest on them.
+        Support planes found by the segmentation; other objects may rest on them, and the
+        object of each id is modeled as a support (``model_object``'s ``support``).
     noise : NoiseEstimate, optional
         The frame's noise (e.g. ``Segmentation.noise``); with ``noise_model = auto`` and
         none given it is estimated from ``points``.

@@ -9,8 +9,9 @@ from typing import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from geomodel_ros.core.faces import (WorkingCloud, build_working_cloud, face_plane,
-                                     faces_from_labels, split_faces, split_plane_unions)
+from geomodel_ros.core.faces import (FLAT_SPREAD_SHARE, WorkingCloud, build_working_cloud,
+                                     face_plane, faces_from_labels, split_faces,
+                                     split_plane_unions)
 from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.fitting.orient import toward_sensor
 from geomodel_ros.core.fitting.slow_bend import SlowBend, SlowBendNull, bends_beyond
@@ -20,7 +21,7 @@ from geomodel_ros.core.primitives import FaceSummary
 from geomodel_ros.core.surface_type import FaceBend, FaceFeature, face_bend, face_feature
 from geomodel_ros.core.view import SceneView
 
-__all__ = ["Plane", "ObjectFace", "ObjectCloud", "build_faces", "as_planar",
+__all__ = ["Plane", "ObjectFace", "ObjectCloud", "build_faces", "build_flat_face", "as_planar",
            "independent_noise", "central_bend", "bends_beyond_noise", "MAX_NOISE_CORRELATION"]
 
 #: A plane n . x + d = 0: (unit normal (3,), offset d [m]).
@@ -349,6 +350,41 @@ def build_faces(points: NDArray[np.float64], params: ModelingParams,
                             order[bounds[f]:bounds[f + 1]], params, correlation, slow_null)
              for f in range(fs.count)]
     return wc, faces, fs.adjacency
+
+
+def build_flat_face(points: NDArray[np.float64], params: ModelingParams,
+                    correlation: float = 1.0, slow_null: SlowBendNull | None = None
+                    ) -> tuple[WorkingCloud, list[ObjectFace], NDArray[np.bool_]] | None:
+    """:func:`build_faces` of points known to lie on one plane, without a neighbour search.
+
+    For an object the segmentation took as a support plane (its points lie within the
+    support band of one plane). The working points are :func:`build_faces`' (the same
+    voxels), taken as one face when they lie flat: their robust spread about their
+    least-squares plane is at most FLAT_SPREAD_SHARE of ``ransac_threshold``, the spread
+    below which :func:`~geomodel_ros.core.faces.face_plane` takes that plane whatever the
+    point normals. Every working point gets that plane's normal (towards the sensor) and
+    no neighbours; the face is described as :func:`build_faces` describes a face.
+
+    Returns
+    -------
+    The working cloud, its one face and the (1, 1) adjacency, or None when the working
+    points do not lie flat or the face is not described as planar (the faces must then
+    be found, :func:`build_faces`).
+    """
+    # k = 0 neighbours: the voxels of build_faces' working cloud, no normals estimated.
+    # Their zero normals have no mean direction, so face_plane returns the least-squares
+    # plane and its spread whatever the spread.
+    wc = build_working_cloud(points, params.voxel_size, 0, None, params.max_working_points)
+    plane, spread = face_plane(wc.points, wc.normals, params.ransac_threshold)
+    if len(wc.points) < 3 or spread > FLAT_SPREAD_SHARE * params.ransac_threshold:
+        return None
+    normal = toward_sensor(plane.normal, centroid(wc.points))
+    wc.normals = np.tile(normal, (len(wc.points), 1))
+    face = _describe_face(wc, np.arange(len(wc.points)), np.arange(len(points)), params,
+                          correlation, slow_null)
+    if not face.info.planar:
+        return None   # a curved face's tests read the point normals and neighbours
+    return wc, [face], np.zeros((1, 1), dtype=bool)
 
 
 def as_planar(wc: WorkingCloud, face: ObjectFace, threshold: float) -> ObjectFace:
