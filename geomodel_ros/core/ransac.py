@@ -790,15 +790,19 @@ def _least_squares(ref: RefinableModel, sub: Array) -> Any:
     # leastsq evaluates the function and the Jacobian once at x0 to check their
     # shapes before MINPACK evaluates them there again: keep the last of each. MINPACK
     # asks for the Jacobian where it has just evaluated the function: the model there and
-    # the points' parts about it (offsets, axial and radial parts) serve both.
-    last: dict[str, tuple[Array, Any]] = {}
+    # the points' parts about it (offsets, axial and radial parts) serve both. A vector
+    # is recognised by its bytes (x is always a float64 vector of the model's size):
+    # equal bytes are equal values, at a fraction of an element-wise comparison's call
+    # overhead (a zero of the other sign is only computed again).
+    last: dict[str, tuple[bytes, Any]] = {}
 
     def cached(name: str, compute: Callable[[Array], Any], x: Array) -> Any:
+        key = x.tobytes()
         hit = last.get(name)
-        if hit is not None and np.array_equal(hit[0], x):
+        if hit is not None and hit[0] == key:
             return hit[1]
         value = compute(x)
-        last[name] = (x.copy(), value)
+        last[name] = (key, value)
         return value
 
     def at(v: Array) -> tuple[Any, Any]:
