@@ -121,3 +121,66 @@ def test_the_box_costs_are_computed_once_for_the_rivals_first_look_and_verdict(m
     assert costed.count(True) == 1
     assert np.array_equal(found[3], np.full(len(found[2]), 0.5))
     assert len(found[3]) == len(found[2])  # one cost per compared (blocked) point
+
+
+def _random_axes(rng, b, prior, tol):
+    """Return (B, 3) unit axes: a third within ``tol`` of ±prior, a third just beyond, rest any."""
+    ang = np.r_[rng.uniform(0, 0.99 * tol, b // 3), rng.uniform(1.01 * tol, 2 * tol, b // 3),
+                rng.uniform(0, np.pi, b - 2 * (b // 3))]
+    perp = np.cross(prior, [1.0, 0.0, 0.0])
+    perp /= np.linalg.norm(perp)
+    sign = rng.choice([-1.0, 1.0], b)[:, None]
+    return sign * (np.cos(ang)[:, None] * prior + np.sin(ang)[:, None] * perp)
+
+
+@pytest.mark.parametrize("with_prior", [True, False])
+def test_batch_hypothesis_tests_equal_the_per_model_tests_row_by_row(with_prior):
+    from geomodel_ros.core.fitting.cone import MAX_CONE_HALF_ANGLE, cone_test
+    from geomodel_ros.core.fitting.cylinder import cylinder_test
+    from geomodel_ros.core.fitting.sphere import sphere_test
+    from geomodel_ros.core.params import ModelingParams
+    from geomodel_ros.core.ransac import ConeBatch, CylinderBatch, SphereBatch
+    params = ModelingParams()
+    rng = np.random.default_rng(5)
+    b = 300
+    prior = np.array([0.0, 0.6, 0.8]) if with_prior else None
+    axes = _random_axes(rng, b, np.array([0.0, 0.6, 0.8]), params.angle_tolerance)
+    # Radii and half-angles below, at, inside, at and above their bounds, and NaN.
+    radius = np.r_[rng.uniform(0, 2 * params.max_radius, b - 5), params.min_radius,
+                   params.max_radius, 0.5 * params.min_radius, np.nan, 3 * params.max_radius]
+    half = np.r_[rng.uniform(0, 1.6, b - 4), params.min_cone_half_angle, MAX_CONE_HALF_ANGLE,
+                 np.nan, 1.5]
+    point = rng.normal(size=(b, 3))
+    batches = [(cylinder_test(params, prior), CylinderBatch(point, axes, radius), CylinderModel),
+               (cone_test(params, prior), ConeBatch(point, axes, half), ConeModel),
+               (sphere_test(params), SphereBatch(point, radius), SphereModel)]
+    for test, h, cls in batches:
+        rows = test.rows(h)
+        one = np.array([test(cls.from_batch(h, i)) for i in range(b)])
+        assert rows.dtype == bool and rows.shape == (b,)
+        assert np.array_equal(rows, one), cls.__name__
+        assert 0 < rows.sum() < b  # both verdicts occur: the comparison is not vacuous
+    # The bounds themselves are allowed, NaN never is.
+    assert cylinder_test(params, None).rows(CylinderBatch(point[:3], axes[:3], np.array(
+        [params.min_radius, params.max_radius, np.nan]))).tolist() == [True, True, False]
+
+
+def test_ransac_draws_the_same_model_with_the_batch_test_as_with_the_per_model_test():
+    from geomodel_ros.core.fitting.cylinder import cylinder_test
+    from geomodel_ros.core.params import ModelingParams
+    params = ModelingParams()
+    sub, _ = noisy_surface("cylinder", np.random.default_rng(6))
+    pts = sub.T
+    normals = np.c_[pts[:, 0], pts[:, 1], np.zeros(len(pts))]
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    prior = np.array([0.0, 0.0, 1.0])
+    test = cylinder_test(params, prior)
+    fits = [ransac.ransac(CylinderModel, pts, normals, 0.002, 0.3, 200, 0.99,
+                          np.random.default_rng(7), accept=accept)
+            for accept in (test, test.one)]
+    a, b = fits
+    assert a is not None and b is not None
+    assert np.array_equal(a.model.point, b.model.point)
+    assert np.array_equal(a.model.axis, b.model.axis) and a.model.radius == b.model.radius
+    assert np.array_equal(a.inliers, b.inliers)
+    assert a.model.radius == pytest.approx(0.04, abs=0.003)  # the surface really was found

@@ -32,7 +32,8 @@ __all__ = [
     "PlaneModel", "SphereModel", "CylinderModel", "ConeModel", "FitResult",
     "PlaneBatch", "SphereBatch", "CylinderBatch", "ConeBatch",
     "RansacModel", "RefinableModel", "SurfaceModel",
-    "fit_plane_svd", "ransac", "refine", "MODELS", "MAX_EVALUATIONS", "HYPOTHESES_PER_BATCH",
+    "HypothesisTest", "fit_plane_svd", "ransac", "refine", "MODELS", "MAX_EVALUATIONS",
+    "HYPOTHESES_PER_BATCH",
 ]
 
 Array = NDArray[np.float64]
@@ -674,15 +675,41 @@ def _draw_samples(m: int, k: int, nb: int, rng: np.random.Generator) -> NDArray[
     return rng.integers(0, m, size=(nb, k))
 
 
+@dataclass(frozen=True)
+class HypothesisTest:
+    """A RANSAC hypothesis test of one model (called) that also tests a batch's rows at once.
+
+    Attributes
+    ----------
+    one : callable, model -> bool
+    rows : callable, batch of B hypotheses -> (B,) bool array, row i equal to ``one`` of
+        the batch's row i (the same comparisons, made on the batch's arrays)
+    """
+
+    one: Callable[[Any], bool]
+    rows: Callable[[Any], NDArray[np.bool_]]
+
+    def __call__(self, model: Any) -> bool:
+        """Return ``one(model)``."""
+        return self.one(model)
+
+
 def _accepted(model_cls: type[RansacModel[BatchT]], h: BatchT,
               accept: Callable[[Any], bool] | None) -> BatchT | None:
-    """Rows of ``h`` that ``accept`` keeps (``None`` when no row is left)."""
+    """Rows of ``h`` that ``accept`` keeps (``None`` when no row is left).
+
+    A :class:`HypothesisTest` tests all the rows at once; any other callable, one
+    model of each row (:meth:`RansacModel.from_batch`) after the other.
+    """
     count = len(h[0])
     if count == 0:
         return None
     if accept is None:
         return h
-    keep = np.array([accept(model_cls.from_batch(h, i)) for i in range(count)])
+    if isinstance(accept, HypothesisTest):
+        keep = np.asarray(accept.rows(h), dtype=bool)
+    else:
+        keep = np.array([accept(model_cls.from_batch(h, i)) for i in range(count)])
     if not keep.any():
         return None
     return type(h)(*(values[keep] for values in h))
