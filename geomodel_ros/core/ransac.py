@@ -32,7 +32,8 @@ __all__ = [
     "PlaneModel", "SphereModel", "CylinderModel", "ConeModel", "FitResult",
     "PlaneBatch", "SphereBatch", "CylinderBatch", "ConeBatch",
     "RansacModel", "RefinableModel", "SurfaceModel",
-    "fit_plane_svd", "ransac", "refine", "MODELS", "MAX_EVALUATIONS", "HYPOTHESES_PER_BATCH",
+    "HypothesisTest", "fit_plane_svd", "ransac", "refine", "MODELS", "MAX_EVALUATIONS",
+    "HYPOTHESES_PER_BATCH",
 ]
 
 Array = NDArray[np.float64]
@@ -674,15 +675,41 @@ def _draw_samples(m: int, k: int, nb: int, rng: np.random.Generator) -> NDArray[
     return rng.integers(0, m, size=(nb, k))
 
 
+@dataclass(frozen=True)
+class HypothesisTest:
+    """A RANSAC hypothesis test of one model (called) that also tests a batch's rows at once.
+
+    Attributes
+    ----------
+    one : callable, model -> bool
+    rows : callable, batch of B hypotheses -> (B,) bool array, row i equal to ``one`` of
+        the batch's row i (the same comparisons, made on the batch's arrays)
+    """
+
+    one: Callable[[Any], bool]
+    rows: Callable[[Any], NDArray[np.bool_]]
+
+    def __call__(self, model: Any) -> bool:
+        """Return ``one(model)``."""
+        return self.one(model)
+
+
 def _accepted(model_cls: type[RansacModel[BatchT]], h: BatchT,
               accept: Callable[[Any], bool] | None) -> BatchT | None:
-    """Rows of ``h`` that ``accept`` keeps (``None`` when no row is left)."""
+    """Rows of ``h`` that ``accept`` keeps (``None`` when no row is left).
+
+    A :class:`HypothesisTest` tests all the rows at once; any other callable, one
+    model of each row (:meth:`RansacModel.from_batch`) after the other.
+    """
     count = len(h[0])
     if count == 0:
         return None
     if accept is None:
         return h
-    keep = np.array([accept(model_cls.from_batch(h, i)) for i in range(count)])
+    if isinstance(accept, HypothesisTest):
+        keep = np.asarray(accept.rows(h), dtype=bool)
+    else:
+        keep = np.array([accept(model_cls.from_batch(h, i)) for i in range(count)])
     if not keep.any():
         return None
     return type(h)(*(values[keep] for values in h))
@@ -790,15 +817,19 @@ def _least_squares(ref: RefinableModel, sub: Array) -> Any:
     # leastsq evaluates the function and the Jacobian once at x0 to check their
     # shapes before MINPACK evaluates them there again: keep the last of each. MINPACK
     # asks for the Jacobian where it has just evaluated the function: the model there and
-    # the points' parts about it (offsets, axial and radial parts) serve both.
-    last: dict[str, tuple[Array, Any]] = {}
+    # the points' parts about it (offsets, axial and radial parts) serve both. A vector
+    # is recognised by its bytes (x is always a float64 vector of the model's size):
+    # equal bytes are equal values, at a fraction of an element-wise comparison's call
+    # overhead (a zero of the other sign is only computed again).
+    last: dict[str, tuple[bytes, Any]] = {}
 
     def cached(name: str, compute: Callable[[Array], Any], x: Array) -> Any:
+        key = x.tobytes()
         hit = last.get(name)
-        if hit is not None and np.array_equal(hit[0], x):
+        if hit is not None and hit[0] == key:
             return hit[1]
         value = compute(x)
-        last[name] = (x.copy(), value)
+        last[name] = (key, value)
         return value
 
     def at(v: Array) -> tuple[Any, Any]:

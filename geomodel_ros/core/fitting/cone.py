@@ -12,14 +12,15 @@ from geomodel_ros.core.fitting.axial import axial_extent, verified_side
 from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
 from geomodel_ros.core.fitting.measure import bulk_extent, bulk_reach
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
-from geomodel_ros.core.fitting.verify import (axis_within, check_apex, check_bulk_length,
-                                              check_bulk_reach, check_radius)
+from geomodel_ros.core.fitting.verify import (axes_within, axis_within, check_apex,
+                                              check_bulk_length, check_bulk_reach, check_radius)
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
-from geomodel_ros.core.ransac import ConeModel
+from geomodel_ros.core.ransac import ConeBatch, ConeModel, HypothesisTest
 
-__all__ = ["MAX_CONE_HALF_ANGLE", "cone_hypothesis_ok", "fit_cone"]
+__all__ = ["MAX_CONE_HALF_ANGLE", "cone_hypothesis_ok", "cone_hypotheses_ok", "cone_test",
+           "fit_cone"]
 
 CONE = PrimitiveType.CONE
 #: RANSAC takes no cone hypothesis flatter than this half-angle [rad] (80 deg).
@@ -31,6 +32,19 @@ def cone_hypothesis_ok(model: ConeModel, params: ModelingParams,
     """Return True for a RANSAC cone of allowed half-angle whose axis follows ``prior``."""
     return (params.min_cone_half_angle <= model.half_angle <= MAX_CONE_HALF_ANGLE
             and axis_within(model.axis, prior, params.angle_tolerance))
+
+
+def cone_hypotheses_ok(h: ConeBatch, params: ModelingParams,
+                       prior: NDArray[np.float64] | None) -> NDArray[np.bool_]:
+    """Return :func:`cone_hypothesis_ok` of each of the B rows of ``h``: (B,) bool."""
+    return ((params.min_cone_half_angle <= h.half_angle) & (h.half_angle <= MAX_CONE_HALF_ANGLE)
+            & axes_within(h.axis, prior, params.angle_tolerance))
+
+
+def cone_test(params: ModelingParams, prior: NDArray[np.float64] | None) -> HypothesisTest:
+    """Return the RANSAC hypothesis test of a cone (one model, or a batch at once)."""
+    return HypothesisTest(partial(cone_hypothesis_ok, params=params, prior=prior),
+                          partial(cone_hypotheses_ok, params=params, prior=prior))
 
 
 def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None,
@@ -57,9 +71,7 @@ def fit_cone_side(task: FitTask, kind: PrimitiveType
     """
     cloud = task.cloud
     prior = axis_prior(task)
-    side = fit_curved(cloud, kind, ConeModel,
-                      partial(cone_hypothesis_ok, params=cloud.params, prior=prior),
-                      with_caps=True)
+    side = fit_curved(cloud, kind, ConeModel, cone_test(cloud.params, prior), with_caps=True)
     if not isinstance(side, CurvedFit):
         return side
     checked = _verified_side(task, side, prior, kind)

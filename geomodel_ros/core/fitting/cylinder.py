@@ -14,13 +14,15 @@ from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
 from geomodel_ros.core.fitting.measure import bulk_extent
 from geomodel_ros.core.fitting.orient import axis_toward_sensor
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
-from geomodel_ros.core.fitting.verify import axis_within, check_bulk_length, check_radius
+from geomodel_ros.core.fitting.verify import (axes_within, axis_within, check_bulk_length,
+                                              check_radius)
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
-from geomodel_ros.core.ransac import CylinderModel
+from geomodel_ros.core.ransac import CylinderBatch, CylinderModel, HypothesisTest
 
-__all__ = ["CYLINDER_RAY_SHIFT_FACTOR", "cylinder_hypothesis_ok", "fit_cylinder"]
+__all__ = ["CYLINDER_RAY_SHIFT_FACTOR", "cylinder_hypothesis_ok", "cylinder_hypotheses_ok",
+           "cylinder_test", "fit_cylinder"]
 
 CYLINDER = PrimitiveType.CYLINDER
 #: Re-projection moves a side point along its viewing ray onto the cylinder by at most
@@ -34,6 +36,19 @@ def cylinder_hypothesis_ok(model: CylinderModel, params: ModelingParams,
     """Return True for a RANSAC cylinder of allowed radius whose axis follows ``prior``."""
     return (params.min_radius <= model.radius <= params.max_radius
             and axis_within(model.axis, prior, params.angle_tolerance))
+
+
+def cylinder_hypotheses_ok(h: CylinderBatch, params: ModelingParams,
+                           prior: NDArray[np.float64] | None) -> NDArray[np.bool_]:
+    """Return :func:`cylinder_hypothesis_ok` of each of the B rows of ``h``: (B,) bool."""
+    return ((params.min_radius <= h.radius) & (h.radius <= params.max_radius)
+            & axes_within(h.axis, prior, params.angle_tolerance))
+
+
+def cylinder_test(params: ModelingParams, prior: NDArray[np.float64] | None) -> HypothesisTest:
+    """Return the RANSAC hypothesis test of a cylinder (one model, or a batch at once)."""
+    return HypothesisTest(partial(cylinder_hypothesis_ok, params=params, prior=prior),
+                          partial(cylinder_hypotheses_ok, params=params, prior=prior))
 
 
 def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None
@@ -53,8 +68,8 @@ def fit_cylinder(task: FitTask) -> FitOutcome:
     """
     cloud, params = task.cloud, task.cloud.params
     prior = axis_prior(task)
-    side = fit_curved(cloud, CYLINDER, CylinderModel,
-                      partial(cylinder_hypothesis_ok, params=params, prior=prior), with_caps=True)
+    side = fit_curved(cloud, CYLINDER, CylinderModel, cylinder_test(params, prior),
+                      with_caps=True)
     if not isinstance(side, CurvedFit):
         return side
     checked = _verified_side(task, side, prior)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from functools import partial
 
 import numpy as np
+from numpy.typing import NDArray
 
 from geomodel_ros.core.fitting.curved import CurvedFit, fit_curved
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted
@@ -12,9 +13,9 @@ from geomodel_ros.core.fitting.verify import (check_noise_scatter, check_radius,
                                               check_seen_through, check_sunk_in_support)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
-from geomodel_ros.core.ransac import SphereModel
+from geomodel_ros.core.ransac import HypothesisTest, SphereBatch, SphereModel
 
-__all__ = ["fit_sphere", "sphere_hypothesis_ok"]
+__all__ = ["fit_sphere", "sphere_hypothesis_ok", "sphere_hypotheses_ok", "sphere_test"]
 
 SPHERE = PrimitiveType.SPHERE
 
@@ -22,6 +23,17 @@ SPHERE = PrimitiveType.SPHERE
 def sphere_hypothesis_ok(model: SphereModel, params: ModelingParams) -> bool:
     """Return True when a RANSAC sphere's radius is within [min_radius, max_radius]."""
     return params.min_radius <= model.radius <= params.max_radius
+
+
+def sphere_hypotheses_ok(h: SphereBatch, params: ModelingParams) -> NDArray[np.bool_]:
+    """Return :func:`sphere_hypothesis_ok` of each of the B rows of ``h``: (B,) bool."""
+    return (params.min_radius <= h.radius) & (h.radius <= params.max_radius)
+
+
+def sphere_test(params: ModelingParams) -> HypothesisTest:
+    """Return the RANSAC hypothesis test of a sphere (one model, or a batch at once)."""
+    return HypothesisTest(partial(sphere_hypothesis_ok, params=params),
+                          partial(sphere_hypotheses_ok, params=params))
 
 
 def fit_sphere(task: FitTask) -> FitOutcome:
@@ -32,8 +44,7 @@ def fit_sphere(task: FitTask) -> FitOutcome:
     the sensor saw past its visible cap, :func:`~.verify.check_seen_through`).
     """
     cloud = task.cloud
-    side = fit_curved(cloud, SPHERE, SphereModel,
-                      partial(sphere_hypothesis_ok, params=cloud.params), with_caps=False)
+    side = fit_curved(cloud, SPHERE, SphereModel, sphere_test(cloud.params), with_caps=False)
     if not isinstance(side, CurvedFit):
         return side
     model = side.model

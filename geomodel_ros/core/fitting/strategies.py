@@ -538,7 +538,7 @@ def thinned(cloud: ObjectCloud, target: int = RIVAL_FIT_POINTS) -> ObjectCloud:
 
 
 def round_rival(cloud: ObjectCloud, box: Primitive
-                ) -> tuple[Attempt, Primitive, NDArray[np.int64]] | None:
+                ) -> tuple[Attempt, Primitive, NDArray[np.int64], NDArray[np.float64]] | None:
     """Return the round model of all of the object's faces taken as curved, or None.
 
     Its candidates come from the curvatures of about :data:`RIVAL_FIT_POINTS` working
@@ -546,9 +546,9 @@ def round_rival(cloud: ObjectCloud, box: Primitive
     its own checks or its mean :func:`truncated_costs` exceed the ``box``'s (on the
     synthetic suite and the real frames measured, no rival the box beat on average went
     on to replace it after the refit, which costs tens of milliseconds on a large box).
-    Otherwise it is refitted on
-    all the faces' points, and returned with its attempt and the compared points'
-    blocks (:func:`~.paired_cost.spread_blocks`).
+    Otherwise it is refitted on all the faces' points, and returned with its attempt,
+    the compared points' blocks (:func:`~.paired_cost.spread_blocks`) and the box's
+    :func:`truncated_costs` on them (computed once, for the first look and the verdict).
     """
     attempt = all_faces_curved(cloud, "all faces taken as curved", RIVAL_FIT_POINTS)
     if attempt is None:
@@ -556,12 +556,13 @@ def round_rival(cloud: ObjectCloud, box: Primitive
     cheap, _ = fit_first(thinned(attempt.cloud), attempt.decision)
     if cheap is None:
         return None
-    if np.mean(truncated_costs(cheap, cloud)) > np.mean(truncated_costs(box, cloud)):
+    c_box = truncated_costs(box, cloud)
+    if np.mean(truncated_costs(cheap, cloud)) > np.mean(c_box):
         return None
     rnd, _ = fit_first(attempt.cloud, attempt.decision)
     if rnd is None:
         return None
-    return attempt, rnd, spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE))
+    return attempt, rnd, spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)), c_box
 
 
 def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
@@ -589,8 +590,8 @@ def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary
     found = round_rival(cloud, prim)
     if found is None:
         return prim, faces
-    attempt, rnd, blocks = found
-    c_box, c_round = truncated_costs(prim, cloud), truncated_costs(rnd, cloud)
+    attempt, rnd, blocks, c_box = found
+    c_round = truncated_costs(rnd, cloud)
     lower, stat = lower_beyond_noise(c_round, c_box, blocks)
     verdict = "replaces" if lower else "does not replace"
     reasons.append(f"{attempt.note}; {rnd.type} (cost {np.mean(c_round):.3f}) {verdict} "

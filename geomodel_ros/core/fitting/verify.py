@@ -27,7 +27,8 @@ from geomodel_ros.core.primitives import PrimitiveType
 from geomodel_ros.core.ransac import ConeModel, CylinderModel
 
 __all__ = ["OUTLIER_FACTOR", "MIN_COVERAGE", "CONE_APEX_REACH", "CONE_BEHIND_APEX",
-           "BULK_FACTOR", "BULK_MARGIN", "axis_within", "check_inlier_ratio",
+           "BULK_FACTOR", "BULK_MARGIN", "axis_within", "axes_within",
+           "check_inlier_ratio",
            "check_coverage", "check_radius", "check_axis", "check_arc", "check_bulk_length",
            "check_apex", "check_bulk_reach", "NOISE_SCATTER_BOUND", "check_noise_scatter",
            "check_profile_bow", "PROFILE_BOWS", "bowed_profile", "SUPPORT_BELOW_PERCENTILE",
@@ -82,6 +83,14 @@ def axis_within(axis: NDArray[np.float64], prior: NDArray[np.float64] | None,
                 tolerance: float) -> bool:
     """Return True without a prior, else when ``axis`` is within ``tolerance`` [rad] of ±prior."""
     return prior is None or abs(float(axis @ prior)) >= math.cos(tolerance)
+
+
+def axes_within(axes: NDArray[np.float64], prior: NDArray[np.float64] | None,
+                tolerance: float) -> NDArray[np.bool_]:
+    """Return :func:`axis_within` of each row of ``axes`` (B, 3): a (B,) bool array."""
+    if prior is None:
+        return np.ones(len(axes), dtype=bool)
+    return np.abs(axes @ prior) >= math.cos(tolerance)
 
 
 def check_inlier_ratio(ratio: float, params: ModelingParams,
