@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Hashable, Iterable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -101,6 +102,10 @@ OCCLUSION_RAY_TOLERANCE_VOXELS = 1.5
 #: more than this many voxels (beyond voxel quantisation and depth noise); a point at or
 #: behind the gap means the gap is seen open.
 OCCLUSION_NEARER_MARGIN_VOXELS = 2.0
+#: The directions that may lie within the ray tolerance of a gap's samples are taken from
+#: the samples' box grown by the tolerance and this margin (far above the rounding of a
+#: unit vector's coordinates, about 1e-16), so none is left out by rounding.
+RAY_BOX_MARGIN = 1e-9
 #: At least this share of the samples must meet a measured point (5 of 8): rays into holes
 #: and sensor shadows are no evidence either way, and a gap mostly unmeasured proves
 #: nothing.
@@ -367,7 +372,9 @@ class _Segments:
         self.points = points
         self.members = segment_members(comp, valid)
         self._trees: dict[int, cKDTree] = {}
+        self._cells: dict[int, _Cells] = {}
         self._ray_tree: cKDTree | None = None  # most scenes never need it
+        self._rays: NDArray[np.float64] | None = None
         self.depth = row_norms(points)
 
     def tree(self, seg: int) -> cKDTree:
@@ -376,10 +383,26 @@ class _Segments:
             self._trees[seg] = cKDTree(self.points[self.members[seg]])
         return self._trees[seg]
 
+    def cells(self, seg: int, cell: float) -> _Cells:
+        """Return segment ``seg``'s points grouped in cells of side ``cell`` [m] (:func:`_cells`).
+
+        Built once per segment: a segment is the smaller of many pairs, always with the same
+        ``cell``.
+        """
+        if seg not in self._cells:
+            self._cells[seg] = _cells(self.points[self.members[seg]], cell)
+        return self._cells[seg]
+
+    def rays(self) -> NDArray[np.float64]:
+        """Return all working points' viewing directions (M, 3) (unit vectors)."""
+        if self._rays is None:
+            self._rays = self.points / np.maximum(self.depth, _TINY)[:, None]
+        return self._rays
+
     def ray_tree(self) -> cKDTree:
-        """Return the KD-tree of all working points' viewing directions (unit vectors)."""
+        """Return the KD-tree of all working points' viewing directions (:meth:`rays`)."""
         if self._ray_tree is None:
-            self._ray_tree = cKDTree(self.points / np.maximum(self.depth, _TINY)[:, None])
+            self._ray_tree = cKDTree(self.rays())
         return self._ray_tree
 
 
@@ -457,16 +480,21 @@ def _closest_gap(segs: _Segments, a: int, b: int, params: ModelingParams) -> _Ga
     touch) and at most ``seg_max_occlusion_gap`` apart.
     """
     link = params.seg_max_edge_factor * params.seg_voxel_size
+    max_gap = params.seg_max_occlusion_gap
     small, big = (a, b) if len(segs.members[a]) <= len(segs.members[b]) else (b, a)
     rows = segs.members[small]
     # Only gaps up to seg_max_occlusion_gap matter: farther pairs come back inf.
     if len(rows) > GAP_DIRECT_POINTS:
-        rows = rows[_gap_candidates(segs.points[rows], segs.tree(big), GAP_CELL_LINKS * link,
-                                    params.seg_max_occlusion_gap)]
-        if not len(rows):
+        picked, reached = _gap_candidates(segs.points[rows], segs.tree(big),
+                                          GAP_CELL_LINKS * link, max_gap,
+                                          segs.cells(small, GAP_CELL_LINKS * link))
+        # A distance reached bounds the nearest from above: within a link, they touch.
+        if not len(picked) or reached <= link:
             return None
-    d, j = segs.tree(big).query(segs.points[rows], k=1,
-                                distance_upper_bound=params.seg_max_occlusion_gap)
+        rows = rows[picked]
+        # Rows farther than the distance reached are not the nearest (they come back inf).
+        max_gap = min(max_gap, reached + GAP_MARGIN)
+    d, j = segs.tree(big).query(segs.points[rows], k=1, distance_upper_bound=max_gap)
     k = int(np.argmin(d))
     length = float(d[k])
     if length <= link or length > params.seg_max_occlusion_gap:
@@ -476,24 +504,20 @@ def _closest_gap(segs: _Segments, a: int, b: int, params: ModelingParams) -> _Ga
     return _Gap(small, big, pa, pb, length, (segs.points[pb] - segs.points[pa]) / length)
 
 
-def _gap_candidates(q: NDArray[np.float64], tree: cKDTree, cell: float, max_gap: float
-                    ) -> NDArray[np.int64]:
-    """Rows of ``q`` (Q, 3) [m] that may be the nearest of them to the points of ``tree``.
+class _Cells(NamedTuple):
+    """Points grouped in cubic cells: each cell's first point stands for it.
 
-    The rows are grouped in cubic cells of side ``cell`` [m]; each cell's first row stands
-    for it, and r is the farthest of the cell's rows from it. A row p of a cell whose
-    representative s lies at distance D from the tree's points is at least D - r from
-    them (triangle inequality), and the nearest representative's D_min is a distance
-    reached: only the cells with D - r <= D_min can hold the nearest row (every row
-    nearest to within the float margin :data:`GAP_MARGIN` is kept). Cells whose
-    representative lies beyond ``max_gap`` [m] + r hold no row within ``max_gap`` [m].
-
-    Returns
-    -------
-    (C,) int64 array
-        Increasing row indices (the candidates keep their order, so the first of equally
-        near rows is the same as among all rows); empty when no row is within ``max_gap``.
+    ``first`` (C,) holds the row of each cell's first point, ``inv`` (Q,) the cell of every
+    row, ``reach`` (C,) [m] the farthest of a cell's rows from its first one.
     """
+
+    first: NDArray[np.int64]
+    inv: NDArray[np.int64]
+    reach: NDArray[np.float64]
+
+
+def _cells(q: NDArray[np.float64], cell: float) -> _Cells:
+    """Group the rows of ``q`` (Q, 3) [m] in cubic cells of side ``cell`` [m]."""
     key = np.floor(q / cell).astype(np.int64)
     key -= key.min(axis=0)
     span = key.max(axis=0) + 1
@@ -502,12 +526,38 @@ def _gap_candidates(q: NDArray[np.float64], tree: cKDTree, cell: float, max_gap:
     inv = inv.ravel()
     reach = np.zeros(len(first))
     np.maximum.at(reach, inv, row_norms(q - q[first][inv]))
+    return _Cells(first, inv, reach)
+
+
+def _gap_candidates(q: NDArray[np.float64], tree: cKDTree, cell: float, max_gap: float,
+                    cells: _Cells | None = None) -> tuple[NDArray[np.int64], float]:
+    """Rows of ``q`` (Q, 3) [m] that may be the nearest of them to the points of ``tree``.
+
+    The rows are grouped in cubic cells of side ``cell`` [m] (:func:`_cells`, or ``cells``
+    when given, grouped so before); each cell's first row stands for it, and r is the
+    farthest of the cell's rows from it. A row p of a cell whose
+    representative s lies at distance D from the tree's points is at least D - r from
+    them (triangle inequality), and the nearest representative's D_min is a distance
+    reached: only the cells with D - r <= D_min can hold the nearest row (every row
+    nearest to within the float margin :data:`GAP_MARGIN` is kept). Cells whose
+    representative lies beyond ``max_gap`` [m] + r hold no row within ``max_gap`` [m].
+
+    Returns
+    -------
+    rows : (C,) int64 array
+        Increasing row indices (the candidates keep their order, so the first of equally
+        near rows is the same as among all rows); empty when no row is within ``max_gap``.
+    reached : float
+        D_min [m], the distance of a row from the tree's points (inf when the rows are
+        empty): the nearest row is at most this far.
+    """
+    first, inv, reach = _cells(q, cell) if cells is None else cells
     dist, _ = tree.query(q[first], k=1,
                          distance_upper_bound=max_gap + float(reach.max()) + GAP_MARGIN)
     best = float(dist.min())
     if not math.isfinite(best):
-        return np.zeros(0, dtype=np.int64)
-    return np.flatnonzero((dist - reach <= best + GAP_MARGIN)[inv])
+        return np.zeros(0, dtype=np.int64), math.inf
+    return np.flatnonzero((dist - reach <= best + GAP_MARGIN)[inv]), best
 
 
 def _surface_continues(segs: _Segments, normals: NDArray[np.float64], gap: _Gap,
@@ -549,12 +599,35 @@ def _gap_is_hidden(segs: _Segments, gap: _Gap, voxel: float) -> bool:
     samples = p[gap.pa] + OCCLUSION_GAP_SAMPLES[:, None] * (p[gap.pb] - p[gap.pa])
     s_depth = np.linalg.norm(samples, axis=1)
     tol = OCCLUSION_RAY_TOLERANCE_VOXELS * voxel / s_depth
-    dist, hit = segs.ray_tree().query(samples / s_depth[:, None], k=1)
-    hit = np.minimum(hit, len(p) - 1)
+    dist, hit = _nearest_rays(segs, samples / s_depth[:, None], tol)
     seen = dist <= tol
     nearer = segs.depth[hit] < s_depth - OCCLUSION_NEARER_MARGIN_VOXELS * voxel
     return bool(np.all(nearer[seen])
                 and seen.sum() >= OCCLUSION_MIN_SEEN_SHARE * len(OCCLUSION_GAP_SAMPLES))
+
+
+def _nearest_rays(segs: _Segments, dirs: NDArray[np.float64], tol: NDArray[np.float64]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Return the nearest working point's direction to each of ``dirs`` (S, 3) (unit vectors).
+
+    The distances (S,) and rows (S,) are those of ``segs.ray_tree().query(dirs, k=1)``
+    wherever the distance is within ``tol`` (S,); elsewhere the distance is also beyond
+    ``tol`` and the row is any. Only the directions inside the box of ``dirs`` grown by the
+    largest ``tol`` (:data:`RAY_BOX_MARGIN`) can be within ``tol``, so a tree of those
+    (a gap's few hundred instead of the frame's tens of thousands) finds the same nearest
+    point, unless two are equally near: then the frame's tree decides, as before.
+    """
+    rays = segs.rays()
+    grow = float(tol.max()) + RAY_BOX_MARGIN
+    lo, hi = dirs.min(axis=0) - grow, dirs.max(axis=0) + grow
+    near = np.flatnonzero(np.all((rays >= lo) & (rays <= hi), axis=1))
+    if not len(near):
+        return np.full(len(dirs), np.inf), np.zeros(len(dirs), dtype=np.int64)
+    dist, idx = cKDTree(rays[near]).query(dirs, k=2)
+    if np.any((dist[:, 0] <= tol) & (dist[:, 0] == dist[:, 1])):
+        dist, hit = segs.ray_tree().query(dirs, k=1)
+        return dist, np.minimum(hit, len(rays) - 1)
+    return dist[:, 0], near[np.minimum(idx[:, 0], len(near) - 1)]
 
 
 # ------------------------------------------------------------------------------------------
