@@ -680,15 +680,24 @@ def join_contained_parts(points: NDArray[np.float64], normals: NDArray[np.float6
             if circle is not None:
                 circles[i] = circle
     sets = DisjointSets(ids)
+    if not circles:
+        return comp
+    # Each segment's heights summarised once (the pairs below test them again and again).
+    eligible = [i for i in ids if len(members[i]) >= CONTAINED_MIN_POINTS]
+    low = {i: height[i].min() for i in eligible}
+    high = {i: height[i].max() for i in eligible}
+    middle = {i: np.median(height[i]) for i in eligible}
     for a_id, (center, r) in sorted(circles.items(), key=lambda kv: -len(members[kv[0]])):
-        for b_id in ids:
-            if len(members[b_id]) < CONTAINED_MIN_POINTS or sets.find(a_id) == sets.find(b_id):
+        rim = np.quantile(height[a_id], RIM_HEIGHT_QUANTILE)
+        for b_id in eligible:
+            if sets.find(a_id) == sets.find(b_id):
+                continue
+            # The height tests first: they cost nothing, the footprint test a pass.
+            overlap = min(high[a_id], high[b_id]) - max(low[a_id], low[b_id])
+            if not (overlap > 0 and middle[b_id] <= rim):
                 continue
             inside = np.linalg.norm(foot[b_id] - center, axis=1) <= CONTAINED_RADIUS_MARGIN * r
-            ha, hb = height[a_id], height[b_id]
-            overlap = min(ha.max(), hb.max()) - max(ha.min(), hb.min())
-            below_rim = np.median(hb) <= np.quantile(ha, RIM_HEIGHT_QUANTILE)
-            if inside.mean() >= CONTAINED_MIN_INSIDE_SHARE and overlap > 0 and below_rim:
+            if inside.mean() >= CONTAINED_MIN_INSIDE_SHARE:
                 sets.union(a_id, b_id)
     return sets.relabel(comp, valid)
 
