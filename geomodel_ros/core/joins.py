@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Hashable, Iterable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -375,7 +376,11 @@ class _Segments:
         self._cells: dict[int, _Cells] = {}
         self._ray_tree: cKDTree | None = None  # most scenes never need it
         self._rays: NDArray[np.float64] | None = None
-        self.depth = row_norms(points)
+
+    @cached_property
+    def depth(self) -> NDArray[np.float64]:
+        """Return every working point's range (M,) [m] (only gaps and terraces need it)."""
+        return row_norms(self.points)
 
     def tree(self, seg: int) -> cKDTree:
         """Return the KD-tree of segment ``seg``'s points."""
