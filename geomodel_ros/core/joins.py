@@ -92,6 +92,9 @@ GAP_CELL_LINKS = 2.0
 #: of osd_learn learn0/20/40 and the paper's scene3: 0.05-0.3 ms a pair either way below
 #: 330 points; above 1000 the cells took 2-2.5 ms where the search of all took 12-13 ms).
 GAP_DIRECT_POINTS = 400
+#: Every this many rows of a segment searched point by point are searched first
+#: (:func:`_closest_gap`): the nearest distance they reach bounds the search of all rows.
+GAP_PROBE_STRIDE = 8
 #: Distances within this [m] of the nearest are kept as candidates: far above the
 #: rounding of a distance between points metres from the origin (about 1e-15 m).
 GAP_MARGIN = 1e-9
@@ -498,6 +501,14 @@ def _closest_gap(segs: _Segments, a: int, b: int, params: ModelingParams) -> _Ga
             return None
         rows = rows[picked]
         # Rows farther than the distance reached are not the nearest (they come back inf).
+        max_gap = min(max_gap, reached + GAP_MARGIN)
+    else:
+        # A few rows first: the distance they reach bounds the nearest from above.
+        probe, _ = segs.tree(big).query(segs.points[rows[::GAP_PROBE_STRIDE]], k=1,
+                                        distance_upper_bound=max_gap)
+        reached = float(probe.min())
+        if reached <= link:
+            return None
         max_gap = min(max_gap, reached + GAP_MARGIN)
     d, j = segs.tree(big).query(segs.points[rows], k=1, distance_upper_bound=max_gap)
     k = int(np.argmin(d))
