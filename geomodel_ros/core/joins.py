@@ -379,6 +379,8 @@ class _Segments:
         self._cells: dict[int, _Cells] = {}
         self._ray_tree: cKDTree | None = None  # most scenes never need it
         self._rays: NDArray[np.float64] | None = None
+        #: Mean normals around gap ends, by (segment, point, radius) (:func:`_mean_normal`).
+        self.mean_normals: dict[tuple[int, int, float], NDArray[np.float64]] = {}
 
     @cached_property
     def depth(self) -> NDArray[np.float64]:
@@ -581,11 +583,14 @@ def _surface_continues(segs: _Segments, normals: NDArray[np.float64], gap: _Gap,
     """Whether the mean normals around both ends of the gap agree and lie across it."""
     link = params.seg_max_edge_factor * params.seg_voxel_size
     radius = OCCLUSION_NORMAL_RADIUS_LINKS * link
-    na = _mean_normal(segs, normals, gap.small, gap.pa, radius)
-    nb = _mean_normal(segs, normals, gap.big, gap.pb, radius)
     max_tilt = math.sin(OCCLUSION_MAX_GAP_TILT)
+    # One end's normal decides alone when it lies off the gap; the other is not needed then.
+    na = _mean_normal(segs, normals, gap.small, gap.pa, radius)
+    if abs(float(na @ gap.u)) > max_tilt:
+        return False
+    nb = _mean_normal(segs, normals, gap.big, gap.pb, radius)
     return not (abs(float(na @ nb)) < math.cos(OCCLUSION_MAX_NORMAL_ANGLE)
-                or abs(float(na @ gap.u)) > max_tilt or abs(float(nb @ gap.u)) > max_tilt)
+                or abs(float(nb @ gap.u)) > max_tilt)
 
 
 def _mean_normal(segs: _Segments, normals: NDArray[np.float64], seg: int, at: int,
@@ -593,13 +598,17 @@ def _mean_normal(segs: _Segments, normals: NDArray[np.float64], seg: int, at: in
     """Return the unit mean normal (3,) of segment ``seg`` around its point ``at``.
 
     The normals within ``radius`` [m] of ``at`` are averaged, each flipped to the side of
-    ``at``'s own normal.
+    ``at``'s own normal. A point is the end of several gaps (a segment's corner nearest
+    to several others), so each mean is kept in ``segs`` for the frame's ``normals``.
     """
-    near = segs.members[seg][segs.tree(seg).query_ball_point(segs.points[at], radius)]
-    nrm = normals[near]
-    nrm = nrm * np.sign(nrm @ normals[at])[:, None]
-    mean = nrm.sum(axis=0)
-    return mean / max(float(np.linalg.norm(mean)), _TINY)
+    key = (seg, at, radius)
+    if key not in segs.mean_normals:
+        near = segs.members[seg][segs.tree(seg).query_ball_point(segs.points[at], radius)]
+        nrm = normals[near]
+        nrm = nrm * np.sign(nrm @ normals[at])[:, None]
+        mean = nrm.sum(axis=0)
+        segs.mean_normals[key] = mean / max(float(np.linalg.norm(mean)), _TINY)
+    return segs.mean_normals[key]
 
 
 def _gap_is_hidden(segs: _Segments, gap: _Gap, voxel: float) -> bool:
