@@ -645,7 +645,10 @@ def _nearest_rays(segs: _Segments, dirs: NDArray[np.float64], tol: NDArray[np.fl
     rays = segs.rays()
     grow = float(tol.max()) + RAY_BOX_MARGIN
     lo, hi = dirs.min(axis=0) - grow, dirs.max(axis=0) + grow
-    near = np.flatnonzero(np.all((rays >= lo) & (rays <= hi), axis=1))
+    # The box's first side over all directions, the other two over the few inside it.
+    near = np.flatnonzero((rays[:, 0] >= lo[0]) & (rays[:, 0] <= hi[0]))
+    inside = rays[near, 1:]
+    near = near[np.all((inside >= lo[1:]) & (inside <= hi[1:]), axis=1)]
     if not len(near):
         return np.full(len(dirs), np.inf), np.zeros(len(dirs), dtype=np.int64)
     dist, idx = cKDTree(rays[near]).query(dirs, k=2)
