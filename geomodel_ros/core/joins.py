@@ -707,27 +707,40 @@ def join_contained_parts(points: NDArray[np.float64], normals: NDArray[np.float6
             circle = _round_footprint(xy, normals[members[i]] @ basis)
             if circle is not None:
                 circles[i] = circle
-    sets = DisjointSets(ids)
     if not circles:
         return comp
-    # Each segment's heights summarised once (the pairs below test them again and again).
-    eligible = [i for i in ids if len(members[i]) >= CONTAINED_MIN_POINTS]
+    sets = DisjointSets(ids)
+    _join_inside(sets, [i for i in ids if len(members[i]) >= CONTAINED_MIN_POINTS], foot,
+                 height, sorted(circles.items(), key=lambda kv: -len(members[kv[0]])))
+    return sets.relabel(comp, valid)
+
+
+def _join_inside(sets: DisjointSets, eligible: list[int], foot: dict[int, NDArray[np.float64]],
+                 height: dict[int, NDArray[np.float64]],
+                 circles: list[tuple[int, tuple[NDArray[np.float64], float]]]) -> None:
+    """Join in ``sets`` every ``eligible`` segment that lies inside a round one.
+
+    ``foot`` (P, 2) [m] and ``height`` (P,) [m] hold each segment's points in the support
+    plane's coordinates and above it; ``circles`` the round segments' footprint circles
+    (centre (2,), radius [m]) in the order they are visited. The tests of
+    :func:`join_contained_parts`; each segment's heights are summarised once (the pairs
+    test them again and again) and a pair's height tests come before the footprint's pass
+    over the points.
+    """
     low = {i: height[i].min() for i in eligible}
     high = {i: height[i].max() for i in eligible}
     middle = {i: np.median(height[i]) for i in eligible}
-    for a_id, (center, r) in sorted(circles.items(), key=lambda kv: -len(members[kv[0]])):
+    for a_id, (center, r) in circles:
         rim = np.quantile(height[a_id], RIM_HEIGHT_QUANTILE)
         for b_id in eligible:
             if sets.find(a_id) == sets.find(b_id):
                 continue
-            # The height tests first: they cost nothing, the footprint test a pass.
             overlap = min(high[a_id], high[b_id]) - max(low[a_id], low[b_id])
             if not (overlap > 0 and middle[b_id] <= rim):
                 continue
             inside = np.linalg.norm(foot[b_id] - center, axis=1) <= CONTAINED_RADIUS_MARGIN * r
             if inside.mean() >= CONTAINED_MIN_INSIDE_SHARE:
                 sets.union(a_id, b_id)
-    return sets.relabel(comp, valid)
 
 
 def _round_footprint(xy: NDArray[np.float64], n_xy: NDArray[np.float64]
