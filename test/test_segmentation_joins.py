@@ -579,9 +579,11 @@ def test_gap_candidates_keep_every_equally_near_point():
     # the row (cells farther than the nearest cell's reach) are not.
     q = np.column_stack([np.arange(-0.105, 0.11, 0.01), np.zeros(22), np.zeros(22)])
     tree = cKDTree(np.array([[0.0, 0.05, 0.0]]))
-    got = _gap_candidates(q, tree, 0.02, 0.15)
+    got, reached = _gap_candidates(q, tree, 0.02, 0.15)
+    assert reached == pytest.approx(np.hypot(0.005, 0.05), abs=1e-12)
     assert {10, 11} <= set(got.tolist())
     assert 0 not in got and 21 not in got
     assert np.all(np.diff(got) > 0)
     # Nothing within the largest gap: no candidates.
-    assert len(_gap_candidates(q, tree, 0.02, 0.01)) == 0
+    got, reached = _gap_candidates(q, tree, 0.02, 0.01)
+    assert len(got) == 0 and reached == np.inf

@@ -22,6 +22,8 @@ from __future__ import annotations
 import math
 from collections.abc import Hashable, Iterable
 from dataclasses import dataclass
+from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -90,6 +92,9 @@ GAP_CELL_LINKS = 2.0
 #: of osd_learn learn0/20/40 and the paper's scene3: 0.05-0.3 ms a pair either way below
 #: 330 points; above 1000 the cells took 2-2.5 ms where the search of all took 12-13 ms).
 GAP_DIRECT_POINTS = 400
+#: Every this many rows of a segment searched point by point are searched first
+#: (:func:`_closest_gap`): the nearest distance they reach bounds the search of all rows.
+GAP_PROBE_STRIDE = 8
 #: Distances within this [m] of the nearest are kept as candidates: far above the
 #: rounding of a distance between points metres from the origin (about 1e-15 m).
 GAP_MARGIN = 1e-9
@@ -101,6 +106,10 @@ OCCLUSION_RAY_TOLERANCE_VOXELS = 1.5
 #: more than this many voxels (beyond voxel quantisation and depth noise); a point at or
 #: behind the gap means the gap is seen open.
 OCCLUSION_NEARER_MARGIN_VOXELS = 2.0
+#: The directions that may lie within the ray tolerance of a gap's samples are taken from
+#: the samples' box grown by the tolerance and this margin (far above the rounding of a
+#: unit vector's coordinates, about 1e-16), so none is left out by rounding.
+RAY_BOX_MARGIN = 1e-9
 #: At least this share of the samples must meet a measured point (5 of 8): rays into holes
 #: and sensor shadows are no evidence either way, and a gap mostly unmeasured proves
 #: nothing.
@@ -367,8 +376,16 @@ class _Segments:
         self.points = points
         self.members = segment_members(comp, valid)
         self._trees: dict[int, cKDTree] = {}
+        self._cells: dict[int, _Cells] = {}
         self._ray_tree: cKDTree | None = None  # most scenes never need it
-        self.depth = row_norms(points)
+        self._rays: NDArray[np.float64] | None = None
+        #: Mean normals around gap ends, by (segment, point, radius) (:func:`_mean_normal`).
+        self.mean_normals: dict[tuple[int, int, float], NDArray[np.float64]] = {}
+
+    @cached_property
+    def depth(self) -> NDArray[np.float64]:
+        """Return every working point's range (M,) [m] (only gaps and terraces need it)."""
+        return row_norms(self.points)
 
     def tree(self, seg: int) -> cKDTree:
         """Return the KD-tree of segment ``seg``'s points."""
@@ -376,10 +393,26 @@ class _Segments:
             self._trees[seg] = cKDTree(self.points[self.members[seg]])
         return self._trees[seg]
 
+    def cells(self, seg: int, cell: float) -> _Cells:
+        """Return segment ``seg``'s points grouped in cells of side ``cell`` [m] (:func:`_cells`).
+
+        Built once per segment: a segment is the smaller of many pairs, always with the same
+        ``cell``.
+        """
+        if seg not in self._cells:
+            self._cells[seg] = _cells(self.points[self.members[seg]], cell)
+        return self._cells[seg]
+
+    def rays(self) -> NDArray[np.float64]:
+        """Return all working points' viewing directions (M, 3) (unit vectors)."""
+        if self._rays is None:
+            self._rays = self.points / np.maximum(self.depth, _TINY)[:, None]
+        return self._rays
+
     def ray_tree(self) -> cKDTree:
-        """Return the KD-tree of all working points' viewing directions (unit vectors)."""
+        """Return the KD-tree of all working points' viewing directions (:meth:`rays`)."""
         if self._ray_tree is None:
-            self._ray_tree = cKDTree(self.points / np.maximum(self.depth, _TINY)[:, None])
+            self._ray_tree = cKDTree(self.rays())
         return self._ray_tree
 
 
@@ -457,16 +490,29 @@ def _closest_gap(segs: _Segments, a: int, b: int, params: ModelingParams) -> _Ga
     touch) and at most ``seg_max_occlusion_gap`` apart.
     """
     link = params.seg_max_edge_factor * params.seg_voxel_size
+    max_gap = params.seg_max_occlusion_gap
     small, big = (a, b) if len(segs.members[a]) <= len(segs.members[b]) else (b, a)
     rows = segs.members[small]
     # Only gaps up to seg_max_occlusion_gap matter: farther pairs come back inf.
     if len(rows) > GAP_DIRECT_POINTS:
-        rows = rows[_gap_candidates(segs.points[rows], segs.tree(big), GAP_CELL_LINKS * link,
-                                    params.seg_max_occlusion_gap)]
-        if not len(rows):
+        picked, reached = _gap_candidates(segs.points[rows], segs.tree(big),
+                                          GAP_CELL_LINKS * link, max_gap,
+                                          segs.cells(small, GAP_CELL_LINKS * link))
+        # A distance reached bounds the nearest from above: within a link, they touch.
+        if not len(picked) or reached <= link:
             return None
-    d, j = segs.tree(big).query(segs.points[rows], k=1,
-                                distance_upper_bound=params.seg_max_occlusion_gap)
+        rows = rows[picked]
+        # Rows farther than the distance reached are not the nearest (they come back inf).
+        max_gap = min(max_gap, reached + GAP_MARGIN)
+    else:
+        # A few rows first: the distance they reach bounds the nearest from above.
+        probe, _ = segs.tree(big).query(segs.points[rows[::GAP_PROBE_STRIDE]], k=1,
+                                        distance_upper_bound=max_gap)
+        reached = float(probe.min())
+        if reached <= link:
+            return None
+        max_gap = min(max_gap, reached + GAP_MARGIN)
+    d, j = segs.tree(big).query(segs.points[rows], k=1, distance_upper_bound=max_gap)
     k = int(np.argmin(d))
     length = float(d[k])
     if length <= link or length > params.seg_max_occlusion_gap:
@@ -476,24 +522,20 @@ def _closest_gap(segs: _Segments, a: int, b: int, params: ModelingParams) -> _Ga
     return _Gap(small, big, pa, pb, length, (segs.points[pb] - segs.points[pa]) / length)
 
 
-def _gap_candidates(q: NDArray[np.float64], tree: cKDTree, cell: float, max_gap: float
-                    ) -> NDArray[np.int64]:
-    """Rows of ``q`` (Q, 3) [m] that may be the nearest of them to the points of ``tree``.
+class _Cells(NamedTuple):
+    """Points grouped in cubic cells: each cell's first point stands for it.
 
-    The rows are grouped in cubic cells of side ``cell`` [m]; each cell's first row stands
-    for it, and r is the farthest of the cell's rows from it. A row p of a cell whose
-    representative s lies at distance D from the tree's points is at least D - r from
-    them (triangle inequality), and the nearest representative's D_min is a distance
-    reached: only the cells with D - r <= D_min can hold the nearest row (every row
-    nearest to within the float margin :data:`GAP_MARGIN` is kept). Cells whose
-    representative lies beyond ``max_gap`` [m] + r hold no row within ``max_gap`` [m].
-
-    Returns
-    -------
-    (C,) int64 array
-        Increasing row indices (the candidates keep their order, so the first of equally
-        near rows is the same as among all rows); empty when no row is within ``max_gap``.
+    ``first`` (C,) holds the row of each cell's first point, ``inv`` (Q,) the cell of every
+    row, ``reach`` (C,) [m] the farthest of a cell's rows from its first one.
     """
+
+    first: NDArray[np.int64]
+    inv: NDArray[np.int64]
+    reach: NDArray[np.float64]
+
+
+def _cells(q: NDArray[np.float64], cell: float) -> _Cells:
+    """Group the rows of ``q`` (Q, 3) [m] in cubic cells of side ``cell`` [m]."""
     key = np.floor(q / cell).astype(np.int64)
     key -= key.min(axis=0)
     span = key.max(axis=0) + 1
@@ -502,12 +544,38 @@ def _gap_candidates(q: NDArray[np.float64], tree: cKDTree, cell: float, max_gap:
     inv = inv.ravel()
     reach = np.zeros(len(first))
     np.maximum.at(reach, inv, row_norms(q - q[first][inv]))
+    return _Cells(first, inv, reach)
+
+
+def _gap_candidates(q: NDArray[np.float64], tree: cKDTree, cell: float, max_gap: float,
+                    cells: _Cells | None = None) -> tuple[NDArray[np.int64], float]:
+    """Rows of ``q`` (Q, 3) [m] that may be the nearest of them to the points of ``tree``.
+
+    The rows are grouped in cubic cells of side ``cell`` [m] (:func:`_cells`, or ``cells``
+    when given, grouped so before); each cell's first row stands for it, and r is the
+    farthest of the cell's rows from it. A row p of a cell whose
+    representative s lies at distance D from the tree's points is at least D - r from
+    them (triangle inequality), and the nearest representative's D_min is a distance
+    reached: only the cells with D - r <= D_min can hold the nearest row (every row
+    nearest to within the float margin :data:`GAP_MARGIN` is kept). Cells whose
+    representative lies beyond ``max_gap`` [m] + r hold no row within ``max_gap`` [m].
+
+    Returns
+    -------
+    rows : (C,) int64 array
+        Increasing row indices (the candidates keep their order, so the first of equally
+        near rows is the same as among all rows); empty when no row is within ``max_gap``.
+    reached : float
+        D_min [m], the distance of a row from the tree's points (inf when the rows are
+        empty): the nearest row is at most this far.
+    """
+    first, inv, reach = _cells(q, cell) if cells is None else cells
     dist, _ = tree.query(q[first], k=1,
                          distance_upper_bound=max_gap + float(reach.max()) + GAP_MARGIN)
     best = float(dist.min())
     if not math.isfinite(best):
-        return np.zeros(0, dtype=np.int64)
-    return np.flatnonzero((dist - reach <= best + GAP_MARGIN)[inv])
+        return np.zeros(0, dtype=np.int64), math.inf
+    return np.flatnonzero((dist - reach <= best + GAP_MARGIN)[inv]), best
 
 
 def _surface_continues(segs: _Segments, normals: NDArray[np.float64], gap: _Gap,
@@ -515,11 +583,14 @@ def _surface_continues(segs: _Segments, normals: NDArray[np.float64], gap: _Gap,
     """Whether the mean normals around both ends of the gap agree and lie across it."""
     link = params.seg_max_edge_factor * params.seg_voxel_size
     radius = OCCLUSION_NORMAL_RADIUS_LINKS * link
-    na = _mean_normal(segs, normals, gap.small, gap.pa, radius)
-    nb = _mean_normal(segs, normals, gap.big, gap.pb, radius)
     max_tilt = math.sin(OCCLUSION_MAX_GAP_TILT)
+    # One end's normal decides alone when it lies off the gap; the other is not needed then.
+    na = _mean_normal(segs, normals, gap.small, gap.pa, radius)
+    if abs(float(na @ gap.u)) > max_tilt:
+        return False
+    nb = _mean_normal(segs, normals, gap.big, gap.pb, radius)
     return not (abs(float(na @ nb)) < math.cos(OCCLUSION_MAX_NORMAL_ANGLE)
-                or abs(float(na @ gap.u)) > max_tilt or abs(float(nb @ gap.u)) > max_tilt)
+                or abs(float(nb @ gap.u)) > max_tilt)
 
 
 def _mean_normal(segs: _Segments, normals: NDArray[np.float64], seg: int, at: int,
@@ -527,13 +598,17 @@ def _mean_normal(segs: _Segments, normals: NDArray[np.float64], seg: int, at: in
     """Return the unit mean normal (3,) of segment ``seg`` around its point ``at``.
 
     The normals within ``radius`` [m] of ``at`` are averaged, each flipped to the side of
-    ``at``'s own normal.
+    ``at``'s own normal. A point is the end of several gaps (a segment's corner nearest
+    to several others), so each mean is kept in ``segs`` for the frame's ``normals``.
     """
-    near = segs.members[seg][segs.tree(seg).query_ball_point(segs.points[at], radius)]
-    nrm = normals[near]
-    nrm = nrm * np.sign(nrm @ normals[at])[:, None]
-    mean = nrm.sum(axis=0)
-    return mean / max(float(np.linalg.norm(mean)), _TINY)
+    key = (seg, at, radius)
+    if key not in segs.mean_normals:
+        near = segs.members[seg][segs.tree(seg).query_ball_point(segs.points[at], radius)]
+        nrm = normals[near]
+        nrm = nrm * np.sign(nrm @ normals[at])[:, None]
+        mean = nrm.sum(axis=0)
+        segs.mean_normals[key] = mean / max(float(np.linalg.norm(mean)), _TINY)
+    return segs.mean_normals[key]
 
 
 def _gap_is_hidden(segs: _Segments, gap: _Gap, voxel: float) -> bool:
@@ -549,12 +624,38 @@ def _gap_is_hidden(segs: _Segments, gap: _Gap, voxel: float) -> bool:
     samples = p[gap.pa] + OCCLUSION_GAP_SAMPLES[:, None] * (p[gap.pb] - p[gap.pa])
     s_depth = np.linalg.norm(samples, axis=1)
     tol = OCCLUSION_RAY_TOLERANCE_VOXELS * voxel / s_depth
-    dist, hit = segs.ray_tree().query(samples / s_depth[:, None], k=1)
-    hit = np.minimum(hit, len(p) - 1)
+    dist, hit = _nearest_rays(segs, samples / s_depth[:, None], tol)
     seen = dist <= tol
     nearer = segs.depth[hit] < s_depth - OCCLUSION_NEARER_MARGIN_VOXELS * voxel
     return bool(np.all(nearer[seen])
                 and seen.sum() >= OCCLUSION_MIN_SEEN_SHARE * len(OCCLUSION_GAP_SAMPLES))
+
+
+def _nearest_rays(segs: _Segments, dirs: NDArray[np.float64], tol: NDArray[np.float64]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Return the nearest working point's direction to each of ``dirs`` (S, 3) (unit vectors).
+
+    The distances (S,) and rows (S,) are those of ``segs.ray_tree().query(dirs, k=1)``
+    wherever the distance is within ``tol`` (S,); elsewhere the distance is also beyond
+    ``tol`` and the row is any. Only the directions inside the box of ``dirs`` grown by the
+    largest ``tol`` (:data:`RAY_BOX_MARGIN`) can be within ``tol``, so a tree of those
+    (a gap's few hundred instead of the frame's tens of thousands) finds the same nearest
+    point, unless two are equally near: then the frame's tree decides, as before.
+    """
+    rays = segs.rays()
+    grow = float(tol.max()) + RAY_BOX_MARGIN
+    lo, hi = dirs.min(axis=0) - grow, dirs.max(axis=0) + grow
+    # The box's first side over all directions, the other two over the few inside it.
+    near = np.flatnonzero((rays[:, 0] >= lo[0]) & (rays[:, 0] <= hi[0]))
+    inside = rays[near, 1:]
+    near = near[np.all((inside >= lo[1:]) & (inside <= hi[1:]), axis=1)]
+    if not len(near):
+        return np.full(len(dirs), np.inf), np.zeros(len(dirs), dtype=np.int64)
+    dist, idx = cKDTree(rays[near]).query(dirs, k=2)
+    if np.any((dist[:, 0] <= tol) & (dist[:, 0] == dist[:, 1])):
+        dist, hit = segs.ray_tree().query(dirs, k=1)
+        return dist, np.minimum(hit, len(rays) - 1)
+    return dist[:, 0], near[np.minimum(idx[:, 0], len(near) - 1)]
 
 
 # ------------------------------------------------------------------------------------------
@@ -606,18 +707,40 @@ def join_contained_parts(points: NDArray[np.float64], normals: NDArray[np.float6
             circle = _round_footprint(xy, normals[members[i]] @ basis)
             if circle is not None:
                 circles[i] = circle
+    if not circles:
+        return comp
     sets = DisjointSets(ids)
-    for a_id, (center, r) in sorted(circles.items(), key=lambda kv: -len(members[kv[0]])):
-        for b_id in ids:
-            if len(members[b_id]) < CONTAINED_MIN_POINTS or sets.find(a_id) == sets.find(b_id):
+    _join_inside(sets, [i for i in ids if len(members[i]) >= CONTAINED_MIN_POINTS], foot,
+                 height, sorted(circles.items(), key=lambda kv: -len(members[kv[0]])))
+    return sets.relabel(comp, valid)
+
+
+def _join_inside(sets: DisjointSets, eligible: list[int], foot: dict[int, NDArray[np.float64]],
+                 height: dict[int, NDArray[np.float64]],
+                 circles: list[tuple[int, tuple[NDArray[np.float64], float]]]) -> None:
+    """Join in ``sets`` every ``eligible`` segment that lies inside a round one.
+
+    ``foot`` (P, 2) [m] and ``height`` (P,) [m] hold each segment's points in the support
+    plane's coordinates and above it; ``circles`` the round segments' footprint circles
+    (centre (2,), radius [m]) in the order they are visited. The tests of
+    :func:`join_contained_parts`; each segment's heights are summarised once (the pairs
+    test them again and again) and a pair's height tests come before the footprint's pass
+    over the points.
+    """
+    low = {i: height[i].min() for i in eligible}
+    high = {i: height[i].max() for i in eligible}
+    middle = {i: np.median(height[i]) for i in eligible}
+    for a_id, (center, r) in circles:
+        rim = np.quantile(height[a_id], RIM_HEIGHT_QUANTILE)
+        for b_id in eligible:
+            if sets.find(a_id) == sets.find(b_id):
+                continue
+            overlap = min(high[a_id], high[b_id]) - max(low[a_id], low[b_id])
+            if not (overlap > 0 and middle[b_id] <= rim):
                 continue
             inside = np.linalg.norm(foot[b_id] - center, axis=1) <= CONTAINED_RADIUS_MARGIN * r
-            ha, hb = height[a_id], height[b_id]
-            overlap = min(ha.max(), hb.max()) - max(ha.min(), hb.min())
-            below_rim = np.median(hb) <= np.quantile(ha, RIM_HEIGHT_QUANTILE)
-            if inside.mean() >= CONTAINED_MIN_INSIDE_SHARE and overlap > 0 and below_rim:
+            if inside.mean() >= CONTAINED_MIN_INSIDE_SHARE:
                 sets.union(a_id, b_id)
-    return sets.relabel(comp, valid)
 
 
 def _round_footprint(xy: NDArray[np.float64], n_xy: NDArray[np.float64]
