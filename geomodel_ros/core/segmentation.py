@@ -97,8 +97,8 @@ NULL_LINKS = 4000
 MEDIAN_STANDARD_ERROR = math.sqrt(math.pi / 2.0)
 #: A neighbourhood lies on its plane within the noise when its mean squared distance from
 #: it is at most this many standard deviations above what independent noise gives
-#: (:func:`_planar_within_noise`): three, the noise alone exceeding it in about 0.3 % of
-#: the points of a plane.
+#: (:func:`_planar_within_noise`): three; the noise alone exceeds it in 0.8 % of the
+#: points of a plane (chi-square with k - 3 = 13 degrees of freedom for 16 neighbours).
 PLANAR_NOISE_SIGMAS = 3.0
 #: A working point holds one disparity level when the depths of its input points spread
 #: (standard deviation) less than this share of a depth step: two levels mixed in any
