@@ -95,6 +95,11 @@ BORDER_STRIP_POINTS = 2.0
 NULL_LINKS = 4000
 #: Standard error of the median of n Gaussian samples over sigma / sqrt(n): sqrt(pi / 2).
 MEDIAN_STANDARD_ERROR = math.sqrt(math.pi / 2.0)
+#: A neighbourhood lies on its plane within the noise when its mean squared distance from
+#: it is at most this many standard deviations above what independent noise gives
+#: (:func:`_planar_within_noise`): three; the noise alone exceeds it in 0.8 % of the
+#: points of a plane (chi-square with k - 3 = 13 degrees of freedom for 16 neighbours).
+PLANAR_NOISE_SIGMAS = 3.0
 #: A working point holds one disparity level when the depths of its input points spread
 #: (standard deviation) less than this share of a depth step: two levels mixed in any
 #: proportion p spread by sqrt(p (1 - p)) steps, at least 0.19 for one point in 25 of the
@@ -470,13 +475,18 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     normals, variation, nbrs, sqdist, *off_plane = neighbourhood if neighbourhood is not None \
         else own if own is not None else \
         estimate_normals(points, params.normal_neighbors, return_sqdist=True)
+    noise_w = working_noise(points, counts, noise)
+    if noise is not None and not off_plane:
+        off_plane = [smallest_eigenpairs_sym(*neighborhood_moments(points, nbrs))[0]]
     cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
                          np.arange(m), sqdist)
     max_edge = params.seg_max_edge_factor * params.seg_voxel_size
     patches = face_labels(cloud, params.face_angle_threshold, params.edge_variation_threshold,
                           params.min_face_points, max_edge,
-                          None if neighbourhood is None else params.seg_voxel_size)
-    noise_w = working_noise(points, counts, noise)
+                          None if neighbourhood is None else params.seg_voxel_size,
+                          planar=None if noise is None else
+                          _planar_within_noise(off_plane[0],
+                                               noise_w / getattr(noise, "scale", 1.0), nbrs))
     floor = STEP_SHARE * params.seg_plane_threshold
     step = np.maximum(floor, STEP_NOISE_SIGMAS * noise_w)
     parallel = float(np.cos(params.face_angle_threshold))
@@ -498,6 +508,42 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                         np.bincount(patches[step > floor], minlength=n_p) == 0,
                         creased=creased)
     return obj[patches].astype(np.int64)
+
+
+def _planar_within_noise(off_plane: NDArray[np.float64], noise: NDArray[np.float64],
+                         nbrs: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Tell which points' neighbourhoods lie on their plane within the points' own noise.
+
+    A neighbourhood of k points with independent noise sigma_j along the normal and no
+    shape of its own lies off its best plane by a mean square of about (k - 3) / k times
+    the mean of sigma_j^2 (three degrees of freedom go to the plane), with a standard
+    deviation of sqrt(2 (k - 3)) / k times it; :data:`PLANAR_NOISE_SIGMAS` standard
+    deviations above that mean is the most the noise alone gives. A surface variation
+    above ``edge_variation_threshold`` there is the noise's, not an edge's: under
+    Kinect-class noise at 1 m a box face seen face-on (the noise along its normal) has a
+    variation of 0.06-0.08 over its whole area, its neighbours seen obliquely 0.01-0.02,
+    and a face made of edge points falls to its neighbours' faces, point by point, as
+    far as 20 mm from its edges.
+
+    Parameters
+    ----------
+    off_plane : (M,) float64 array [m^2]
+        Mean squared distance of every neighbourhood from its plane.
+    noise : (M,) float64 array [m]
+        Local noise of every working point, the part its neighbours do not share (e.g.
+        :func:`working_noise` over the frame's ``scale``; 0 where unknown: never planar
+        by the noise).
+    nbrs : (M, k) int64 array
+        The neighbourhoods (the point itself among them).
+
+    Returns
+    -------
+    (M,) bool array
+    """
+    k = nbrs.shape[1]
+    dof = max(k - 3, 1)
+    bound = (dof + PLANAR_NOISE_SIGMAS * math.sqrt(2.0 * dof)) / k
+    return off_plane <= bound * np.square(noise)[nbrs].mean(axis=1)
 
 
 def level_quantum(points: NDArray[np.float64], inverse: NDArray[np.int64],
