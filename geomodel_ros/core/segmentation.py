@@ -481,12 +481,12 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
                          np.arange(m), sqdist)
     max_edge = params.seg_max_edge_factor * params.seg_voxel_size
+    planar = None if noise is None else \
+        _planar_within_noise(off_plane[0], noise_w / getattr(noise, "scale", 1.0), nbrs)
     patches = face_labels(cloud, params.face_angle_threshold, params.edge_variation_threshold,
                           params.min_face_points, max_edge,
                           None if neighbourhood is None else params.seg_voxel_size,
-                          planar=None if noise is None else
-                          _planar_within_noise(off_plane[0],
-                                               noise_w / getattr(noise, "scale", 1.0), nbrs))
+                          planar=planar)
     floor = STEP_SHARE * params.seg_plane_threshold
     step = np.maximum(floor, STEP_NOISE_SIGMAS * noise_w)
     parallel = float(np.cos(params.face_angle_threshold))
@@ -494,7 +494,11 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                          min_piece=params.min_face_points,
                          noisy=STEP_NOISE_SIGMAS * noise_w > floor, parallel_cos=parallel)
     n_p = int(patches.max()) + 1
-    normals = _patch_normals(points, normals, nbrs, patches, noise_w, *off_plane)
+    # Points smooth only by the noise test sit where the noise or an edge raised their
+    # variation: next to a patch border their normals are refitted from their own patch.
+    normals = _patch_normals(points, normals, nbrs, patches, noise_w, *off_plane,
+                             refit=None if planar is None else
+                             planar & (variation > params.edge_variation_threshold))
     a, b, votes, yes, creased = _border_votes(
         points, normals, nbrs, sqdist, patches, n_p, max_edge,
         params.seg_concavity_tolerance, step, parallel,
@@ -987,8 +991,8 @@ def _creased_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
 
 def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
                    nbrs: NDArray[np.int64], patches: NDArray[np.int64],
-                   noise: NDArray[np.float64], off_plane: NDArray[np.float64] | None = None
-                   ) -> NDArray[np.float64]:
+                   noise: NDArray[np.float64], off_plane: NDArray[np.float64] | None = None,
+                   refit: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
     """Re-estimate the normals of points next to a crease from their own patch.
 
     Near a crease a point's neighbourhood straddles both surfaces and its normal blends
@@ -999,6 +1003,10 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
     neighbourhood gives the better normal, and a one-sided one from a few noisy points
     would turn the links across the patch border concave. Points with fewer than
     :data:`PATCH_NORMAL_MIN_NEIGHBORS` neighbours in their patch also keep ``normals``.
+    Points ``refit`` marks are refitted whatever their residual: a point made smooth by
+    the noise test (:func:`_planar_within_noise`) with a variation above the edge
+    threshold is often one whose neighbourhood rounds over a crease within the noise,
+    and its blended normal would vote the crease's links concave or stepped.
 
     Parameters
     ----------
@@ -1015,6 +1023,8 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
     off_plane : (M,) float64 array [m^2], optional
         Mean squared distance of every point's neighbourhood from its plane, when known
         (:func:`geomodel_ros.core.faces.pca_normals` over ``nbrs``); computed otherwise.
+    refit : (M,) bool array, optional
+        Points refitted from their own patch whatever their residual.
 
     Returns
     -------
@@ -1027,7 +1037,8 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
     # Only the points that do not keep their normal are refitted (row by row, the same
     # values as refitting all of them).
     rows = np.flatnonzero((same.sum(axis=1) >= PATCH_NORMAL_MIN_NEIGHBORS)
-                          & (off_plane > noise * noise))
+                          & ((off_plane > noise * noise) if refit is None
+                             else (off_plane > noise * noise) | refit))
     own = np.where(same[rows], nbrs[rows], rows[:, None])
     _, own_normals = smallest_eigenpairs_sym(*neighborhood_moments(points, own))
     own_normals[np.einsum("ij,ij->i", own_normals, points[rows]) > 0] *= -1
