@@ -11,7 +11,8 @@ import pytest
 
 from geomodel_ros.core.faces import estimate_normals, neighborhood_moments, \
     smallest_eigenpairs_sym
-from geomodel_ros.core.segmentation import _planar_within_noise, _seen_noise_share
+from geomodel_ros.core.segmentation import (_patch_normals, _planar_within_noise,
+                                            _seen_noise_share)
 
 SPACING = 0.004
 K = 16
@@ -104,3 +105,28 @@ def test_fold_is_not_planar_under_overstated_noise(seed):
     local = pts + OFFSET
     far = (local[:, 1] > 3 * SPACING) | (local[:, 2] < -3 * SPACING)
     assert planar[far].mean() >= 0.9
+
+
+def test_points_smooth_by_the_noise_take_their_own_patch_normal():
+    # A 90 degree fold whose faces are two patches. With a noise allowance above every
+    # residual no point is refitted by its residual, and the points within a spacing of
+    # the edge keep normals blended from both faces (about 45 degrees off each). Marked
+    # as smooth only by the noise test, they take their own face's normal: z on the top,
+    # y on the front (compared up to sign).
+    rng = np.random.default_rng(8)
+    pts, near = _fold(0.00002, rng)
+    normals, _, nbrs = estimate_normals(pts, K)
+    off, _ = smallest_eigenpairs_sym(*neighborhood_moments(pts, nbrs))
+    local = pts + OFFSET
+    on_top = np.abs(local[:, 2]) < 0.5 * SPACING
+    patches = np.where(on_top, 0, 1).astype(np.int64)
+    face_normal = np.where(on_top[:, None], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0])
+    loud = np.full(len(pts), 1.0)
+    kept = _patch_normals(pts, normals, nbrs, patches, loud, off)
+    refit = _patch_normals(pts, normals, nbrs, patches, loud, off, refit=near)
+    cos_kept = np.abs(np.einsum("ij,ij->i", kept, face_normal))[near]
+    cos_refit = np.abs(np.einsum("ij,ij->i", refit, face_normal))[near]
+    assert np.median(cos_kept) < np.cos(np.radians(20.0))
+    assert cos_refit.min() > np.cos(np.radians(2.0))
+    # Points not marked keep their normals.
+    assert np.array_equal(refit[~near], kept[~near])
