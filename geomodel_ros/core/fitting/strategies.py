@@ -35,8 +35,8 @@ from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blo
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.fitting.verify import bowed_profile, standing_on
-from geomodel_ros.core.model_graph import (NO_CURVATURE, FaceInfo, GraphDecision,
-                                           curvature_candidates, decide_type)
+from geomodel_ros.core.model_graph import (BETWEEN_BOUNDS, NO_CURVATURE, FaceInfo,
+                                           GraphDecision, curvature_candidates, decide_type)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
 from geomodel_ros.core.surface_type import face_feature, principal_curvatures
@@ -88,36 +88,64 @@ FLAT_TYPES = (PrimitiveType.PLANE, PrimitiveType.CUBOID)
 
 def graph_decision(infos: list[FaceInfo], adjacency: NDArray[np.bool_],
                    curvature: tuple[NDArray, NDArray] | None,
-                   params: ModelingParams) -> GraphDecision:
+                   params: ModelingParams, blocks: NDArray[np.int64] | None = None
+                   ) -> GraphDecision:
     """Return the model graph's decision with the thresholds of ``params``.
 
     With a measured noise (``noise_model = auto``) a side that passes as perpendicular to
     its cap but leans to one side of it by at least ``min_cone_half_angle`` (the least
     half-angle the cone and frustum units accept) is tried as a frustum first, and the
-    frustum unit's taper test decides; ``fixed`` keeps the cylinder first.
+    frustum unit's taper test decides; ``fixed`` keeps the cylinder first. ``blocks``
+    (M,): the curvatures' points' blocks (:func:`curvature_blocks`).
     """
     tilt = params.min_cone_half_angle if params.noise_model == "auto" else None
     return decide_type(infos, adjacency, params.angle_tolerance,
                        COPLANAR_FACTOR * params.ransac_threshold, curvature,
                        params.sphere_curvature_ratio, params.developable_curvature_ratio,
-                       params.cone_curvature_variation, tilt)
+                       params.cone_curvature_variation, tilt, blocks)
+
+
+def _curvature_rows(cloud: ObjectCloud, which: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """Return the working points (indices) of ``which`` (M,) whose curvatures are judged."""
+    wc, params = cloud.wc, cloud.params
+    smooth = which & (wc.variation <= params.edge_variation_threshold)
+    return np.flatnonzero(smooth if smooth.sum() >= MIN_SMOOTH_POINTS else which)
 
 
 def curvatures(cloud: ObjectCloud, which: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
     """Principal curvatures k_max, k_min [1/m] of the working points ``which`` (M,) selects."""
-    wc, params = cloud.wc, cloud.params
-    smooth = which & (wc.variation <= params.edge_variation_threshold)
-    sel = smooth if smooth.sum() >= MIN_SMOOTH_POINTS else which
-    return principal_curvatures(wc.points, wc.normals, wc.neighbors, np.flatnonzero(sel))
+    wc = cloud.wc
+    return principal_curvatures(wc.points, wc.normals, wc.neighbors,
+                                _curvature_rows(cloud, which))
+
+
+def curvature_blocks(cloud: ObjectCloud, which: NDArray[np.bool_]) -> NDArray[np.int64] | None:
+    """Blocks of neighbouring points (:func:`~.paired_cost.spread_blocks`) of :func:`curvatures`.
+
+    One per curvature of ``which`` (M,); None with ``noise_model = fixed`` (the curvature
+    ratio is then judged against its bounds alone, as before).
+    """
+    if cloud.params.noise_model != "auto":
+        return None
+    return spread_blocks(cloud.wc.points[_curvature_rows(cloud, which)])
+
+
+def _curved_decision(cloud: ObjectCloud, which: NDArray[np.bool_]) -> GraphDecision:
+    """Decision for the working points ``which`` (M,) as an all-curved object."""
+    params = cloud.params
+    cands, why = curvature_candidates(*curvatures(cloud, which), params.sphere_curvature_ratio,
+                                      params.developable_curvature_ratio,
+                                      params.cone_curvature_variation,
+                                      curvature_blocks(cloud, which))
+    return GraphDecision("curved", cands, -1, (), why, between_bounds=BETWEEN_BOUNDS in why)
 
 
 def decide(cloud: ObjectCloud) -> GraphDecision:
     """Apply the model graph to the faces of ``cloud`` (curvatures when all are curved)."""
     infos = [f.info for f in cloud.faces]
-    curvature = None
     if not any(i.planar for i in infos):
-        curvature = curvatures(cloud, np.ones(len(cloud.wc.points), dtype=bool))
-    return graph_decision(infos, cloud.adjacency, curvature, cloud.params)
+        return _curved_decision(cloud, np.ones(len(cloud.wc.points), dtype=bool))
+    return graph_decision(infos, cloud.adjacency, None, cloud.params)
 
 
 def curved_faces_alone(cloud: ObjectCloud) -> GraphDecision:
@@ -126,11 +154,7 @@ def curved_faces_alone(cloud: ObjectCloud) -> GraphDecision:
     for f in cloud.faces:
         if not f.info.planar:
             mask[f.working] = True
-    params = cloud.params
-    cands, why = curvature_candidates(*curvatures(cloud, mask), params.sphere_curvature_ratio,
-                                      params.developable_curvature_ratio,
-                                      params.cone_curvature_variation)
-    return GraphDecision("curved", cands, -1, (), why)
+    return _curved_decision(cloud, mask)
 
 
 @dataclass
@@ -151,9 +175,12 @@ class Situation:
 
     @property
     def no_round_shape(self) -> bool:
-        """Whether the curved faces' curvatures fit no primitive (no candidate to fit)."""
+        """Whether the curved faces' curvatures fit no primitive by their ratio.
+
+        No candidate to fit, or only those of the ratio's interval (``between_bounds``).
+        """
         d = self.fit_decision
-        return d.category == "curved" and not d.candidates
+        return d.category == "curved" and (not d.candidates or d.between_bounds)
 
     @property
     def mixed_without_rule(self) -> bool:
@@ -498,17 +525,14 @@ def all_faces_curved(cloud: ObjectCloud, note: str, target: int | None = None
     ``target`` of them, when given) propose no primitive. ``note`` starts the attempt's
     note (the curvature reason follows).
     """
-    params = cloud.params
     which = np.zeros(len(cloud.wc.points), dtype=bool)
     which[::_every(len(which), target)] = True
-    cands, why = curvature_candidates(
-        *curvatures(cloud, which), params.sphere_curvature_ratio,
-        params.developable_curvature_ratio, params.cone_curvature_variation)
-    if not cands:
+    decision = _curved_decision(cloud, which)
+    if not decision.candidates:
         return None
     faces = [as_curved(f) for f in cloud.faces]
-    return Attempt(dataclasses.replace(cloud, faces=faces),
-                   GraphDecision("curved", cands, -1, (), why), note=f"{note}: {why}")
+    return Attempt(dataclasses.replace(cloud, faces=faces), decision,
+                   note=f"{note}: {decision.reason}")
 
 
 def _every(n: int, target: int | None) -> int:
