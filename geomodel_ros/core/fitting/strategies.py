@@ -143,7 +143,7 @@ def _curved_decision(cloud: ObjectCloud, which: NDArray[np.bool_]) -> GraphDecis
 def decide(cloud: ObjectCloud) -> GraphDecision:
     """Apply the model graph to the faces of ``cloud`` (curvatures when all are curved)."""
     infos = [f.info for f in cloud.faces]
-    if not any(i.planar for i in infos):
+    if infos and not any(i.planar for i in infos):
         return _curved_decision(cloud, np.ones(len(cloud.wc.points), dtype=bool))
     return graph_decision(infos, cloud.adjacency, None, cloud.params)
 
