@@ -10,7 +10,7 @@ reach into the support beneath it and no view of the scene through it.
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 from numpy.typing import NDArray
@@ -240,24 +240,37 @@ def bowed_profile(rejection: Rejected) -> bool:
     return PROFILE_BOWS in rejection.reason
 
 
-def standing_on(cloud: ObjectCloud) -> tuple[NDArray[np.float64], float] | None:
-    """Return the support plane (normal (3,), d) that ``cloud`` stands above, or None.
+def _one_side_of(cloud: ObjectCloud
+                 ) -> Iterator[tuple[NDArray[np.float64], float, float, float, float]]:
+    """Yield the support planes ``cloud`` lies on one side of, with its heights above them.
 
-    Its bulk above the plane by more than SUPPORT_TOLERANCE_FACTOR ``seg_plane_threshold``
-    plus the RANSAC threshold, nothing of it below by more than that (at most
-    SUPPORT_BELOW_PERCENTILE per cent of its points). The plane is returned as given
-    (its normal may point either way).
+    Each as (normal (3,), d, side, median height [m], tolerance [m]): ``side`` (+1 or -1)
+    turns the plane's signed distance into height on the side of the object's median,
+    and at most SUPPORT_BELOW_PERCENTILE per cent of its points lie below the plane by
+    more than the tolerance (SUPPORT_TOLERANCE_FACTOR ``seg_plane_threshold`` plus the
+    RANSAC threshold).
     """
     params = cloud.params
     tol = SUPPORT_TOLERANCE_FACTOR * params.seg_plane_threshold + params.ransac_threshold
     sub = every_kth(cloud.points)
     for n, d in cloud.supports:
         h = sub @ n + d
-        if np.median(h) < 0:
-            h = -h
-        if float(np.percentile(h, SUPPORT_BELOW_PERCENTILE)) >= -tol and \
-                float(np.median(h)) > tol:
-            return n, float(d)
+        side = 1.0 if np.median(h) >= 0 else -1.0
+        h = side * h
+        if float(np.percentile(h, SUPPORT_BELOW_PERCENTILE)) >= -tol:
+            yield n, float(d), side, float(np.median(h)), tol
+
+
+def standing_on(cloud: ObjectCloud) -> tuple[NDArray[np.float64], float] | None:
+    """Return the support plane (normal (3,), d) that ``cloud`` stands above, or None.
+
+    Its bulk above the plane by more than the tolerance of :func:`_one_side_of`, nothing
+    of it below by more than that. The plane is returned as given (its normal may point
+    either way).
+    """
+    for n, d, _, height, tol in _one_side_of(cloud):
+        if height > tol:
+            return n, d
     return None
 
 
@@ -265,23 +278,16 @@ def check_sunk_in_support(center: NDArray[np.float64], radius: float, cloud: Obj
                           kind: PrimitiveType) -> Rejected | None:
     """Reject a sphere that reaches into a support its object rests on or above.
 
-    A solid on one side of a support plane (its points there, at most
-    SUPPORT_BELOW_PERCENTILE per cent of them beyond the plane by more than the tolerance
-    of :func:`standing_on`) cannot pass through it: a sphere whose ``center`` (3,) [m]
-    lies less than its ``radius`` [m] minus the RANSAC threshold (the noise band) on that
-    side of the plane is rejected. Such a sphere explains only a cap of points above the
-    support (a ring, a flat mound), not a ball. Only with ``noise_model = auto``.
+    A solid on one side of a support plane (:func:`_one_side_of`) cannot pass through it:
+    a sphere whose ``center`` (3,) [m] lies less than its ``radius`` [m] minus the RANSAC
+    threshold (the noise band) on that side of the plane is rejected. Such a sphere
+    explains only a cap of points above the support (a ring, a flat mound), not a ball.
+    Only with ``noise_model = auto``.
     """
     params = cloud.params
     if params.noise_model != "auto":
         return None
-    tol = SUPPORT_TOLERANCE_FACTOR * params.seg_plane_threshold + params.ransac_threshold
-    sub = every_kth(cloud.points)
-    for n, d in cloud.supports:
-        h = sub @ n + d
-        side = 1.0 if np.median(h) >= 0 else -1.0
-        if float(np.percentile(side * h, SUPPORT_BELOW_PERCENTILE)) < -tol:
-            continue
+    for n, d, side, _, _ in _one_side_of(cloud):
         sunk = radius - side * (float(center @ n) + d)
         if sunk > params.ransac_threshold:
             return Rejected(kind, f"{kind} rejected: it reaches {sunk * 1000:.0f} mm into "
