@@ -29,8 +29,11 @@ from numpy.typing import NDArray
 from geomodel_ros.core.fastmath import centroid
 from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
                                              bends_beyond_noise)
-from geomodel_ros.core.confidence import surface_distance
+from geomodel_ros.core.confidence import surface_distance, surface_normals
 from geomodel_ros.core.fitting.measure import every_kth
+from geomodel_ros.core.fitting.normal_box import (MIN_SIDE_NORMALS, axis_costs, box_axes,
+                                                  normal_costs, side_labels)
+from geomodel_ros.core.fitting.orient import toward_sensor
 from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.units import fit_first
@@ -45,7 +48,8 @@ __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_stra
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
            "UprightAboveSupport", "BoxRival", "PlanarPatchesOfCurvedObjects", "BoxOfFlatCores",
            "DoublyCurvedAsSphere", "flat_faces",
-           "flat_core_faces", "box_rival", "support_below", "truncated_cost", "truncated_costs",
+           "flat_core_faces", "box_rival", "normal_box_rival", "prefer_box_of_normals",
+           "support_below", "truncated_cost", "truncated_costs",
            "prefer_box",
            "prefer_round", "round_rival", "thinned", "all_faces_curved", "as_curved"]
 
@@ -316,12 +320,14 @@ class BoxRival:
     """A box hypothesis for an object (:func:`box_rival`).
 
     ``cloud`` holds the box's candidate sides as its faces, ``decision`` proposes the
-    cuboid for them, ``note`` says which faces were used and how.
+    cuboid for them, ``note`` says which faces were used and how; ``axes`` (3, 3), the
+    box's axes (columns) when they were found before its sides (:func:`normal_box_rival`).
     """
 
     cloud: ObjectCloud
     decision: GraphDecision
     note: str
+    axes: NDArray[np.float64] | None = None
 
 
 def _aligned(faces: list[ObjectFace], adjacency: NDArray[np.bool_], tol: float) -> list[int]:
@@ -375,6 +381,106 @@ def box_rival(cloud: ObjectCloud) -> BoxRival | None:
                     dataclasses.replace(decision, candidates=(PrimitiveType.CUBOID,)), note)
 
 
+def normal_box_rival(cloud: ObjectCloud) -> BoxRival | None:
+    """Return the box whose axes are the modes of the object's point normals, or None.
+
+    Axes from :func:`~.normal_box.box_axes` (tolerance ``angle_tolerance``, which grows
+    with the noise band); each visible side is the working points whose normals face it
+    (:func:`~.normal_box.side_labels`; an edge's mixed normals are left out), taken as a
+    plane with the side's direction as its normal, and its input points are those of
+    its working points. None when fewer than two sides along different axes hold
+    :data:`~.normal_box.MIN_SIDE_NORMALS` normals each.
+    """
+    wc, tol = cloud.wc, cloud.params.angle_tolerance
+    axes = box_axes(wc.normals, tol)
+    if axes is None:
+        return None
+    labels = side_labels(wc.normals, axes, tol)
+    counts = np.bincount(labels[labels >= 0], minlength=6)
+    sides = np.flatnonzero(counts >= MIN_SIDE_NORMALS)
+    if len({int(s) // 2 for s in sides}) < 2:
+        return None
+    # The face each working point came from (its summary's CF is the new side's).
+    origin = np.full(len(wc.points), -1, dtype=np.int64)
+    for i, f in enumerate(cloud.faces):
+        origin[f.working] = i
+    faces = []
+    for side in sides:
+        widx = np.flatnonzero(labels == side)
+        center = centroid(wc.points[widx])
+        normal = toward_sensor(axes[:, side // 2], center)
+        info = FaceInfo(True, normal, float(-normal @ center), len(widx), wc.normals[widx],
+                        center)
+        pidx = np.flatnonzero(labels[wc.point_to_working] == side)
+        came = origin[widx]
+        cf = cloud.faces[int(np.argmax(np.bincount(came[came >= 0], minlength=1)))].summary.cf \
+            if (came >= 0).any() else 0.0
+        faces.append(ObjectFace(info, FaceSummary("planar", cf, len(pidx), normal), widx, pidx))
+    axis_of_face = tuple(int(s) // 2 for s in sides)
+    main = int(np.argmax(counts[sides]))
+    decision = GraphDecision("planar", (PrimitiveType.CUBOID,), main, axis_of_face,
+                             "sides from the modes of the point normals")
+    adjacency = ~np.eye(len(faces), dtype=bool)
+    note = (f"box of the point normals' modes (sides along axes {list(axis_of_face)}, "
+            f"{int(np.count_nonzero(labels < 0))} of {len(labels)} normals off every side)")
+    return BoxRival(dataclasses.replace(cloud, faces=faces, adjacency=adjacency), decision, note,
+                    axes)
+
+
+def prefer_box_of_normals(situation: Situation, prim: Primitive,
+                          faces: tuple[FaceSummary, ...], reasons: list[str]
+                          ) -> tuple[Primitive, tuple[FaceSummary, ...]]:
+    """Return the round fit ``prim`` or the box of the point normals' modes, by the normals.
+
+    For an object with no box of faces (:func:`box_rival` None: no planar face, no flat
+    core). Far from the sensor the noise band outgrows a small box, and a round model
+    explains its points' positions as well as the box; the measured normals still face
+    the box's sides, where a round side's turn with its arc. The box
+    (:func:`normal_box_rival`) replaces ``prim`` when the angles between the measured
+    normals of the working points and each model's surface normals
+    (:func:`~geomodel_ros.core.confidence.surface_normals`) cost less for the box beyond
+    the noise (:func:`~.normal_box.normal_costs`, band ``angle_tolerance``; the
+    block-paired test :func:`~.paired_cost.lower_beyond_noise`, as the normals' errors
+    are correlated over neighbouring points too) and the round model's truncated
+    residuals are not lower beyond the noise (:func:`truncated_costs`: the positions do
+    not contradict the box). The box is fitted only when its axes alone (no box with
+    them has lower normal costs) pass the normals' test. Only with ``noise_model =
+    auto``; the comparison is added to ``reasons`` when the box is fitted.
+    """
+    cloud = situation.cloud
+    params = cloud.params
+    if prim.type not in ROUND_TYPES or params.noise_model != "auto":
+        return prim, faces
+    rival = normal_box_rival(cloud)
+    if rival is None:
+        return prim, faces
+    wc, tol = cloud.wc, params.angle_tolerance
+    model = surface_normals(prim, wc.points)
+    if model is None:
+        return prim, faces
+    c_round = normal_costs(model, wc.normals, tol)
+    blocks = spread_blocks(wc.points)
+    if not lower_beyond_noise(axis_costs(rival.axes, wc.normals, tol), c_round, blocks)[0]:
+        return prim, faces
+    box, _ = fit_first(rival.cloud, rival.decision)
+    if box is None:
+        return prim, faces
+    c_box = normal_costs(surface_normals(box, wc.points), wc.normals, tol)
+    lower, stat = lower_beyond_noise(c_box, c_round, blocks)
+    p_round, p_box = truncated_costs(prim, cloud), truncated_costs(box, cloud)
+    closer, stat_p = lower_beyond_noise(p_round, p_box,
+                                        spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)))
+    replace = lower and not closer
+    verdict = "replaces" if replace else "does not replace"
+    reasons.append(f"{rival.note}; cuboid (normal cost {np.mean(c_box):.3f}, cost "
+                   f"{np.mean(p_box):.3f}) {verdict} {prim.type} (normal cost "
+                   f"{np.mean(c_round):.3f}, t = {stat:.1f}; cost {np.mean(p_round):.3f}, "
+                   f"t = {stat_p:.1f})")
+    if replace:
+        return box, tuple(f.summary for f in rival.cloud.faces)
+    return prim, faces
+
+
 def truncated_costs(p: Primitive, cloud: ObjectCloud) -> NDArray[np.float64]:
     """MSAC cost (k,) of ``p`` per compared point: min(d, t)^2 / t^2, in [0, 1].
 
@@ -405,9 +511,11 @@ def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, 
     when its :func:`truncated_cost` over all the object's points is lower. The
     comparison is added to ``reasons``.
     """
-    rival = situation.box_rival if prim.type in ROUND_TYPES else None
-    if rival is None:
+    if prim.type not in ROUND_TYPES:
         return prim, faces
+    rival = situation.box_rival
+    if rival is None:
+        return prefer_box_of_normals(situation, prim, faces, reasons)
     box_cloud, note = rival.cloud, rival.note
     box, _ = fit_first(box_cloud, rival.decision)
     if box is None:
