@@ -8,8 +8,12 @@ has to beat a box: the box of the planar faces and of the flat cores of curved f
 box side with a gable, fold or shrink-wrap ripples over part of it), the other curved
 faces left out as outliers (:func:`box_rival`); the shape with the smaller truncated
 residual over all the object's points (MSAC cost at the noise band) is taken
-(:func:`prefer_box`). A box, in turn, has to beat the round model of all the object's
-faces taken as curved, on the same cost (:func:`prefer_round`). Last, an object that no
+(:func:`prefer_box`). An object with no such box (no planar face, no flat core: far from
+the sensor a small box's faces may each span two of its sides) meets the box whose axes
+are the modes of its point normals, judged on how well each model's surface normals
+agree with the measured ones (:func:`prefer_box_of_normals`). A box, in turn, has to
+beat the round model of all the object's faces taken as curved, on the same cost
+(:func:`prefer_round`). Last, an object that no
 strategy typed but whose surface showed itself curved two ways (a side rejected for a
 bowed profile, or curvatures neither developable nor spherical) is tried as a sphere
 (:class:`DoublyCurvedAsSphere`).
@@ -509,7 +513,8 @@ def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, 
 
     The box (:func:`box_rival`) is fitted to the same object; it replaces ``prim``
     when its :func:`truncated_cost` over all the object's points is lower. The
-    comparison is added to ``reasons``.
+    comparison is added to ``reasons``. Without that box, the box of the point
+    normals' modes is judged instead (:func:`prefer_box_of_normals`).
     """
     if prim.type not in ROUND_TYPES:
         return prim, faces
