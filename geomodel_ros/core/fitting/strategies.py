@@ -324,14 +324,12 @@ class BoxRival:
     """A box hypothesis for an object (:func:`box_rival`).
 
     ``cloud`` holds the box's candidate sides as its faces, ``decision`` proposes the
-    cuboid for them, ``note`` says which faces were used and how; ``axes`` (3, 3), the
-    box's axes (columns) when they were found before its sides (:func:`normal_box_rival`).
+    cuboid for them, ``note`` says which faces were used and how.
     """
 
     cloud: ObjectCloud
     decision: GraphDecision
     note: str
-    axes: NDArray[np.float64] | None = None
 
 
 def _aligned(faces: list[ObjectFace], adjacency: NDArray[np.bool_], tol: float) -> list[int]:
@@ -385,18 +383,21 @@ def box_rival(cloud: ObjectCloud) -> BoxRival | None:
                     dataclasses.replace(decision, candidates=(PrimitiveType.CUBOID,)), note)
 
 
-def normal_box_rival(cloud: ObjectCloud) -> BoxRival | None:
+def normal_box_rival(cloud: ObjectCloud, axes: NDArray[np.float64] | None = None
+                     ) -> BoxRival | None:
     """Return the box whose axes are the modes of the object's point normals, or None.
 
-    Axes from :func:`~.normal_box.box_axes` (tolerance ``angle_tolerance``, which grows
-    with the noise band); each visible side is the working points whose normals face it
-    (:func:`~.normal_box.side_labels`; an edge's mixed normals are left out), taken as a
-    plane with the side's direction as its normal, and its input points are those of
-    its working points. None when fewer than two sides along different axes hold
-    :data:`~.normal_box.MIN_SIDE_NORMALS` normals each.
+    ``axes`` (3, 3) (columns) when already found, else from
+    :func:`~.normal_box.box_axes` of all the working points' normals (tolerance
+    ``angle_tolerance``, which grows with the noise band); each visible side is the
+    working points whose normals face it (:func:`~.normal_box.side_labels`; an edge's
+    mixed normals are left out), taken as a plane with the side's direction as its
+    normal, and its input points are those of its working points. None when fewer than
+    two sides along different axes hold :data:`~.normal_box.MIN_SIDE_NORMALS` normals
+    each.
     """
     wc, tol = cloud.wc, cloud.params.angle_tolerance
-    axes = box_axes(wc.normals, tol)
+    axes = box_axes(wc.normals, tol) if axes is None else axes
     if axes is None:
         return None
     labels = side_labels(wc.normals, axes, tol)
@@ -427,8 +428,7 @@ def normal_box_rival(cloud: ObjectCloud) -> BoxRival | None:
     adjacency = ~np.eye(len(faces), dtype=bool)
     note = (f"box of the point normals' modes (sides along axes {list(axis_of_face)}, "
             f"{int(np.count_nonzero(labels < 0))} of {len(labels)} normals off every side)")
-    return BoxRival(dataclasses.replace(cloud, faces=faces, adjacency=adjacency), decision, note,
-                    axes)
+    return BoxRival(dataclasses.replace(cloud, faces=faces, adjacency=adjacency), decision, note)
 
 
 def prefer_box_of_normals(situation: Situation, prim: Primitive,
@@ -447,29 +447,35 @@ def prefer_box_of_normals(situation: Situation, prim: Primitive,
     block-paired test :func:`~.paired_cost.lower_beyond_noise`, as the normals' errors
     are correlated over neighbouring points too) and the round model's truncated
     residuals are not lower beyond the noise (:func:`truncated_costs`: the positions do
-    not contradict the box). The box is fitted only when its axes alone (no box with
-    them has lower normal costs) pass the normals' test. Only with ``noise_model =
-    auto``; the comparison is added to ``reasons`` when the box is fitted.
+    not contradict the box). The axes and the normals' costs come from every k-th
+    working point, about :data:`RIVAL_FIT_POINTS` (a first look, as for the round
+    rival); the box is fitted (its sides from all the working points) only when its axes
+    alone (no box with them has lower normal costs) pass the normals' test. Only with
+    ``noise_model = auto``; the comparison is added to ``reasons`` when the box is
+    fitted.
     """
     cloud = situation.cloud
     params = cloud.params
     if prim.type not in ROUND_TYPES or params.noise_model != "auto":
         return prim, faces
-    rival = normal_box_rival(cloud)
-    if rival is None:
-        return prim, faces
     wc, tol = cloud.wc, params.angle_tolerance
-    model = surface_normals(prim, wc.points)
+    look = slice(None, None, _every(len(wc.points), RIVAL_FIT_POINTS))
+    points, normals = wc.points[look], wc.normals[look]
+    axes = box_axes(normals, tol)
+    model = None if axes is None else surface_normals(prim, points)
     if model is None:
         return prim, faces
-    c_round = normal_costs(model, wc.normals, tol)
-    blocks = spread_blocks(wc.points)
-    if not lower_beyond_noise(axis_costs(rival.axes, wc.normals, tol), c_round, blocks)[0]:
+    c_round = normal_costs(model, normals, tol)
+    blocks = spread_blocks(points)
+    if not lower_beyond_noise(axis_costs(axes, normals, tol), c_round, blocks)[0]:
+        return prim, faces
+    rival = normal_box_rival(cloud, axes)
+    if rival is None:
         return prim, faces
     box, _ = fit_first(rival.cloud, rival.decision)
     if box is None:
         return prim, faces
-    c_box = normal_costs(surface_normals(box, wc.points), wc.normals, tol)
+    c_box = normal_costs(surface_normals(box, points), normals, tol)
     lower, stat = lower_beyond_noise(c_box, c_round, blocks)
     p_round, p_box = truncated_costs(prim, cloud), truncated_costs(box, cloud)
     closer, stat_p = lower_beyond_noise(p_round, p_box,
