@@ -204,6 +204,22 @@ def test_a_cylinder_with_correlated_noise_keeps_its_normals_against_the_box(seed
     assert out is truth and not fits and not reasons
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_fitted_box_of_a_cylinder_s_normals_does_not_replace_it(seed, monkeypatch):
+    # As above, with the first look forced to pass: the box is fitted to the sides of
+    # the normals' modes, and the measured normals still agree with the cylinder's
+    # beyond the noise (the verdict itself, not only the first look, keeps the cylinder).
+    params = ModelingParams(ransac_threshold=0.006, angle_tolerance=15 * DEG)
+    pts, truth = _lying_cylinder_points(seed, 0.002, 0.015)
+    cloud = cloud_of(pts, params)
+    monkeypatch.setattr(strategies, "axis_costs", lambda _axes, n, _tol: np.zeros(len(n)))
+    reasons = []
+    out, _ = prefer_box_of_normals(Situation(cloud, GraphDecision("curved", ("cylinder",), -1)),
+                                   truth, (), reasons)
+    assert out is truth
+    assert len(reasons) == 1 and "cuboid" in reasons[0] and "does not replace" in reasons[0]
+
+
 def test_the_box_of_normals_needs_a_round_fit_and_the_measured_noise():
     # A cuboid is not judged, and ``fixed`` keeps the previous strategies.
     pts = _box_points(0, 0.0)
