@@ -37,7 +37,8 @@ from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR
 from geomodel_ros.core.primitives import Confidence, Primitive, PrimitiveType
 
 __all__ = ["VIEW_COVERAGE", "CONFIDENCE_SAMPLE", "UNKNOWN_CONFIDENCE", "surface_distance",
-           "coverage", "confidence_value", "estimate_confidence", "with_confidence"]
+           "surface_normals", "coverage", "confidence_value", "estimate_confidence",
+           "with_confidence"]
 
 #: One viewpoint sees at most half of a cylinder's circumference or of a sphere's surface:
 #: that coverage counts as complete.
@@ -129,6 +130,39 @@ def surface_distance(p: Primitive, points: NDArray[np.float64]) -> NDArray[np.fl
     or a type without a surface.
     """
     return _measure(p, points, None)[0]
+
+
+def surface_normals(p: Primitive, points: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """Return the unit normal (n, 3) of the fitted surface nearest to each of ``points``.
+
+    Up to sign (compare with ``abs`` of dot products). Plane: its normal; cuboid: the
+    normal of the face the point lies farthest out of (or least deep inside); cylinder,
+    cone, frustum: the normal of the nearest outline segment (a cap's is the axis, the
+    side's turns with the point's azimuth about the axis); sphere: radial. None for
+    ``unknown`` or a type without a surface.
+    """
+    kind = str(p.type)
+    if kind == "sphere":
+        v = points - p.center
+        return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), _TINY)
+    rot = p.rotation
+    if kind == "plane":
+        return np.broadcast_to(rot[:, 2], points.shape).copy()
+    local = (points - p.center) @ rot
+    if kind == "cuboid":
+        half = 0.5 * np.array([p.dimensions[k] for k in ("length", "width", "height")])
+        return rot.T[np.argmax(np.abs(local) - half, axis=1)]
+    per_segment = _profile_distances(p, local)
+    profile = _profile(p)
+    if per_segment is None or profile is None:
+        return None
+    # Each outline segment's normal in the (rho, z) plane: its direction turned by 90 deg.
+    seg = np.diff(np.array(profile), axis=0)
+    seg_n = np.c_[seg[:, 1], -seg[:, 0]] / np.maximum(np.linalg.norm(seg, axis=1), _TINY)[:, None]
+    n_rho, n_z = seg_n[np.argmin(per_segment, axis=0)].T
+    rho = np.hypot(local[:, 0], local[:, 1])
+    radial = local[:, :2] / np.maximum(rho, _TINY)[:, None]
+    return np.c_[n_rho[:, None] * radial, n_z] @ rot.T
 
 
 def coverage(p: Primitive, points: NDArray[np.float64], noise: float) -> float | None:

@@ -558,7 +558,8 @@ def split_faces(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
 
 def face_labels(cloud: WorkingCloud, angle_threshold: float, edge_variation: float,
                 min_face_points: int, max_edge: float | None = None,
-                crease_length: float | None = None) -> NDArray[np.int64]:
+                crease_length: float | None = None,
+                planar: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
     """Label the smooth faces of the working cloud: (M,) int64, faces 0 .. F-1.
 
     Neighbouring non-edge points whose normals differ by less than ``angle_threshold``
@@ -574,11 +575,16 @@ def face_labels(cloud: WorkingCloud, angle_threshold: float, edge_variation: flo
     get denser: a crease that the normals round over about a centimetre is crossed in
     several small turns by links much shorter than ``crease_length``
     (:func:`_link_angle_limits`).
+
+    With ``planar`` (M,) bool, the points it marks are never edge points: their
+    neighbourhoods lie on a plane within the noise, which alone raised their variation.
     """
     m, k = cloud.neighbors.shape
     if m == 0:
         return np.zeros(0, dtype=np.int64)
     smooth = cloud.variation <= edge_variation
+    if planar is not None:
+        smooth |= planar
     nb = cloud.neighbors
     cos = _pair_dot(cloud.normals, nb)
     np.abs(cos, out=cos)

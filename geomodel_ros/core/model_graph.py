@@ -12,6 +12,9 @@ proposes the object's type, as an ordered list of candidates that RANSAC then ve
   beyond the object.
 * only curved faces: principal curvatures k1 (largest magnitude) and k2: k2 ~ 0 with k1
   constant -> cylinder, k2 ~ 0 with k1 varying -> cone or frustum, k1 ~ k2 -> sphere.
+  The ratio of their medians is judged with its own uncertainty where the points' blocks
+  are known: a ratio between the two bounds whose interval reaches a bound gets that
+  bound's candidates (:func:`curvature_candidates`).
 
 Cone and frustum share one surface (normals at a constant non-right angle to the axis,
 k1 varying along it); which of the two an object is depends on where the fitted cone's
@@ -39,11 +42,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import stats
 
+from geomodel_ros.core.fitting.paired_cost import LOWER_LEVEL, MIN_BLOCKS
 from geomodel_ros.core.params import ModelingParams
 
 __all__ = ["FaceInfo", "GraphDecision", "curvature_candidates", "decide_type", "side_tilt",
-           "NO_CURVATURE"]
+           "ratio_halfwidth", "NO_CURVATURE", "BETWEEN_BOUNDS"]
 
 
 @dataclass(frozen=True)
@@ -84,6 +89,9 @@ class GraphDecision:
         For cuboids: which of the three axes each face's normal belongs to (-1: a sliver
         that fits none and is ignored).
     reason : str
+    between_bounds : bool
+        All-curved objects: the curvature ratio lay between the developable and the
+        spherical bound (any candidates come from its uncertainty, not from the ratio).
     """
 
     category: str
@@ -91,6 +99,7 @@ class GraphDecision:
     main_face: int
     axis_of_face: tuple[int, ...] = ()
     reason: str = ""
+    between_bounds: bool = False
 
 
 #: Faces smaller than this share of an object's working points that fit no relation are
@@ -107,6 +116,9 @@ MIXED_VETO_SHARE = 2 * SLIVER_SHARE
 CONE_ANGLE_SPREAD = 2
 #: Reason of :func:`curvature_candidates` when no point has a curvature to judge.
 NO_CURVATURE = "no curvature"
+#: Part of the reason of :func:`curvature_candidates` when the ratio lay between the bounds
+#: and its interval proposed the candidates (``GraphDecision.between_bounds``).
+BETWEEN_BOUNDS = "between the bounds"
 
 
 def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
@@ -194,10 +206,54 @@ def _mixed_decision(faces: list[FaceInfo], tol: float,
     return GraphDecision("mixed", (), main, (), "curved normals at varying angles to the plane")
 
 
+def ratio_halfwidth(a_max: NDArray[np.float64], a_min: NDArray[np.float64],
+                    blocks: NDArray[np.int64]) -> float:
+    """Return the half-width of the interval of the curvature ratio median |k2| / median |k1|.
+
+    The ratio of each block's medians (``blocks`` (M,), e.g.
+    :func:`~.fitting.paired_cost.spread_blocks` of the points: neighbouring points share
+    their depth errors, and so their curvature errors) scatters about the object's ratio;
+    the half-width is the Student quantile at ``LOWER_LEVEL`` (one-sided, blocks - 1
+    degrees of freedom) times the standard error of the blocks' mean ratio. Blocks whose
+    median |k1| is zero are left out; 0 with fewer than ``MIN_BLOCKS`` blocks.
+
+    Parameters
+    ----------
+    a_max, a_min : (M,) float64 arrays [1/m], finite, >= 0
+        |k1| and |k2| per point.
+    blocks : (M,) int64 array, block index per point
+    """
+    ids = np.unique(blocks)
+    num = np.array([np.median(a_min[blocks == b]) for b in ids])
+    den = np.array([np.median(a_max[blocks == b]) for b in ids])
+    ratios = num[den > 0] / den[den > 0]
+    g = len(ratios)
+    if g < MIN_BLOCKS:
+        return 0.0
+    se = float(np.std(ratios, ddof=1)) / math.sqrt(g)
+    return float(stats.t.ppf(1.0 - LOWER_LEVEL, g - 1)) * se
+
+
+def _developable(a_max: NDArray[np.float64], cone_variation: float) -> tuple[tuple[str, ...], str]:
+    """Return the developable candidates (cone first when |k1| (M,) varies) and why."""
+    q1, med, q3 = np.percentile(a_max, [25, 50, 75])
+    variation = float((q3 - q1) / med)
+    if variation > cone_variation:
+        return ("cone", "frustum", "cylinder"), f"k2 ~ 0, k1 varies ({variation:.2f})"
+    return ("cylinder", "cone", "frustum"), f"k2 ~ 0, k1 constant ({variation:.2f})"
+
+
 def curvature_candidates(k_max: NDArray[np.float64], k_min: NDArray[np.float64],
                          sphere_ratio: float, developable_ratio: float,
-                         cone_variation: float) -> tuple[tuple[str, ...], str]:
+                         cone_variation: float, blocks: NDArray[np.int64] | None = None
+                         ) -> tuple[tuple[str, ...], str]:
     """Propose the candidates of an all-curved object from its principal curvatures.
+
+    A ratio between the two bounds is measured on a finite, noisy sample: with ``blocks``
+    its interval (:func:`ratio_halfwidth`) decides whether the data can tell it from a
+    bound; the candidates of each bound within its reach are proposed, the nearer first,
+    and the fits' own verification decides. Without ``blocks``, or when neither bound is
+    within reach, such a ratio fits no primitive.
 
     Parameters
     ----------
@@ -209,6 +265,8 @@ def curvature_candidates(k_max: NDArray[np.float64], k_min: NDArray[np.float64],
         Ratio at or below which it is a cylinder or cone.
     cone_variation : float
         Relative spread of |k_max| (IQR / median) above which cone is tried first.
+    blocks : (M,) int64 array, optional
+        Block of neighbouring points of each point (:func:`ratio_halfwidth`).
 
     Returns
     -------
@@ -222,12 +280,20 @@ def curvature_candidates(k_max: NDArray[np.float64], k_min: NDArray[np.float64],
     if ratio >= sphere_ratio:
         return ("sphere",), f"k1 ~ k2 (median ratio {ratio:.2f})"
     if ratio <= developable_ratio:
-        q1, med, q3 = np.percentile(a_max, [25, 50, 75])
-        variation = float((q3 - q1) / med)
-        if variation > cone_variation:
-            return ("cone", "frustum", "cylinder"), f"k2 ~ 0, k1 varies ({variation:.2f})"
-        return ("cylinder", "cone", "frustum"), f"k2 ~ 0, k1 constant ({variation:.2f})"
-    return (), f"principal curvature ratio {ratio:.2f} fits no primitive"
+        return _developable(a_max, cone_variation)
+    why = f"principal curvature ratio {ratio:.2f}"
+    if blocks is None:
+        return (), f"{why} fits no primitive"
+    both = np.isfinite(k_max) & np.isfinite(k_min)
+    half = ratio_halfwidth(np.abs(k_max[both]), np.abs(k_min[both]), blocks[both])
+    dev = _developable(a_max, cone_variation) if ratio - half <= developable_ratio else None
+    sph = (("sphere",), "k1 ~ k2") if ratio + half >= sphere_ratio else None
+    if dev is None and sph is None:
+        return (), f"{why} (+- {half:.2f}) fits no primitive"
+    near_dev = ratio - developable_ratio <= sphere_ratio - ratio
+    order = [c for c in ((dev, sph) if near_dev else (sph, dev)) if c is not None]
+    return (tuple(k for c, _ in order for k in c),
+            f"{why} +- {half:.2f} {BETWEEN_BOUNDS}: " + ", then ".join(w for _, w in order))
 
 
 def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
@@ -235,7 +301,8 @@ def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
                 sphere_ratio: float = ModelingParams.sphere_curvature_ratio,
                 developable_ratio: float = ModelingParams.developable_curvature_ratio,
                 cone_variation: float = ModelingParams.cone_curvature_variation,
-                frustum_tilt: float | None = None) -> GraphDecision:
+                frustum_tilt: float | None = None,
+                blocks: NDArray[np.int64] | None = None) -> GraphDecision:
     """Apply the model graph.
 
     Parameters
@@ -258,6 +325,8 @@ def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
         but lean to one side of it by at least this angle (:func:`side_tilt`) gets the
         frustum first: its unit's taper test (``fitting.frustum``) then tells a tapered
         side from a cylinder's. None (the default) keeps the cylinder first.
+    blocks : (M,) int64 array, optional
+        Block of neighbouring points of each curvature's point (:func:`curvature_candidates`).
 
     Returns
     -------
@@ -281,5 +350,6 @@ def decide_type(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
     if curvature is None:
         return GraphDecision("curved", ("cylinder", "cone", "sphere", "frustum"), -1, (),
                              "all faces curved")
-    cands, why = curvature_candidates(*curvature, sphere_ratio, developable_ratio, cone_variation)
-    return GraphDecision("curved", cands, -1, (), why)
+    cands, why = curvature_candidates(*curvature, sphere_ratio, developable_ratio, cone_variation,
+                                      blocks)
+    return GraphDecision("curved", cands, -1, (), why, between_bounds=BETWEEN_BOUNDS in why)

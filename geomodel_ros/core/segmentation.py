@@ -95,6 +95,11 @@ BORDER_STRIP_POINTS = 2.0
 NULL_LINKS = 4000
 #: Standard error of the median of n Gaussian samples over sigma / sqrt(n): sqrt(pi / 2).
 MEDIAN_STANDARD_ERROR = math.sqrt(math.pi / 2.0)
+#: A neighbourhood lies on its plane within the noise when its mean squared distance from
+#: it is at most this many standard deviations above what independent noise gives
+#: (:func:`_planar_within_noise`): three; the noise alone exceeds it in 0.8 % of the
+#: points of a plane (chi-square with k - 3 = 13 degrees of freedom for 16 neighbours).
+PLANAR_NOISE_SIGMAS = 3.0
 #: A working point holds one disparity level when the depths of its input points spread
 #: (standard deviation) less than this share of a depth step: two levels mixed in any
 #: proportion p spread by sqrt(p (1 - p)) steps, at least 0.19 for one point in 25 of the
@@ -470,13 +475,18 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     normals, variation, nbrs, sqdist, *off_plane = neighbourhood if neighbourhood is not None \
         else own if own is not None else \
         estimate_normals(points, params.normal_neighbors, return_sqdist=True)
+    noise_w = working_noise(points, counts, noise)
+    if noise is not None and not off_plane:
+        off_plane = [smallest_eigenpairs_sym(*neighborhood_moments(points, nbrs))[0]]
     cloud = WorkingCloud(points, normals, variation, nbrs, np.ones(m, dtype=np.int64),
                          np.arange(m), sqdist)
     max_edge = params.seg_max_edge_factor * params.seg_voxel_size
+    planar = None if noise is None else \
+        _planar_within_noise(off_plane[0], noise_w / getattr(noise, "scale", 1.0), nbrs)
     patches = face_labels(cloud, params.face_angle_threshold, params.edge_variation_threshold,
                           params.min_face_points, max_edge,
-                          None if neighbourhood is None else params.seg_voxel_size)
-    noise_w = working_noise(points, counts, noise)
+                          None if neighbourhood is None else params.seg_voxel_size,
+                          planar=planar)
     floor = STEP_SHARE * params.seg_plane_threshold
     step = np.maximum(floor, STEP_NOISE_SIGMAS * noise_w)
     parallel = float(np.cos(params.face_angle_threshold))
@@ -484,7 +494,11 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                          min_piece=params.min_face_points,
                          noisy=STEP_NOISE_SIGMAS * noise_w > floor, parallel_cos=parallel)
     n_p = int(patches.max()) + 1
-    normals = _patch_normals(points, normals, nbrs, patches, noise_w, *off_plane)
+    # Points smooth only by the noise test sit where the noise or an edge raised their
+    # variation: next to a patch border their normals are refitted from their own patch.
+    normals = _patch_normals(points, normals, nbrs, patches, noise_w, *off_plane,
+                             refit=None if planar is None else
+                             planar & (variation > params.edge_variation_threshold))
     a, b, votes, yes, creased = _border_votes(
         points, normals, nbrs, sqdist, patches, n_p, max_edge,
         params.seg_concavity_tolerance, step, parallel,
@@ -498,6 +512,78 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                         np.bincount(patches[step > floor], minlength=n_p) == 0,
                         creased=creased)
     return obj[patches].astype(np.int64)
+
+
+def _planar_within_noise(off_plane: NDArray[np.float64], noise: NDArray[np.float64],
+                         nbrs: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Tell which points' neighbourhoods lie on their plane within the points' own noise.
+
+    A neighbourhood of k points with independent noise sigma_j along the normal and no
+    shape of its own lies off its best plane by a mean square of about (k - 3) / k times
+    the mean of sigma_j^2 (three degrees of freedom go to the plane), with a standard
+    deviation of sqrt(2 (k - 3)) / k times it; :data:`PLANAR_NOISE_SIGMAS` standard
+    deviations above that mean is the most the noise alone gives. A surface variation
+    above ``edge_variation_threshold`` there is the noise's, not an edge's: under
+    Kinect-class noise at 1 m a box face seen face-on (the noise along its normal) has a
+    variation of 0.06-0.08 over its whole area, its neighbours seen obliquely 0.01-0.02,
+    and a face made of edge points falls to its neighbours' faces, point by point, as
+    far as 20 mm from its edges.
+
+    Parameters
+    ----------
+    off_plane : (M,) float64 array [m^2]
+        Mean squared distance of every neighbourhood from its plane.
+    noise : (M,) float64 array [m]
+        Local noise of every working point, the part its neighbours do not share (e.g.
+        :func:`working_noise` over the frame's ``scale``; 0 where unknown: never planar
+        by the noise).
+    nbrs : (M, k) int64 array
+        The neighbourhoods (the point itself among them).
+
+    Returns
+    -------
+    (M,) bool array
+    """
+    k = nbrs.shape[1]
+    dof = max(k - 3, 1)
+    bound = (dof + PLANAR_NOISE_SIGMAS * math.sqrt(2.0 * dof)) / k
+    expected = np.square(noise)[nbrs].mean(axis=1)
+    return off_plane <= bound * _seen_noise_share(off_plane, expected, dof, k) * expected
+
+
+def _seen_noise_share(off_plane: NDArray[np.float64], expected: NDArray[np.float64],
+                      dof: int, k: int) -> float:
+    """Return the share (<= 1) of the modelled noise variance the neighbourhoods show.
+
+    Most neighbourhoods of a frame lie on smooth surfaces, so the median of their mean
+    squared distance from their plane over the modelled variance is, for independent
+    noise, the median of a chi-square with ``dof`` degrees of freedom over ``k``
+    (Wilson-Hilferty: dof (1 - 2 / (9 dof))^3). A real sensor's noise is correlated
+    between neighbouring pixels (disparity terraces, the stereo matcher's window), so a
+    neighbourhood of working points lies far flatter than the model says: in the office
+    scene of the PCL tutorials the median is a tenth of it, every neighbourhood passes a
+    bound on the model's variance, edges and grooves included, and faces grow from
+    normals the noise turned. The bound is taken on the variance the frame shows, never
+    above the model's.
+
+    Parameters
+    ----------
+    off_plane, expected : (M,) float64 arrays [m^2]
+        Mean squared distance of every neighbourhood from its plane and its modelled noise
+        variance (0 where the noise is unknown).
+    dof, k : int
+        Degrees of freedom of the residual and neighbours per neighbourhood.
+
+    Returns
+    -------
+    float
+    """
+    known = expected > 0
+    if not known.any():
+        return 1.0
+    chi2_median = dof * (1.0 - 2.0 / (9.0 * dof)) ** 3 / k
+    seen = float(np.median(off_plane[known] / expected[known])) / chi2_median
+    return min(1.0, seen)
 
 
 def level_quantum(points: NDArray[np.float64], inverse: NDArray[np.int64],
@@ -905,8 +991,8 @@ def _creased_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
 
 def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
                    nbrs: NDArray[np.int64], patches: NDArray[np.int64],
-                   noise: NDArray[np.float64], off_plane: NDArray[np.float64] | None = None
-                   ) -> NDArray[np.float64]:
+                   noise: NDArray[np.float64], off_plane: NDArray[np.float64] | None = None,
+                   refit: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
     """Re-estimate the normals of points next to a crease from their own patch.
 
     Near a crease a point's neighbourhood straddles both surfaces and its normal blends
@@ -917,6 +1003,10 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
     neighbourhood gives the better normal, and a one-sided one from a few noisy points
     would turn the links across the patch border concave. Points with fewer than
     :data:`PATCH_NORMAL_MIN_NEIGHBORS` neighbours in their patch also keep ``normals``.
+    Points ``refit`` marks are refitted whatever their residual: a point made smooth by
+    the noise test (:func:`_planar_within_noise`) with a variation above the edge
+    threshold is often one whose neighbourhood rounds over a crease within the noise,
+    and its blended normal would vote the crease's links concave or stepped.
 
     Parameters
     ----------
@@ -933,6 +1023,8 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
     off_plane : (M,) float64 array [m^2], optional
         Mean squared distance of every point's neighbourhood from its plane, when known
         (:func:`geomodel_ros.core.faces.pca_normals` over ``nbrs``); computed otherwise.
+    refit : (M,) bool array, optional
+        Points refitted from their own patch whatever their residual.
 
     Returns
     -------
@@ -945,7 +1037,8 @@ def _patch_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
     # Only the points that do not keep their normal are refitted (row by row, the same
     # values as refitting all of them).
     rows = np.flatnonzero((same.sum(axis=1) >= PATCH_NORMAL_MIN_NEIGHBORS)
-                          & (off_plane > noise * noise))
+                          & ((off_plane > noise * noise) if refit is None
+                             else (off_plane > noise * noise) | refit))
     own = np.where(same[rows], nbrs[rows], rows[:, None])
     _, own_normals = smallest_eigenpairs_sym(*neighborhood_moments(points, own))
     own_normals[np.einsum("ij,ij->i", own_normals, points[rows]) > 0] *= -1

@@ -8,8 +8,12 @@ has to beat a box: the box of the planar faces and of the flat cores of curved f
 box side with a gable, fold or shrink-wrap ripples over part of it), the other curved
 faces left out as outliers (:func:`box_rival`); the shape with the smaller truncated
 residual over all the object's points (MSAC cost at the noise band) is taken
-(:func:`prefer_box`). A box, in turn, has to beat the round model of all the object's
-faces taken as curved, on the same cost (:func:`prefer_round`). Last, an object that no
+(:func:`prefer_box`). An object with no such box (no planar face, no flat core: far from
+the sensor a small box's faces may each span two of its sides) meets the box whose axes
+are the modes of its point normals, judged on how well each model's surface normals
+agree with the measured ones (:func:`prefer_box_of_normals`). A box, in turn, has to
+beat the round model of all the object's faces taken as curved, on the same cost
+(:func:`prefer_round`). Last, an object that no
 strategy typed but whose surface showed itself curved two ways (a side rejected for a
 bowed profile, or curvatures neither developable nor spherical) is tried as a sphere
 (:class:`DoublyCurvedAsSphere`).
@@ -29,14 +33,17 @@ from numpy.typing import NDArray
 from geomodel_ros.core.fastmath import centroid
 from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
                                              bends_beyond_noise)
-from geomodel_ros.core.confidence import surface_distance
+from geomodel_ros.core.confidence import surface_distance, surface_normals
 from geomodel_ros.core.fitting.measure import every_kth
+from geomodel_ros.core.fitting.normal_box import (MIN_SIDE_NORMALS, axis_costs, box_axes,
+                                                  normal_costs, side_labels)
+from geomodel_ros.core.fitting.orient import toward_sensor
 from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.fitting.verify import bowed_profile, standing_on
-from geomodel_ros.core.model_graph import (NO_CURVATURE, FaceInfo, GraphDecision,
-                                           curvature_candidates, decide_type)
+from geomodel_ros.core.model_graph import (BETWEEN_BOUNDS, NO_CURVATURE, FaceInfo,
+                                           GraphDecision, curvature_candidates, decide_type)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
 from geomodel_ros.core.surface_type import face_feature, principal_curvatures
@@ -45,7 +52,8 @@ __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_stra
            "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
            "UprightAboveSupport", "BoxRival", "PlanarPatchesOfCurvedObjects", "BoxOfFlatCores",
            "DoublyCurvedAsSphere", "flat_faces",
-           "flat_core_faces", "box_rival", "support_below", "truncated_cost", "truncated_costs",
+           "flat_core_faces", "box_rival", "normal_box_rival", "prefer_box_of_normals",
+           "support_below", "truncated_cost", "truncated_costs",
            "prefer_box",
            "prefer_round", "round_rival", "thinned", "all_faces_curved", "as_curved"]
 
@@ -88,36 +96,64 @@ FLAT_TYPES = (PrimitiveType.PLANE, PrimitiveType.CUBOID)
 
 def graph_decision(infos: list[FaceInfo], adjacency: NDArray[np.bool_],
                    curvature: tuple[NDArray, NDArray] | None,
-                   params: ModelingParams) -> GraphDecision:
+                   params: ModelingParams, blocks: NDArray[np.int64] | None = None
+                   ) -> GraphDecision:
     """Return the model graph's decision with the thresholds of ``params``.
 
     With a measured noise (``noise_model = auto``) a side that passes as perpendicular to
     its cap but leans to one side of it by at least ``min_cone_half_angle`` (the least
     half-angle the cone and frustum units accept) is tried as a frustum first, and the
-    frustum unit's taper test decides; ``fixed`` keeps the cylinder first.
+    frustum unit's taper test decides; ``fixed`` keeps the cylinder first. ``blocks``
+    (M,): the curvatures' points' blocks (:func:`curvature_blocks`).
     """
     tilt = params.min_cone_half_angle if params.noise_model == "auto" else None
     return decide_type(infos, adjacency, params.angle_tolerance,
                        COPLANAR_FACTOR * params.ransac_threshold, curvature,
                        params.sphere_curvature_ratio, params.developable_curvature_ratio,
-                       params.cone_curvature_variation, tilt)
+                       params.cone_curvature_variation, tilt, blocks)
+
+
+def _curvature_rows(cloud: ObjectCloud, which: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """Return the working points (indices) of ``which`` (M,) whose curvatures are judged."""
+    wc, params = cloud.wc, cloud.params
+    smooth = which & (wc.variation <= params.edge_variation_threshold)
+    return np.flatnonzero(smooth if smooth.sum() >= MIN_SMOOTH_POINTS else which)
 
 
 def curvatures(cloud: ObjectCloud, which: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
     """Principal curvatures k_max, k_min [1/m] of the working points ``which`` (M,) selects."""
-    wc, params = cloud.wc, cloud.params
-    smooth = which & (wc.variation <= params.edge_variation_threshold)
-    sel = smooth if smooth.sum() >= MIN_SMOOTH_POINTS else which
-    return principal_curvatures(wc.points, wc.normals, wc.neighbors, np.flatnonzero(sel))
+    wc = cloud.wc
+    return principal_curvatures(wc.points, wc.normals, wc.neighbors,
+                                _curvature_rows(cloud, which))
+
+
+def curvature_blocks(cloud: ObjectCloud, which: NDArray[np.bool_]) -> NDArray[np.int64] | None:
+    """Blocks of neighbouring points (:func:`~.paired_cost.spread_blocks`) of :func:`curvatures`.
+
+    One per curvature of ``which`` (M,); None with ``noise_model = fixed`` (the curvature
+    ratio is then judged against its bounds alone, as before).
+    """
+    if cloud.params.noise_model != "auto":
+        return None
+    return spread_blocks(cloud.wc.points[_curvature_rows(cloud, which)])
+
+
+def _curved_decision(cloud: ObjectCloud, which: NDArray[np.bool_]) -> GraphDecision:
+    """Decision for the working points ``which`` (M,) as an all-curved object."""
+    params = cloud.params
+    cands, why = curvature_candidates(*curvatures(cloud, which), params.sphere_curvature_ratio,
+                                      params.developable_curvature_ratio,
+                                      params.cone_curvature_variation,
+                                      curvature_blocks(cloud, which))
+    return GraphDecision("curved", cands, -1, (), why, between_bounds=BETWEEN_BOUNDS in why)
 
 
 def decide(cloud: ObjectCloud) -> GraphDecision:
     """Apply the model graph to the faces of ``cloud`` (curvatures when all are curved)."""
     infos = [f.info for f in cloud.faces]
-    curvature = None
-    if not any(i.planar for i in infos):
-        curvature = curvatures(cloud, np.ones(len(cloud.wc.points), dtype=bool))
-    return graph_decision(infos, cloud.adjacency, curvature, cloud.params)
+    if infos and not any(i.planar for i in infos):
+        return _curved_decision(cloud, np.ones(len(cloud.wc.points), dtype=bool))
+    return graph_decision(infos, cloud.adjacency, None, cloud.params)
 
 
 def curved_faces_alone(cloud: ObjectCloud) -> GraphDecision:
@@ -126,11 +162,7 @@ def curved_faces_alone(cloud: ObjectCloud) -> GraphDecision:
     for f in cloud.faces:
         if not f.info.planar:
             mask[f.working] = True
-    params = cloud.params
-    cands, why = curvature_candidates(*curvatures(cloud, mask), params.sphere_curvature_ratio,
-                                      params.developable_curvature_ratio,
-                                      params.cone_curvature_variation)
-    return GraphDecision("curved", cands, -1, (), why)
+    return _curved_decision(cloud, mask)
 
 
 @dataclass
@@ -151,9 +183,12 @@ class Situation:
 
     @property
     def no_round_shape(self) -> bool:
-        """Whether the curved faces' curvatures fit no primitive (no candidate to fit)."""
+        """Whether the curved faces' curvatures fit no primitive by their ratio.
+
+        No candidate to fit, or only those of the ratio's interval (``between_bounds``).
+        """
         d = self.fit_decision
-        return d.category == "curved" and not d.candidates
+        return d.category == "curved" and (not d.candidates or d.between_bounds)
 
     @property
     def mixed_without_rule(self) -> bool:
@@ -348,6 +383,114 @@ def box_rival(cloud: ObjectCloud) -> BoxRival | None:
                     dataclasses.replace(decision, candidates=(PrimitiveType.CUBOID,)), note)
 
 
+def normal_box_rival(cloud: ObjectCloud, axes: NDArray[np.float64] | None = None
+                     ) -> BoxRival | None:
+    """Return the box whose axes are the modes of the object's point normals, or None.
+
+    ``axes`` (3, 3) (columns) when already found, else from
+    :func:`~.normal_box.box_axes` of all the working points' normals (tolerance
+    ``angle_tolerance``, which grows with the noise band); each visible side is the
+    working points whose normals face it (:func:`~.normal_box.side_labels`; an edge's
+    mixed normals are left out), taken as a plane with the side's direction as its
+    normal, and its input points are those of its working points. None when fewer than
+    two sides along different axes hold :data:`~.normal_box.MIN_SIDE_NORMALS` normals
+    each.
+    """
+    wc, tol = cloud.wc, cloud.params.angle_tolerance
+    axes = box_axes(wc.normals, tol) if axes is None else axes
+    if axes is None:
+        return None
+    labels = side_labels(wc.normals, axes, tol)
+    counts = np.bincount(labels[labels >= 0], minlength=6)
+    sides = np.flatnonzero(counts >= MIN_SIDE_NORMALS)
+    if len({int(s) // 2 for s in sides}) < 2:
+        return None
+    # The face each working point came from (its summary's CF is the new side's).
+    origin = np.full(len(wc.points), -1, dtype=np.int64)
+    for i, f in enumerate(cloud.faces):
+        origin[f.working] = i
+    faces = []
+    for side in sides:
+        widx = np.flatnonzero(labels == side)
+        center = centroid(wc.points[widx])
+        normal = toward_sensor(axes[:, side // 2], center)
+        info = FaceInfo(True, normal, float(-normal @ center), len(widx), wc.normals[widx],
+                        center)
+        pidx = np.flatnonzero(labels[wc.point_to_working] == side)
+        came = origin[widx]
+        cf = cloud.faces[int(np.argmax(np.bincount(came[came >= 0], minlength=1)))].summary.cf \
+            if (came >= 0).any() else 0.0
+        faces.append(ObjectFace(info, FaceSummary("planar", cf, len(pidx), normal), widx, pidx))
+    axis_of_face = tuple(int(s) // 2 for s in sides)
+    main = int(np.argmax(counts[sides]))
+    decision = GraphDecision("planar", (PrimitiveType.CUBOID,), main, axis_of_face,
+                             "sides from the modes of the point normals")
+    adjacency = ~np.eye(len(faces), dtype=bool)
+    note = (f"box of the point normals' modes (sides along axes {list(axis_of_face)}, "
+            f"{int(np.count_nonzero(labels < 0))} of {len(labels)} normals off every side)")
+    return BoxRival(dataclasses.replace(cloud, faces=faces, adjacency=adjacency), decision, note)
+
+
+def prefer_box_of_normals(situation: Situation, prim: Primitive,
+                          faces: tuple[FaceSummary, ...], reasons: list[str]
+                          ) -> tuple[Primitive, tuple[FaceSummary, ...]]:
+    """Return the round fit ``prim`` or the box of the point normals' modes, by the normals.
+
+    For an object with no box of faces (:func:`box_rival` None: no planar face, no flat
+    core). Far from the sensor the noise band outgrows a small box, and a round model
+    explains its points' positions as well as the box; the measured normals still face
+    the box's sides, where a round side's turn with its arc. The box
+    (:func:`normal_box_rival`) replaces ``prim`` when the angles between the measured
+    normals of the working points and each model's surface normals
+    (:func:`~geomodel_ros.core.confidence.surface_normals`) cost less for the box beyond
+    the noise (:func:`~.normal_box.normal_costs`, band ``angle_tolerance``; the
+    block-paired test :func:`~.paired_cost.lower_beyond_noise`, as the normals' errors
+    are correlated over neighbouring points too) and the round model's truncated
+    residuals are not lower beyond the noise (:func:`truncated_costs`: the positions do
+    not contradict the box). The axes and the normals' costs come from every k-th
+    working point, about :data:`RIVAL_FIT_POINTS` (a first look, as for the round
+    rival); the box is fitted (its sides from all the working points) only when its axes
+    alone (no box with them has lower normal costs) pass the normals' test. Only with
+    ``noise_model = auto``; the comparison is added to ``reasons`` when the box is
+    fitted.
+    """
+    cloud = situation.cloud
+    params = cloud.params
+    if prim.type not in ROUND_TYPES or params.noise_model != "auto":
+        return prim, faces
+    wc, tol = cloud.wc, params.angle_tolerance
+    look = slice(None, None, _every(len(wc.points), RIVAL_FIT_POINTS))
+    points, normals = wc.points[look], wc.normals[look]
+    axes = box_axes(normals, tol)
+    model = None if axes is None else surface_normals(prim, points)
+    if model is None:
+        return prim, faces
+    c_round = normal_costs(model, normals, tol)
+    blocks = spread_blocks(points)
+    if not lower_beyond_noise(axis_costs(axes, normals, tol), c_round, blocks)[0]:
+        return prim, faces
+    rival = normal_box_rival(cloud, axes)
+    if rival is None:
+        return prim, faces
+    box, _ = fit_first(rival.cloud, rival.decision)
+    if box is None:
+        return prim, faces
+    c_box = normal_costs(surface_normals(box, points), normals, tol)
+    lower, stat = lower_beyond_noise(c_box, c_round, blocks)
+    p_round, p_box = truncated_costs(prim, cloud), truncated_costs(box, cloud)
+    closer, stat_p = lower_beyond_noise(p_round, p_box,
+                                        spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)))
+    replace = lower and not closer
+    verdict = "replaces" if replace else "does not replace"
+    reasons.append(f"{rival.note}; cuboid (normal cost {np.mean(c_box):.3f}, cost "
+                   f"{np.mean(p_box):.3f}) {verdict} {prim.type} (normal cost "
+                   f"{np.mean(c_round):.3f}, t = {stat:.1f}; cost {np.mean(p_round):.3f}, "
+                   f"t = {stat_p:.1f})")
+    if replace:
+        return box, tuple(f.summary for f in rival.cloud.faces)
+    return prim, faces
+
+
 def truncated_costs(p: Primitive, cloud: ObjectCloud) -> NDArray[np.float64]:
     """MSAC cost (k,) of ``p`` per compared point: min(d, t)^2 / t^2, in [0, 1].
 
@@ -376,11 +519,14 @@ def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, 
 
     The box (:func:`box_rival`) is fitted to the same object; it replaces ``prim``
     when its :func:`truncated_cost` over all the object's points is lower. The
-    comparison is added to ``reasons``.
+    comparison is added to ``reasons``. Without that box, the box of the point
+    normals' modes is judged instead (:func:`prefer_box_of_normals`).
     """
-    rival = situation.box_rival if prim.type in ROUND_TYPES else None
-    if rival is None:
+    if prim.type not in ROUND_TYPES:
         return prim, faces
+    rival = situation.box_rival
+    if rival is None:
+        return prefer_box_of_normals(situation, prim, faces, reasons)
     box_cloud, note = rival.cloud, rival.note
     box, _ = fit_first(box_cloud, rival.decision)
     if box is None:
@@ -498,17 +644,14 @@ def all_faces_curved(cloud: ObjectCloud, note: str, target: int | None = None
     ``target`` of them, when given) propose no primitive. ``note`` starts the attempt's
     note (the curvature reason follows).
     """
-    params = cloud.params
     which = np.zeros(len(cloud.wc.points), dtype=bool)
     which[::_every(len(which), target)] = True
-    cands, why = curvature_candidates(
-        *curvatures(cloud, which), params.sphere_curvature_ratio,
-        params.developable_curvature_ratio, params.cone_curvature_variation)
-    if not cands:
+    decision = _curved_decision(cloud, which)
+    if not decision.candidates:
         return None
     faces = [as_curved(f) for f in cloud.faces]
-    return Attempt(dataclasses.replace(cloud, faces=faces),
-                   GraphDecision("curved", cands, -1, (), why), note=f"{note}: {why}")
+    return Attempt(dataclasses.replace(cloud, faces=faces), decision,
+                   note=f"{note}: {decision.reason}")
 
 
 def _every(n: int, target: int | None) -> int:
