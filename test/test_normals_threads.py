@@ -105,3 +105,22 @@ def test_empty_and_single_point_clouds():
     normals, variation, lam = pca_normals(np.array([[0.0, 0.0, 1.0]]),
                                           np.zeros((1, 1), dtype=np.int64))
     assert variation[0] == 0.0 and lam[0] == 0.0 and np.isclose(np.linalg.norm(normals[0]), 1.0)
+
+
+def test_an_error_on_the_second_thread_reaches_the_caller(monkeypatch):
+    import threading
+
+    rng = np.random.default_rng(14)
+    pts = _two_sheets(rng, n=301)
+    nbrs = knn(pts, 8)
+    plain = faces.smallest_eigenpairs_sym
+
+    def fails_off_the_main_thread(*entries):
+        if threading.current_thread() is not threading.main_thread():
+            raise RuntimeError("second half failed")
+        return plain(*entries)
+
+    monkeypatch.setattr(faces, "THREADED_NORMALS", 2)
+    monkeypatch.setattr(faces, "smallest_eigenpairs_sym", fails_off_the_main_thread)
+    with pytest.raises(RuntimeError, match="second half failed"):
+        pca_normals(pts, nbrs)

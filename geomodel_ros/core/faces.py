@@ -74,9 +74,10 @@ THREADED_QUERIES = 5000
 #: :func:`pca_normals` computes clouds of at least this many points in two halves, the
 #: second on a thread of its own (scipy's sparse product and numpy's loops over the rows
 #: release the GIL). Every row's normal is computed from its own neighbourhood alone, so
-#: the halves give the same bits. Measured (2 cores, idle; a Kinect frame's 55k working
-#: points, 16 neighbours): 11.8 ms on one thread, 8.1 on two; below about 15,000 points
-#: the thread costs about what it saves.
+#: the halves give the same bits. Measured (2 cores, load average about 3.5; a Kinect
+#: frame's 55-65k working points, 16 neighbours): 11.8-14.1 ms on one thread, 8.1-9.6 on
+#: two; 5,000 points 1.1 / 1.8 ms, 10,000-20,000 points 0.5-0.8 ms saved (load 3-7).
+#: When the other core is busy the halves take as long as one thread.
 THREADED_NORMALS = 20000
 #: An object whose voxelization fills more than this many times ``max_points`` voxels is
 #: voxelized once more, coarser (the estimate of :func:`working_voxel_size` missed).
@@ -405,12 +406,22 @@ def pca_normals(points: NDArray[np.float64], neighbors: NDArray[np.int64],
 
     if m >= THREADED_NORMALS:
         half = m // 2
-        second = threading.Thread(target=rows, args=(half, m))
+        failed: list[BaseException] = []
+
+        def second_half() -> None:
+            try:
+                rows(half, m)
+            except BaseException as error:  # re-raised below, on the caller's thread
+                failed.append(error)
+
+        second = threading.Thread(target=second_half)
         second.start()
         try:
             rows(0, half)
         finally:
             second.join()
+        if failed:
+            raise failed[0]
     else:
         rows(0, m)
     return normals, variation, lam
