@@ -5,8 +5,9 @@ by least squares (first on the working cloud, then on the full-resolution points
 on a first look: ``ObjectCloud.first_look``), and verified by its inlier ratio on the
 working points. A cone's least squares cannot reverse its opening (the cylinder, half-angle
 0, lies between the two), so a cone that refines below the least half-angle is refined
-again from the opposite opening and the cheaper of the two kept (:func:`refined`). A cylinder or cone may take a flat
-end that region growing joined to its side as an *inner cap* (:func:`inner_cap`).
+again from the opposite opening, which is kept when it fits better beyond the noise
+(:func:`refined`). A cylinder or cone may take a flat end that region growing joined to
+its side as an *inner cap* (:func:`inner_cap`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane
 from geomodel_ros.core.fitting.measure import rms
 from geomodel_ros.core.fitting.orient import toward_sensor
+from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import FitTask, Rejected
 from geomodel_ros.core.fitting.verify import check_inlier_ratio
 from geomodel_ros.core.params import ModelingParams
@@ -130,9 +132,13 @@ def reversed_cone(model: ConeModel, points: NDArray[np.float64]) -> ConeModel:
     return ConeModel(model.apex + 2.0 * mid * model.axis, -model.axis, model.half_angle)
 
 
-def _msac(model: CurvedModel, points: NDArray[np.float64], threshold: float) -> float:
-    """Mean truncated squared distance of ``points`` (M, 3) to ``model`` in bands ``threshold``."""
-    return float(np.mean(np.minimum(np.abs(model.distance(points)) / threshold, 1.0) ** 2))
+def _msac(model: CurvedModel, points: NDArray[np.float64], threshold: float
+          ) -> NDArray[np.float64]:
+    """Return the truncated squared distances (M,) of ``points`` (M, 3) to ``model``.
+
+    In bands of ``threshold`` [m]: min(|d| / threshold, 1)^2.
+    """
+    return np.minimum(np.abs(model.distance(points)) / threshold, 1.0) ** 2
 
 
 def refined(model: CurvedModel, wp: NDArray[np.float64], full: NDArray[np.float64] | None,
@@ -147,8 +153,12 @@ def refined(model: CurvedModel, wp: NDArray[np.float64], full: NDArray[np.float6
     although its side tapers. When the refined cone's half-angle is below
     ``min_cone_half_angle``, the cone of the opposite opening (:func:`reversed_cone`) is
     refined as well, and it is kept when it is not below that bound and its truncated
-    residual on the working points (bands of ``ransac_threshold``) is lower; the cone,
-    frustum and cylinder units' own checks then judge it as any other.
+    residuals on the working points (bands of ``ransac_threshold``) are lower beyond the
+    noise (:func:`~.paired_cost.lower_beyond_noise`: the mean difference against its
+    standard error over blocks of neighbouring points, whose depth errors are
+    correlated): a cylinder's side, which either opening fits about as well, stays the
+    narrow cone and is rejected as before. The cone, frustum and cylinder units' own
+    checks then judge the kept model as any other.
     """
     thr = params.ransac_threshold
 
@@ -160,10 +170,11 @@ def refined(model: CurvedModel, wp: NDArray[np.float64], full: NDArray[np.float6
     if not isinstance(first, ConeModel) or first.half_angle >= params.min_cone_half_angle:
         return first
     other = both(reversed_cone(model, wp))
-    if other.half_angle >= params.min_cone_half_angle and \
-            _msac(other, wp, thr) < _msac(first, wp, thr):
-        return other
-    return first
+    if other.half_angle < params.min_cone_half_angle:
+        return first
+    lower, _ = lower_beyond_noise(_msac(other, wp, thr), _msac(first, wp, thr),
+                                  spread_blocks(wp))
+    return other if lower else first
 
 
 def fit_curved(cloud: ObjectCloud, kind: PrimitiveType, model_cls: type,
