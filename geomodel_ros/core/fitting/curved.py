@@ -3,8 +3,11 @@
 The model is drawn by RANSAC from the curved faces' working points and normals, refined
 by least squares (first on the working cloud, then on the full-resolution points, except
 on a first look: ``ObjectCloud.first_look``), and verified by its inlier ratio on the
-working points. A cylinder or cone may take a flat
-end that region growing joined to its side as an *inner cap* (:func:`inner_cap`).
+working points. A cone's least squares cannot reverse its opening (the cylinder, half-angle
+0, lies between the two), so a cone that refines below the least half-angle is refined
+again from the opposite opening, which is kept when it fits better beyond the noise
+(:func:`refined`). A cylinder or cone may take a flat end that region growing joined to
+its side as an *inner cap* (:func:`inner_cap`).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane
 from geomodel_ros.core.fitting.measure import rms
 from geomodel_ros.core.fitting.orient import toward_sensor
+from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import FitTask, Rejected
 from geomodel_ros.core.fitting.verify import check_inlier_ratio
 from geomodel_ros.core.params import ModelingParams
@@ -28,7 +32,7 @@ from geomodel_ros.core.ransac import ConeModel, CylinderModel, PlaneModel, Spher
     refine
 
 __all__ = ["CurvedModel", "CurvedFit", "INNER_CAP_SHARE", "INNER_CAP_CONE_MARGIN",
-           "axis_prior", "inner_cap", "fit_curved"]
+           "axis_prior", "inner_cap", "reversed_cone", "refined", "fit_curved"]
 
 CurvedModel = Union[SphereModel, CylinderModel, ConeModel]
 
@@ -117,6 +121,62 @@ def inner_cap(wp: NDArray[np.float64], wn: NDArray[np.float64], model: CurvedMod
     return normal, float(plane.d) if normal @ plane.normal > 0 else -float(plane.d), on_cap
 
 
+def reversed_cone(model: ConeModel, points: NDArray[np.float64]) -> ConeModel:
+    """Return the cone of the opposite opening through the same side of ``points`` (M, 3).
+
+    Same axis line and half-angle, the apex mirrored through the axis point level with the
+    points' centroid: the radius there is unchanged, the taper runs the other way (a side
+    whose three RANSAC normals tilted the wrong way by noise gets its other reading).
+    """
+    mid = float((centroid(points) - model.apex) @ model.axis)
+    return ConeModel(model.apex + 2.0 * mid * model.axis, -model.axis, model.half_angle)
+
+
+def _msac(model: CurvedModel, points: NDArray[np.float64], threshold: float
+          ) -> NDArray[np.float64]:
+    """Return the truncated squared distances (M,) of ``points`` (M, 3) to ``model``.
+
+    In bands of ``threshold`` [m]: min(|d| / threshold, 1)^2.
+    """
+    return np.minimum(np.abs(model.distance(points)) / threshold, 1.0) ** 2
+
+
+def refined(model: CurvedModel, wp: NDArray[np.float64], full: NDArray[np.float64] | None,
+            params: ModelingParams) -> CurvedModel:
+    """Least-squares refinement of a RANSAC ``model`` on ``wp`` and then on ``full``.
+
+    ``wp`` (M, 3) the working points, ``full`` (K, 3) the full-resolution sample (None: a
+    first look, working points only). A cone's least squares moves its apex and half-angle
+    continuously and cannot pass through the cylinder (half-angle 0) to the opposite
+    opening: a RANSAC cone that opened the wrong way (its three normals tilted by noise)
+    refines towards a far apex and a half-angle near 0, and is rejected as too narrow
+    although its side tapers. When the refined cone's half-angle is below
+    ``min_cone_half_angle``, the cone of the opposite opening (:func:`reversed_cone`) is
+    refined as well, and it is kept when it is not below that bound and its truncated
+    residuals on the working points (bands of ``ransac_threshold``) are lower beyond the
+    noise (:func:`~.paired_cost.lower_beyond_noise`: the mean difference against its
+    standard error over blocks of neighbouring points, whose depth errors are
+    correlated): a cylinder's side, which either opening fits about as well, stays the
+    narrow cone and is rejected as before. The cone, frustum and cylinder units' own
+    checks then judge the kept model as any other.
+    """
+    thr = params.ransac_threshold
+
+    def both(m: CurvedModel) -> CurvedModel:
+        m = refine(m, wp, thr, rounds=WORKING_REFINE_ROUNDS)
+        return m if full is None else refine(m, full, thr, rounds=FULL_REFINE_ROUNDS)
+
+    first = both(model)
+    if not isinstance(first, ConeModel) or first.half_angle >= params.min_cone_half_angle:
+        return first
+    other = both(reversed_cone(model, wp))
+    if other.half_angle < params.min_cone_half_angle:
+        return first
+    lower, _ = lower_beyond_noise(_msac(other, wp, thr), _msac(first, wp, thr),
+                                  spread_blocks(wp))
+    return other if lower else first
+
+
 def fit_curved(cloud: ObjectCloud, kind: PrimitiveType, model_cls: type,
                accept: Callable[[CurvedModel], bool], with_caps: bool) -> CurvedFit | Rejected:
     """Fit ``model_cls`` to the curved faces of ``cloud`` and verify its inlier ratio.
@@ -140,10 +200,8 @@ def fit_curved(cloud: ObjectCloud, kind: PrimitiveType, model_cls: type,
                  params.ransac_max_iterations, params.ransac_confidence, cloud.rng, accept=accept)
     if fit is None:
         return Rejected(kind, f"{kind}: no valid RANSAC hypothesis")
-    model = refine(fit.model, wp, params.ransac_threshold, rounds=WORKING_REFINE_ROUNDS)
     full = cloud.sample(cloud.face_points(curved))
-    if not cloud.first_look:
-        model = refine(model, full, params.ransac_threshold, rounds=FULL_REFINE_ROUNDS)
+    model = refined(fit.model, wp, None if cloud.first_look else full, params)
     on_model = np.abs(model.distance(wp)) <= params.ransac_threshold
     caps: tuple[Plane, ...] = ()
     if with_caps and not on_model.all():

@@ -10,7 +10,8 @@ from geomodel_ros.core.fitting.cloud import ObjectCloud, ObjectFace
 from geomodel_ros.core.fitting.measure import rms
 from geomodel_ros.core.fitting.orient import longer_side_first, toward_sensor
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted
-from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR, check_coverage, check_inlier_ratio
+from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR, check_coverage, \
+    check_inlier_ratio, check_noise_scatter
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.core.ransac import PlaneModel, refine
@@ -85,7 +86,10 @@ def fit_plane(task: FitTask) -> FitOutcome:
     """Fit a plane to all faces of ``cloud``, from ``task.main_face``; size its rectangle.
 
     Returns a plane whose z is the normal towards the sensor and x the longer side, or
-    the rejection (too few inliers, too few of the object's points on it).
+    the rejection (too few inliers, too few of the object's points on it, or with a
+    measured noise points that scatter about it beyond that noise,
+    :func:`~.verify.check_noise_scatter`: a surface that bends within the inlier band,
+    such as a torus far from the sensor, is no plane).
     """
     cloud = task.cloud
     model, ratio = _fit(cloud, task.main_face)
@@ -99,7 +103,8 @@ def fit_plane(task: FitTask) -> FitOutcome:
     frame = frame_with_z(n)
     x, y, h = frame.T @ cloud.points.T
     on = np.abs(h + d) <= OUTLIER_FACTOR * cloud.params.ransac_threshold
-    bad = check_coverage(on, PLANE)
+    bad = check_coverage(on, PLANE) or \
+        check_noise_scatter(cloud.points, model.distance, cloud.params, PLANE)
     if bad:
         return bad
     center, u, v, length, width = _rectangle(cloud, frame, d, (x[on], y[on], h[on]))
