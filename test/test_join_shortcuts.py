@@ -201,8 +201,8 @@ def _plain_contained(points, normals, comp, valid, support):
     ids = list(members)
     foot = {i: points[m] @ basis for i, m in members.items()}
     height = {i: np.abs(points[m] @ n + support.d) for i, m in members.items()}
-    circles = {i: _round_footprint(foot[i], normals[members[i]] @ basis) for i in ids
-               if len(members[i]) >= CONTAINED_MIN_POINTS}
+    circles = {i: _round_footprint(foot[i], normals[members[i]] @ basis, height[i])
+               for i in ids if len(members[i]) >= CONTAINED_MIN_POINTS}
     root = {i: i for i in ids}
 
     def find(x):
@@ -211,11 +211,12 @@ def _plain_contained(points, normals, comp, valid, support):
         return x
     for a in sorted((i for i, c in circles.items() if c is not None),
                     key=lambda i: -len(members[i])):
-        center, r = circles[a]
+        wall = circles[a]
         for b in ids:
             if len(members[b]) < CONTAINED_MIN_POINTS or find(a) == find(b):
                 continue
-            inside = np.linalg.norm(foot[b] - center, axis=1) <= CONTAINED_RADIUS_MARGIN * r
+            inside = (np.linalg.norm(foot[b] - wall.center, axis=1)
+                      <= CONTAINED_RADIUS_MARGIN * wall.radius_at(height[b]))
             ha, hb = height[a], height[b]
             overlap = min(ha.max(), hb.max()) - max(ha.min(), hb.min())
             below = np.median(hb) <= np.quantile(ha, RIM_HEIGHT_QUANTILE)

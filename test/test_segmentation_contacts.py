@@ -174,7 +174,7 @@ def test_a_cups_inner_wall_with_its_handle_joins_the_outer_wall():
     cup = (np.vstack([inner[0], handle]), np.vstack([inner[1], handle_n]))
     inside = np.linalg.norm(cup[0][:, :2], axis=1) <= 1.05 * 0.040
     assert 0.5 < inside.mean() < 0.9  # the case the majority rule is for
-    assert _round_footprint(cup[0][:, :2], cup[1][:, :2]) is None
+    assert _round_footprint(cup[0][:, :2], cup[1][:, :2], cup[0][:, 2]) is None
     labels = _contained([outer, cup])
     assert labels[0] == labels[1]
 

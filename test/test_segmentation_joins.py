@@ -296,12 +296,18 @@ def _arc(center, r, degrees, n=200):
     return np.asarray(center) + r * radial, radial
 
 
+#: Heights [m] of the points of :func:`_arc` (a wall 10 cm high, visited bottom to top
+#: 7 times along the arc, so height and angle are not tied).
+_ARC_HEIGHTS = np.tile(np.linspace(0.0, 0.1, 29), 7)[:200]
+
+
 def test_round_footprint_finds_a_container_wall():
     xy, radial = _arc([0.3, -0.1], 0.05, 180.0)
-    circle = _round_footprint(xy, radial)
-    assert circle is not None
-    np.testing.assert_allclose(circle[0], [0.3, -0.1], atol=1e-9)
-    assert circle[1] == pytest.approx(0.05, abs=1e-9)
+    wall = _round_footprint(xy, radial, _ARC_HEIGHTS)
+    assert wall is not None
+    np.testing.assert_allclose(wall.center, [0.3, -0.1], atol=1e-9)
+    assert wall.radius == pytest.approx(0.05, abs=1e-9)
+    assert wall.taper == pytest.approx(0.0, abs=1e-9)
 
 
 @pytest.mark.parametrize("case", ["short-arc", "too-large", "normals-not-radial", "scattered",
@@ -323,7 +329,7 @@ def test_round_footprint_rejects_what_is_no_container_wall(case):
         xy = np.vstack([np.column_stack([t, np.zeros_like(t)]),
                         np.column_stack([np.zeros_like(t), t])])
         n_xy = np.vstack([np.tile([0.0, -1.0], (100, 1)), np.tile([-1.0, 0.0], (100, 1))])
-    assert _round_footprint(xy, n_xy) is None
+    assert _round_footprint(xy, n_xy, _ARC_HEIGHTS) is None
 
 
 # ---------------------------------------------------------------------------------------
