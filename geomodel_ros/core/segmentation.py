@@ -463,25 +463,28 @@ def _on_local_support(p: NDArray[np.float64], support: NDArray[np.bool_],
     """
     inverse, counts = local.inverse, local.counts
     m = len(counts)
-    height = p @ normal + d
-    mean = np.bincount(inverse, weights=height, minlength=m) / np.maximum(counts, 1)
     ref = np.unique(inverse[support])
-    cand = np.unique(inverse[near])
     if len(ref) == 0:
         return np.ones(len(near), dtype=bool)
+    height = take_rows(p, support) @ normal + d
+    ref_sum = np.bincount(inverse[support], weights=height, minlength=m)
+    # The candidates of one working point, averaged: a working point at the contact also
+    # holds wall points above the band, which are not in question.
+    cand, at = np.unique(inverse[near], return_inverse=True)
+    n_cand = np.bincount(at, minlength=len(cand))
+    mean = np.bincount(at, weights=take_rows(p, near) @ normal + d,
+                       minlength=len(cand)) / n_cand
     k = min(local.neighbors, len(ref))
     _, nb = cKDTree(local.points[ref]).query(local.points[cand], k=k)
     nb = ref[np.asarray(nb).reshape(len(cand), k)]
     n_ref = counts[nb].sum(axis=1)
-    ref_mean = (counts[nb] * mean[nb]).sum(axis=1) / np.maximum(n_ref, 1)
+    ref_mean = ref_sum[nb].sum(axis=1) / np.maximum(n_ref, 1)
     noise = local.noise
     sigma = noise.sigma(np.linalg.norm(local.points[cand], axis=1)) / noise.scale \
         * noise.plane_cos
     band = np.maximum(local.floor, K_SUPPORT * sigma * np.sqrt(
-        1.0 / np.maximum(counts[cand], 1) + 1.0 / np.maximum(n_ref, 1))) + local.quantum[cand]
-    on = np.zeros(m, dtype=bool)
-    on[cand] = mean[cand] - ref_mean <= band
-    return on[inverse[near]]
+        1.0 / n_cand + 1.0 / np.maximum(n_ref, 1))) + local.quantum[cand]
+    return (mean - ref_mean <= band)[at]
 
 
 def working_noise(points: NDArray[np.float64], counts: NDArray[np.int64],
