@@ -59,7 +59,7 @@ def _claim(pts: np.ndarray, labels: np.ndarray, noise: NoiseEstimate | None,
     params = ModelingParams(seg_plane_threshold=band, seg_voxel_size=VOXEL)
     wp, inverse, counts = voxelize(pts, VOXEL)
     local = None if noise is None else LocalSupport(
-        wp, inverse, counts, noise, np.zeros(len(wp)), FLOOR, params.normal_neighbors)
+        wp, inverse, counts, noise, np.zeros(len(wp)), FLOOR, 2.5 * VOXEL)
     out = labels.copy()
     _claim_contact_rims(pts, np.arange(len(pts)), out, 1, params,
                         np.random.default_rng(0), local)
@@ -114,6 +114,26 @@ def test_without_noise_the_band_is_the_configured_one():
     rim = ~wall & (labels == 1)
     assert np.all(out[rim] == 0)
     assert np.all(out[wall & (height > FLOOR + VOXEL)] == 1)
+
+
+def test_a_flat_object_away_from_the_support_is_not_claimed():
+    # A thin flat object (3 mm high, inside the band) whose working points have no desk
+    # working point within two neighbourhoods: no contact, nothing to claim. The plain
+    # band takes all of it.
+    rng = np.random.default_rng(4)
+    pts, labels, _, wall = _scene(rng)
+    keep = ~wall
+    pts, labels = pts[keep], labels[keep]
+    x, y = pts[:, 0], pts[:, 1]
+    hole = (np.abs(x + 0.05) < 0.05) & (np.abs(y) < 0.05)
+    pad = (np.abs(x + 0.05) < 0.01) & (np.abs(y) < 0.01)
+    pts, labels = pts[~hole | pad].copy(), labels[~hole | pad].copy()
+    pad = pad[~hole | pad]
+    pts[pad, 2] += 0.003
+    labels[pad] = 1
+    out = _claim(pts, labels, _noise())
+    assert np.all(out[pad] == 1)
+    assert np.all(_claim(pts, labels, None)[pad] == 0)
 
 
 def test_points_of_no_object_are_left_alone():
