@@ -459,8 +459,9 @@ def _on_local_support(p: NDArray[np.float64], support: NDArray[np.bool_],
     two means (the independent part of the noise, sigma / ``scale``, along the normal at
     the plane's incidence), plus the
     depth quantum left in the working point, and never less than ``local.floor``. A point
-    below the local support (a negative lift) is on it; a working point with no support
-    around it is at no contact and keeps its points.
+    below the local support (a negative lift) is on it. Where no support is seen around a
+    working point (a piece of a far floor cut off from it, parted by the quantised depth),
+    the plane's band is all there is to judge by, and it decides as before.
 
     Parameters
     ----------
@@ -494,7 +495,7 @@ def _on_local_support(p: NDArray[np.float64], support: NDArray[np.bool_],
     band = np.maximum(local.floor, K_SUPPORT * sigma * np.sqrt(
         1.0 / n_cand + 1.0 / np.maximum(n_ref, 1))) + local.quantum[cand]
     lift = mean - sum_ref / np.maximum(n_ref, 1)
-    return (seen & (lift <= band))[at]
+    return (~seen | (lift <= band))[at]
 
 
 def _support_around(points: NDArray[np.float64], weights: NDArray[np.int64],
