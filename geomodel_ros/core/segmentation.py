@@ -145,6 +145,9 @@ SEAM_JUMP_SHARE = 0.5
 #: support's pieces (``SUPPORT_LINK_VOXELS`` working voxels): 2-3 links to every side,
 #: beyond a contact rim (a neighbourhood wide) and a wall's foot within the support band.
 SUPPORT_AROUND_CELLS = 2
+#: ... or, where those hold none of the support, the first of twice, four times ... as
+#: many that holds some, up to this many (16 links: 6-16 cm at 4-10 mm working voxels).
+SUPPORT_AROUND_MAX_CELLS = 16
 #: At most this many cells per support plane; a larger plane (a room's floor) gets cells
 #: twice as large until it fits.
 AROUND_MAX_CELLS = 1 << 22
@@ -504,7 +507,10 @@ def _support_around(points: NDArray[np.float64], weights: NDArray[np.int64],
     """Count a support's input points around each of the points ``at`` and sum their heights.
 
     The plane (normal, d) is cut into square cells of ``cell`` [m]; around a point are the
-    cells up to :data:`SUPPORT_AROUND_CELLS` from its own along either axis. ``points``
+    cells up to :data:`SUPPORT_AROUND_CELLS` from its own along either axis, or, where
+    they hold none of the support (its foot hidden under a flared wall), up to twice,
+    four times ... as many, at most :data:`SUPPORT_AROUND_MAX_CELLS`: the nearest of the
+    support. ``points``
     (M, 3) [m] are the working points, ``weights`` (M,) the support's input points in
     each (0 off the support); a working point is the mean of its input points, so its
     height times its count is the sum of theirs.
@@ -520,11 +526,7 @@ def _support_around(points: NDArray[np.float64], weights: NDArray[np.int64],
     sup = np.flatnonzero(weights)
     if not len(sup) or not c:
         return np.zeros(c, dtype=np.int64), np.zeros(c)
-    margin = (SUPPORT_AROUND_CELLS + 1) * cell
-    low, high = at.min(axis=0) - margin, at.max(axis=0) + margin
     sp = take_rows(points, sup)
-    inside = np.all((sp >= low) & (sp <= high), axis=1)
-    sup, sp = sup[inside], sp[inside]
     e1, e2 = perpendicular_basis(normal)
     own, ask = np.c_[sp @ e1, sp @ e2], np.c_[at @ e1, at @ e2]
     low = np.minimum(own.min(axis=0, initial=np.inf), ask.min(axis=0))
@@ -538,15 +540,21 @@ def _support_around(points: NDArray[np.float64], weights: NDArray[np.int64],
     w = weights[sup]
     grids = [np.bincount(flat, weights=v, minlength=int(np.prod(shape))).reshape(shape)
              for v in (w, w * (sp @ normal + d))]
-    r = SUPPORT_AROUND_CELLS
-    u0, v0 = np.clip(ask - r, 0, shape).T
-    u1, v1 = np.clip(ask + r + 1, 0, shape).T
-    sums = []
-    for g in grids:  # box sums from the summed-area table
+    tables = []
+    for g in grids:  # box sums from summed-area tables
         table = np.zeros((shape[0] + 1, shape[1] + 1))
         table[1:, 1:] = g.cumsum(axis=0).cumsum(axis=1)
-        sums.append(table[u1, v1] - table[u0, v1] - table[u1, v0] + table[u0, v0])
-    return np.rint(sums[0]).astype(np.int64), sums[1]
+        tables.append(table)
+    n, total = np.zeros(c), np.zeros(c)
+    rows = np.arange(c)
+    r = SUPPORT_AROUND_CELLS
+    while len(rows) and r <= SUPPORT_AROUND_MAX_CELLS:
+        u0, v0 = np.clip(ask[rows] - r, 0, shape).T
+        u1, v1 = np.clip(ask[rows] + r + 1, 0, shape).T
+        n[rows], total[rows] = (t[u1, v1] - t[u0, v1] - t[u1, v0] + t[u0, v0] for t in tables)
+        rows = rows[n[rows] < 0.5]
+        r *= 2
+    return np.rint(n).astype(np.int64), total
 
 
 def working_noise(points: NDArray[np.float64], counts: NDArray[np.int64],
