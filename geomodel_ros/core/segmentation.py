@@ -460,11 +460,11 @@ def _on_local_support(p: NDArray[np.float64], support: NDArray[np.bool_],
     support's pieces, ``local.cell``), and they lie on the support where that lift is at
     most K_SUPPORT (the support band's sigmas) times the noise of the difference of the
     two means (the independent part of the noise, sigma / ``scale``, along the normal at
-    the plane's incidence), plus the
-    depth quantum left in the working point, and never less than ``local.floor``. A point
-    below the local support (a negative lift) is on it. Where no support is seen around a
-    working point (a piece of a far floor cut off from it, parted by the quantised depth),
-    the plane's band is all there is to judge by, and it decides as before.
+    the plane's incidence), plus the depth quantum left in the working point, and never
+    less than ``local.floor``. A point below the local support (a negative lift) is on it.
+    Where no support is seen around a working point (a piece of a far floor cut off from
+    it, parted by the quantised depth), the plane's band is all there is to judge by, and
+    it decides as before.
 
     Parameters
     ----------
@@ -510,10 +510,9 @@ def _support_around(points: NDArray[np.float64], weights: NDArray[np.int64],
     cells up to :data:`SUPPORT_AROUND_CELLS` from its own along either axis, or, where
     they hold none of the support (its foot hidden under a flared wall), up to twice,
     four times ... as many, at most :data:`SUPPORT_AROUND_MAX_CELLS`: the nearest of the
-    support. ``points``
-    (M, 3) [m] are the working points, ``weights`` (M,) the support's input points in
-    each (0 off the support); a working point is the mean of its input points, so its
-    height times its count is the sum of theirs.
+    support. ``points`` (M, 3) [m] are the working points, ``weights`` (M,) the support's
+    input points in each (0 off the support); a working point is the mean of its input
+    points, so its height times its count is the sum of theirs.
 
     Returns
     -------
