@@ -262,4 +262,7 @@ def test_the_real_bowls_of_osd_learn_are_no_balls(frame):
     bowl = np.bincount(labels[(gt == 4) & (labels >= 0)]).argmax()
     obj = {o.id: o for o in result.objects}[bowl]
     assert obj.type != PrimitiveType.SPHERE
-    assert "sphere rejected: the sensor saw past it" in obj.reason
+    # learn33's bowl keeps its lower wall next to the desk and is a frustum before a
+    # sphere is tried; where a sphere is tried, the see-through check rejects it.
+    assert obj.type == PrimitiveType.FRUSTUM \
+        or "sphere rejected: the sensor saw past it" in obj.reason
