@@ -27,7 +27,11 @@ if ! "$VENV/bin/python" -c "import open3d" >/dev/null 2>&1; then
   if ! ldconfig -p 2>/dev/null | grep -q "libusb-1.0.so.0"; then
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
       echo "[setup] installing Debian package libusb-1.0-0 (needed by open3d)"
-      apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
+      # Wait for another apt (an unattended upgrade, a second checkout's set-up) instead of
+      # failing on its lock.
+      apt_wait=(-o DPkg::Lock::Timeout=600)
+      apt-get "${apt_wait[@]}" update -qq \
+        && DEBIAN_FRONTEND=noninteractive apt-get "${apt_wait[@]}" install -y -qq libusb-1.0-0 >/dev/null
     else
       echo "error: open3d needs the system library libusb-1.0.so.0; install it with" >&2
       echo "       sudo apt-get install -y libusb-1.0-0   (then re-run make)" >&2
