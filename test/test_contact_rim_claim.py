@@ -61,8 +61,7 @@ def _claim(pts: np.ndarray, labels: np.ndarray, noise: NoiseEstimate | None,
     local = None if noise is None else LocalSupport(
         wp, inverse, counts, noise, np.zeros(len(wp)), FLOOR, 2.5 * VOXEL)
     out = labels.copy()
-    _claim_contact_rims(pts, np.arange(len(pts)), out, 1, params,
-                        np.random.default_rng(0), local)
+    _claim_contact_rims(pts, out, 1, params, np.random.default_rng(0), local)
     return out
 
 

@@ -261,14 +261,14 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     timing["seg_supports_s"] = t2 - t1
     step = disparity_step(p)
     quantum = level_quantum(p, inverse, counts, step, params.seg_voxel_size)
-    labels[finite] = _working_labels(wp, wn, counts, supports, params, grid, noise, step,
-                                     quantum,
-                                     None if grid is not None else (nbrs, sqdist))[inverse]
+    own_labels = _working_labels(wp, wn, counts, supports, params, grid, noise, step, quantum,
+                                 None if grid is not None else (nbrs, sqdist))[inverse]
     planes = _claim_contact_rims(
-        p, finite, labels, len(supports), params, rng,
+        p, own_labels, len(supports), params, rng,
         None if noise is None or noise.samples == 0 else
         LocalSupport(wp, inverse, counts, noise, quantum, configured_band,
                      SUPPORT_LINK_VOXELS * params.seg_voxel_size))
+    labels[finite] = own_labels
     timing["seg_objects_s"] = time.perf_counter() - t2
     timing["segmentation_s"] = time.perf_counter() - t0
     return Segmentation(labels, list(range(len(supports))), timing, planes, noise)
@@ -406,9 +406,9 @@ class LocalSupport:
     cell: float
 
 
-def _claim_contact_rims(p: NDArray[np.float64], finite: NDArray[np.int64],
-                        labels: NDArray[np.int64], n_supports: int, params: ModelingParams,
-                        rng: np.random.Generator, local: LocalSupport | None = None
+def _claim_contact_rims(p: NDArray[np.float64], labels: NDArray[np.int64], n_supports: int,
+                        params: ModelingParams, rng: np.random.Generator,
+                        local: LocalSupport | None = None
                         ) -> dict[int, tuple[NDArray[np.float64], float]]:
     """Refit each support's plane and give it the object points in its plane band.
 
@@ -416,7 +416,7 @@ def _claim_contact_rims(p: NDArray[np.float64], finite: NDArray[np.int64],
     joined the object. Each support's plane is refit on its own input points (at most
     :data:`geomodel_ros.core.support.REFIT_MAX_POINTS`, drawn with ``rng``); object points
     within ``seg_plane_threshold`` of it are relabelled to the support, in place in
-    ``labels`` (N,) (``finite`` (F,) are the rows of ``p`` (F, 3) [m]). With the frame's
+    ``labels`` (F,) (the labels of the points ``p`` (F, 3) [m]). With the frame's
     noise known (``local``), only those whose working point lies on the support as seen
     around it (:func:`_on_local_support`): the band holds a single noisy point of the
     support (four sigma of the noise along the normal, the frame's slowly varying error
@@ -429,21 +429,24 @@ def _claim_contact_rims(p: NDArray[np.float64], finite: NDArray[np.int64],
         Plane of each support, normal towards the sensor.
     """
     planes: dict[int, tuple[NDArray[np.float64], float]] = {}
-    own_labels = labels[finite]
     if local is not None:  # the label of every working point (shared by its points)
         working = np.full(len(local.counts), -1, dtype=np.int64)
-        working[local.inverse] = own_labels
+        working[local.inverse] = labels
+    obj = np.flatnonzero(labels >= n_supports)
+    obj_pts = take_rows(p, obj)
     for sid in range(n_supports):
-        own = np.flatnonzero(own_labels == sid)
+        own = np.flatnonzero(labels == sid)
         if len(own) > REFIT_MAX_POINTS:
             own = rng.choice(own, REFIT_MAX_POINTS, replace=False)
         nrm, d = planes[sid] = support_plane_equation(take_rows(p, own), params)
-        obj = np.flatnonzero(own_labels >= n_supports)
-        near = obj[np.abs(take_rows(p, obj) @ nrm + d) <= params.seg_plane_threshold]
+        band = np.abs(obj_pts @ nrm + d) <= params.seg_plane_threshold
+        near = obj[band]
         if local is not None and len(near):
-            near = near[_on_local_support(p, working == sid, near, nrm, d, local)]
-        own_labels[near] = sid
-        labels[finite[near]] = sid
+            band[band] = _on_local_support(p, working == sid, near, nrm, d, local)
+            near = obj[band]
+        labels[near] = sid
+        if sid + 1 < n_supports:  # a claimed point is no longer an object's
+            obj, obj_pts = obj[~band], take_rows(obj_pts, ~band)
     return planes
 
 
@@ -527,15 +530,18 @@ def _support_around(points: NDArray[np.float64], weights: NDArray[np.int64],
         return np.zeros(c, dtype=np.int64), np.zeros(c)
     sp = take_rows(points, sup)
     e1, e2 = perpendicular_basis(normal)
-    own, ask = np.c_[sp @ e1, sp @ e2], np.c_[at @ e1, at @ e2]
-    low = np.minimum(own.min(axis=0, initial=np.inf), ask.min(axis=0))
-    span = np.maximum(own.max(axis=0, initial=-np.inf), ask.max(axis=0)) - low
+    # The support's coordinates along the plane as two vectors: a reduction over the
+    # first axis of an (S, 2) array is several times slower than over a contiguous vector.
+    own = (sp @ e1, sp @ e2)
+    ask = np.c_[at @ e1, at @ e2]
+    low = np.minimum([own[0].min(), own[1].min()], ask.min(axis=0))
+    span = np.maximum([own[0].max(), own[1].max()], ask.max(axis=0)) - low
     while np.prod(span / cell + 1.0) > AROUND_MAX_CELLS:  # a room: coarser cells
         cell *= 2.0
-    own = np.floor((own - low) / cell).astype(np.int64)
+    ou, ov = (np.floor((o - lo) / cell).astype(np.int64) for o, lo in zip(own, low))
     ask = np.floor((ask - low) / cell).astype(np.int64)
-    shape = np.maximum(own.max(axis=0, initial=0), ask.max(axis=0)) + 1
-    flat = own[:, 0] * shape[1] + own[:, 1]
+    shape = np.maximum([ou.max(), ov.max()], ask.max(axis=0)) + 1
+    flat = ou * shape[1] + ov
     w = weights[sup]
     grids = [np.bincount(flat, weights=v, minlength=int(np.prod(shape))).reshape(shape)
              for v in (w, w * (sp @ normal + d))]
