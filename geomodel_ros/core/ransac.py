@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import leastsq
 
-from geomodel_ros.core.fastmath import centroid
+from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.geometry import EPS, perpendicular_basis, unit3
 
 __all__ = [
@@ -808,7 +808,7 @@ def _refine_plane(model: PlaneModel, points: Array, threshold: float, rounds: in
         inl = np.abs(model.distance(points)) <= threshold
         if inl.sum() < _MIN_PLANE_POINTS or (fitted is not None and np.array_equal(inl, fitted)):
             break
-        model, fitted = fit_plane_svd(points[inl]), inl
+        model, fitted = fit_plane_svd(take_rows(points, inl)), inl
     return model
 
 

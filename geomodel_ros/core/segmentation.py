@@ -317,7 +317,8 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
         comp = join_occluded_parts(wp, wn, comp, comp_ok, params)
     comp = join_terraces(wp, comp, comp_ok, step, params)
     if params.seg_join_contained and supports:
-        comp = join_contained_parts(wp, wn, comp, comp_ok, fit_plane_svd(wp[supports[0]]))
+        comp = join_contained_parts(wp, wn, comp, comp_ok,
+                                    fit_plane_svd(take_rows(wp, supports[0])))
     wlabel[comp_ok] = len(supports) + _size_ranks(comp[comp_ok], counts[comp_ok])
     return wlabel
 
@@ -350,7 +351,7 @@ def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
     if len(rest_idx) >= MIN_WORKING_POINTS:
         # Normals recomputed without the supports, so they do not blend into the desk.
         comp[rest_idx] = _convex_objects(
-            wp[rest_idx], counts[rest_idx], params, noise,
+            take_rows(wp, rest_idx), counts[rest_idx], params, noise,
             None if grid is None else grid.restricted(rest_idx),
             None if quantum is None else quantum[rest_idx],
             None if near is None or grid is not None else
