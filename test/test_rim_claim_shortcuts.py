@@ -13,11 +13,15 @@ that holds it.
 import numpy as np
 import pytest
 
+from geomodel_ros.core.faces import voxelize
 from geomodel_ros.core.geometry import perpendicular_basis
+from geomodel_ros.core.noise import K_SUPPORT, NoiseEstimate
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.segmentation import (AROUND_MAX_CELLS, SUPPORT_AROUND_CELLS,
-                                            SUPPORT_AROUND_MAX_CELLS, _claim_contact_rims,
+                                            SUPPORT_AROUND_MAX_CELLS, LocalSupport,
+                                            _claim_contact_rims, _on_local_support,
                                             _support_around)
+from geomodel_ros.core.support import REFIT_MAX_POINTS, support_plane_equation
 
 CELL = 0.01
 #: The desk z = DESK_Z (normal +z, towards a sensor above it): n . x + d = 0 with d.
@@ -165,3 +169,55 @@ def test_an_object_point_in_two_bands_goes_to_the_first_support_only():
     np.testing.assert_array_equal(labels[:6000], np.r_[np.zeros(3000), np.ones(3000)])
     np.testing.assert_allclose(np.abs(planes[0][0]), [0.0, 0.0, 1.0], atol=1e-12)
     np.testing.assert_allclose(np.abs(planes[1][0]), [1.0, 0.0, 0.0], atol=1e-12)
+
+
+def _plain_claim(p, labels, n_supports, params, rng, local):
+    """Claim the rims by the definition, in place in ``labels``.
+
+    Every support in turn refits its plane on its own points and judges the points
+    labelled as objects at that moment (the working points' labels taken once, before
+    any claim).
+    """
+    working = np.full(len(local.counts), -1)
+    working[local.inverse] = labels
+    for sid in range(n_supports):
+        own = np.flatnonzero(labels == sid)
+        if len(own) > REFIT_MAX_POINTS:
+            own = rng.choice(own, REFIT_MAX_POINTS, replace=False)
+        nrm, d = support_plane_equation(p[own], params)
+        obj = np.flatnonzero(labels >= n_supports)
+        near = obj[np.abs(p[obj] @ nrm + d) <= params.seg_plane_threshold]
+        if len(near):
+            near = near[_on_local_support(p, working == sid, near, nrm, d, local)]
+        labels[near] = sid
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_claim_of_two_noisy_supports_equals_the_plain_definition(seed):
+    # A noisy desk (support 0) and wall (support 1) meeting in a corner, more desk points
+    # than a refit takes; objects: a box standing in the corner (its lower sides in both
+    # bands), a slab of desk and a strip of wall labelled as objects.
+    rng = np.random.default_rng(seed)
+    sigma, voxel = 0.002, 0.004
+    desk = np.c_[rng.uniform(-0.4, 0.3, 40000), rng.uniform(-0.3, 0.3, 40000),
+                 DESK_Z + rng.normal(0.0, sigma, 40000)]
+    wall = np.c_[0.3 + rng.normal(0.0, sigma, 15000), rng.uniform(-0.3, 0.3, 15000),
+                 rng.uniform(DESK_Z, DESK_Z + 0.4, 15000)]
+    box = np.c_[rng.uniform(0.2, 0.3, 6000), rng.uniform(-0.05, 0.05, 6000),
+                rng.uniform(DESK_Z, DESK_Z + 0.08, 6000)]
+    pts = np.r_[desk, wall, box]
+    labels = np.r_[np.zeros(len(desk), int), np.ones(len(wall), int), np.full(len(box), 2)]
+    labels[:40000][np.abs(desk[:, 0] + 0.2) < 0.02] = 3          # a slab of desk
+    labels[40000:55000][np.abs(wall[:, 1]) > 0.25] = 4            # strips of wall
+    wp, inverse, counts = voxelize(pts, voxel)
+    noise = NoiseEstimate(a=sigma, b=0.0, scale=1.5, samples=1)
+    local = LocalSupport(wp, inverse, counts, noise, np.zeros(len(wp)), 0.004, 2.5 * voxel)
+    params = ModelingParams(seg_plane_threshold=K_SUPPORT * sigma * 1.5, seg_voxel_size=voxel)
+    fast, plain = labels.copy(), labels.copy()
+    planes = _claim_contact_rims(pts, fast, 2, params, np.random.default_rng(seed), local)
+    _plain_claim(pts, plain, 2, params, np.random.default_rng(seed), local)
+    np.testing.assert_array_equal(fast, plain)
+    # Both supports claimed some of the objects' points, and not all of the box.
+    assert np.any((labels >= 2) & (fast == 0)) and np.any((labels >= 2) & (fast == 1))
+    assert np.mean(fast[-len(box):] == 2) > 0.5
+    assert set(planes) == {0, 1}
