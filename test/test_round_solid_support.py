@@ -1,0 +1,144 @@
+"""A cylinder, cone or frustum is a solid: it cannot reach through the support it rests on.
+
+Module: core.fitting.verify (check_axial_sunk_in_support, used by the cylinder, cone and
+frustum units).
+
+Geometry by hand, the support the plane z = 0 (normal UP), the solid the convex hull of
+its two end circles. A circle of radius r centred at height h, in a plane perpendicular
+to a unit axis a, reaches down to h - r sqrt(1 - (a . UP)^2), so:
+
+- a cone standing on its base (axis vertical) reaches its base plane and no lower;
+- a cone of half-angle alpha (tan alpha = R / H) lying on its side touches the floor
+  along a generator: its axis rises by alpha from the apex, the base centre stands at
+  R cos(alpha), the base rim's lowest point and the apex are both at 0;
+- a cylinder of radius r lying with its axis level at height r touches the floor along
+  a line;
+- a wide cone with its axis level at 150 mm (base radius 300 mm, 200 mm long: the cone
+  that explained the office scene's bottle pack, a bump on a box-like pack with its axis
+  running along the floor) reaches 300 - 150 = 150 mm into the floor.
+
+The band is the RANSAC threshold (5 mm here), as for a sphere
+(:func:`~geomodel_ros.core.fitting.verify.check_sunk_in_support`).
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from geomodel_ros.core.fitting.result import Rejected
+from geomodel_ros.core.fitting.verify import check_axial_sunk_in_support
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import PrimitiveType
+
+MM = 1e-3
+UP = np.array([0.0, 0.0, 1.0])
+LEVEL = np.array([1.0, 0.0, 0.0])
+CONE, CYLINDER, FRUSTUM = PrimitiveType.CONE, PrimitiveType.CYLINDER, PrimitiveType.FRUSTUM
+
+
+def cloud(points, supports=((UP, 0.0),), noise_model="auto", threshold=5 * MM):
+    """Return the parts of an ObjectCloud the support checks read."""
+    params = ModelingParams(noise_model=noise_model, ransac_threshold=threshold)
+    return SimpleNamespace(points=np.asarray(points, dtype=np.float64), supports=supports,
+                           params=params)
+
+
+def patch(z_lo, z_hi, n=500, seed=0):
+    """Points (n, 3) [m] spread over a 200 mm square between heights z_lo and z_hi."""
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-0.1, 0.1, n), rng.uniform(-0.1, 0.1, n),
+                            rng.uniform(z_lo, z_hi, n)])
+
+
+def test_a_cone_standing_on_its_base_is_not_sunk():
+    r, h = 0.08, 0.20
+    # base (radius r) at z = 0, apex (radius 0) at z = h: axis UP, ends in that order
+    assert check_axial_sunk_in_support(np.array([0.0, 0.0, h / 2]), UP, h, (r, 0.0),
+                                       cloud(patch(0.0, h)), CONE) is None
+
+
+def test_a_cone_lying_on_its_side_touches_the_floor_along_a_generator():
+    r, h = 0.08, 0.20
+    alpha = math.atan(r / h)
+    axis = np.array([math.cos(alpha), 0.0, math.sin(alpha)])  # apex -> base, rising
+    base = np.array([0.0, 0.0, r * math.cos(alpha)])
+    center = base - axis * h / 2
+    assert center[2] - h / 2 * axis[2] == pytest.approx(0.0, abs=1e-12)  # the apex is down
+    assert check_axial_sunk_in_support(center, axis, h, (0.0, r), cloud(patch(0.0, 0.15)),
+                                       CONE) is None
+    # The same cone 8 mm lower reaches 8 mm into the floor: beyond the 5 mm band.
+    out = check_axial_sunk_in_support(center - 8 * MM * UP, axis, h, (0.0, r),
+                                      cloud(patch(0.0, 0.15)), CONE)
+    assert isinstance(out, Rejected) and out.misfit
+    assert "reaches 8 mm into" in out.reason
+
+
+@pytest.mark.parametrize("plane", [(UP, 0.0), (-UP, 0.0), (UP, -0.3)])
+def test_a_wide_cone_along_the_floor_is_rejected_by_its_depth_into_it(plane):
+    # A bump of points 50-300 mm above the floor; the cone through it has its axis level
+    # at 150 mm and a 300 mm base: its base rim reaches 150 mm below the floor, whichever
+    # way the plane's normal points.
+    n, d = plane
+    z0 = -d * float(n @ UP)
+    out = check_axial_sunk_in_support(np.array([0.0, 0.0, z0 + 0.150]), LEVEL, 0.20,
+                                      (0.0, 0.30), cloud(patch(z0 + 0.05, z0 + 0.30),
+                                                         ((n, d),)), CONE)
+    assert isinstance(out, Rejected) and out.misfit and out.type is CONE
+    assert "reaches 150 mm into" in out.reason
+
+
+def test_a_cylinder_lying_on_the_floor_is_kept_within_the_band_and_not_beyond():
+    r = 0.04
+    pts = patch(0.0, 2 * r)
+    assert check_axial_sunk_in_support(np.array([0.0, 0.0, r]), LEVEL, 0.2, (r, r),
+                                       cloud(pts), CYLINDER) is None
+    assert check_axial_sunk_in_support(np.array([0.0, 0.0, r - 3 * MM]), LEVEL, 0.2, (r, r),
+                                       cloud(pts), CYLINDER) is None
+    out = check_axial_sunk_in_support(np.array([0.0, 0.0, r - 8 * MM]), LEVEL, 0.2, (r, r),
+                                      cloud(pts), CYLINDER)
+    assert isinstance(out, Rejected) and "reaches 8 mm into" in out.reason
+
+
+def test_a_standing_cylinder_tilted_by_a_fit_error_dips_by_its_radius_times_the_sine():
+    # Its bottom circle centred on the floor, axis 3 deg off vertical: the rim dips
+    # 40 mm x sin 3 deg = 2.1 mm, within the band; at 10 deg, 6.9 mm, beyond it.
+    r, h = 0.04, 0.12
+    for tilt_deg, kept in ((3.0, True), (10.0, False)):
+        t = math.radians(tilt_deg)
+        axis = np.array([math.sin(t), 0.0, math.cos(t)])
+        out = check_axial_sunk_in_support(axis * h / 2, axis, h, (r, r), cloud(patch(0.0, h)),
+                                          CYLINDER)
+        assert (out is None) is kept, out
+        if not kept:
+            assert f"reaches {r * math.sin(t) * 1000:.0f} mm into" in out.reason
+
+
+def test_a_cup_standing_on_its_small_end_is_not_sunk_whichever_way_its_axis_runs():
+    small, large, h = 0.032, 0.045, 0.10
+    c = np.array([0.0, 0.0, h / 2])
+    assert check_axial_sunk_in_support(c, UP, h, (small, large), cloud(patch(0.0, h)),
+                                       FRUSTUM) is None
+    assert check_axial_sunk_in_support(c, -UP, h, (large, small), cloud(patch(0.0, h)),
+                                       FRUSTUM) is None
+    # The radii swapped (the large circle on the floor) still rest on it.
+    assert check_axial_sunk_in_support(c, UP, h, (large, small), cloud(patch(0.0, h)),
+                                       FRUSTUM) is None
+
+
+def test_a_plane_the_points_lie_on_both_sides_of_is_no_support_to_sink_into():
+    # The points reach 100 mm below z = 0: the object does not rest on that side of it.
+    pts = patch(-0.10, 0.20)
+    assert check_axial_sunk_in_support(np.array([0.0, 0.0, 0.05]), LEVEL, 0.2, (0.0, 0.3),
+                                       cloud(pts), CONE) is None
+
+
+def test_no_check_with_fixed_noise_or_without_supports():
+    args = (np.array([0.0, 0.0, 0.150]), LEVEL, 0.20, (0.0, 0.30))
+    pts = patch(0.05, 0.30)
+    assert check_axial_sunk_in_support(*args, cloud(pts, noise_model="fixed"), CONE) is None
+    assert check_axial_sunk_in_support(*args, cloud(pts, supports=()), CONE) is None
+    assert isinstance(check_axial_sunk_in_support(*args, cloud(pts), CONE), Rejected)
