@@ -308,13 +308,17 @@ def check_axial_sunk_in_support(center: NDArray[np.float64], axis: NDArray[np.fl
     -/+ ``height`` / 2 [m] along the unit ``axis`` (3,), of radii ``end_radii`` [m] (in
     that order; 0 for a cone's apex). Its lowest point on the object's side of a support
     plane (:func:`_one_side_of`) lies on one of those circles: the circle's centre height
-    less its radius times the sine of the axis's angle to the plane's normal. As for a
-    sphere (:func:`check_sunk_in_support`), a solid on one side of a support cannot pass
-    through it: one reaching below it by more than the RANSAC threshold (the noise band)
-    is rejected as a misfit. Such a model explains a patch of points above the support
-    (a bump on a box's side taken as a wide cone whose axis runs along the support), not a
-    solid standing or lying on it: a real one touches the support at most along its base
-    rim or a line of its side. Only with ``noise_model = auto``.
+    less its radius times the sine of the circle's tilt (the axis's angle to the plane's
+    normal). The fitted axis is known to within ``angle_tolerance`` (the units' own
+    tolerance for axis directions; a can standing upright comes out a few degrees off
+    its table's normal, and its rim then dips by its radius times that sine): the tilt
+    is taken that much smaller. As for a sphere (:func:`check_sunk_in_support`), a solid
+    on one side of a support cannot pass through it: one reaching below it by more than
+    the RANSAC threshold (the noise band) is rejected as a misfit. Such a model explains
+    a patch of points above the support (a bump on a box's side taken as a wide cone
+    whose axis runs along the support), not a solid standing or lying on it: a real one
+    touches the support at most along its base rim or a line of its side. Only with
+    ``noise_model = auto``.
     """
     params = cloud.params
     if params.noise_model != "auto":
@@ -322,7 +326,8 @@ def check_axial_sunk_in_support(center: NDArray[np.float64], axis: NDArray[np.fl
     half = 0.5 * height * np.asarray(axis, dtype=np.float64)
     ends = ((center - half, end_radii[0]), (center + half, end_radii[1]))
     for n, d, side, _, _ in _one_side_of(cloud):
-        across = math.sqrt(max(0.0, 1.0 - float(axis @ n) ** 2))
+        tilt = math.acos(min(1.0, abs(float(axis @ n))))
+        across = math.sin(max(0.0, tilt - params.angle_tolerance))
         lowest = min(side * (float(c @ n) + d) - r * across for c, r in ends)
         if -lowest > params.ransac_threshold:
             return Rejected(kind, f"{kind} rejected: it reaches {-lowest * 1000:.0f} mm into "
