@@ -23,7 +23,7 @@ from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.tools.synth import render_scene
 from geomodel_ros.tools.synth.clutter import KINECT_CAMERA
 from geomodel_ros.tools.synth.scenes import NoiseModel, apply_noise
-from geomodel_ros.tools.synth.shapes import Box, Cylinder, Rectangle
+from geomodel_ros.tools.synth.shapes import Box, Cone, Cylinder, Rectangle
 
 PCL_SCENES = DATA / "pcl_scenes"
 #: Where the milk carton is in the 640 x 480 image (rows, columns), seen in its colour.
@@ -103,6 +103,19 @@ def test_bottle_pack_is_one_cuboid() -> None:
     pack = next(o for o in result.objects if o.id == ids[np.argmax(counts)])
     assert counts.max() >= 0.8 * len(window)
     assert pack.type == "cuboid"
+
+
+def test_bottle_pack_is_not_typed_round() -> None:
+    # The pack's largest segment (the upper bottles and their shoulders, a bump facing
+    # the sensor) was a cone of radius 341 mm whose axis ran almost along the floor: its
+    # base reached 95 mm into the floor, which no solid resting above it can.
+    _, labels, result = _modeled("region_growing_rgb_tutorial.pcd")
+    floor = max(result.objects, key=lambda o: o.point_count).id  # seen through holes
+    window = labels[PACK_ROWS, PACK_COLS]
+    ids, counts = np.unique(window[(window >= 0) & (window != floor)], return_counts=True)
+    pack = next(o for o in result.objects if o.id == ids[np.argmax(counts)])
+    assert pack.type not in ("cylinder", "cone", "frustum", "sphere"), pack.reason
+    assert "into the support" in pack.reason
 
 
 # ------------------------------------------------------------------------ synthetic
@@ -215,3 +228,28 @@ def test_ray_offset_to_plane_by_hand() -> None:
     assert off[1] == pytest.approx(dist / 0.9 - dist)
     assert off[2] == 0.0
     assert off[3] == np.inf
+
+
+def _lying_cone(radius: float, height: float) -> tuple:
+    """Return a cone lying on its side on the floor (a generator on it), z up."""
+    alpha = math.atan(radius / height)
+    tilt = math.pi / 2 + alpha  # local z (base -> apex) turned down to alpha below level
+    rot = np.array([[math.cos(tilt), 0.0, math.sin(tilt)], [0.0, 1.0, 0.0],
+                    [-math.sin(tilt), 0.0, math.cos(tilt)]])
+    base = np.array([0.0, 0.0, radius * math.cos(alpha)])
+    return (Cone, dict(radius=radius, height=height), base + rot[:, 2] * height / 2, rot)
+
+
+@pytest.mark.parametrize("lying", [False, True])
+def test_resting_cones_stay_cones(lying: bool) -> None:
+    # A real cone touches its support along its base rim (standing) or along a generator
+    # (lying): its solid reaches no deeper than the noise band into the floor.
+    radius, height = 0.08, 0.20
+    shape = _lying_cone(radius, height) if lying else \
+        (Cone, dict(radius=radius, height=height), [0, 0, height / 2], np.eye(3))
+    for seed in (0, 1):
+        pts, lab = _render([shape], seed)
+        cone = next(o for o in model_objects(pts, lab).objects if o.id == 1)
+        assert cone.type == "cone", cone.reason
+        assert cone.dimensions["radius"] == pytest.approx(radius, rel=0.05)
+        assert cone.dimensions["height"] == pytest.approx(height, rel=0.05)

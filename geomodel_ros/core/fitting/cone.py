@@ -13,7 +13,8 @@ from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
 from geomodel_ros.core.fitting.measure import bulk_extent, bulk_reach
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
 from geomodel_ros.core.fitting.verify import (axes_within, axis_within, check_apex,
-                                              check_bulk_length, check_bulk_reach, check_radius)
+                                              check_axial_sunk_in_support, check_bulk_length,
+                                              check_bulk_reach, check_radius)
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
@@ -102,7 +103,9 @@ def fit_cone(task: FitTask) -> FitOutcome:
     """Fit a cone to the curved faces of ``task.cloud``; a planar face may close its base.
 
     The axis follows ``task.axis_prior`` or else the main planar face's normal, if any.
-    Returns a cone whose z points from the base to the apex, or the rejection.
+    Returns a cone whose z points from the base to the apex, or the rejection (also when
+    it would reach into the support its object stands on,
+    :func:`~.verify.check_axial_sunk_in_support`).
     """
     fitted = fit_cone_side(task, CONE)
     if not isinstance(fitted, tuple):
@@ -113,7 +116,11 @@ def fit_cone(task: FitTask) -> FitOutcome:
     if isinstance(radius, Rejected):
         return radius
     height = hi if hi > 0 else 0.0
-    prim = Primitive(task.cloud.oid, CONE, model.apex + model.axis * height / 2,
-                     frame_with_z(-model.axis), {"radius": float(radius), "height": float(height)},
+    center = model.apex + model.axis * height / 2
+    bad = check_axial_sunk_in_support(center, model.axis, height, (0.0, radius), task.cloud, CONE)
+    if bad:
+        return bad
+    prim = Primitive(task.cloud.oid, CONE, center, frame_with_z(-model.axis),
+                     {"radius": float(radius), "height": float(height)},
                      len(task.cloud.points), side.rmse)
     return Fitted(prim, "cone verified")

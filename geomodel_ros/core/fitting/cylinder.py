@@ -14,7 +14,8 @@ from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
 from geomodel_ros.core.fitting.measure import bulk_extent
 from geomodel_ros.core.fitting.orient import axis_toward_sensor
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
-from geomodel_ros.core.fitting.verify import (axes_within, axis_within, check_bulk_length,
+from geomodel_ros.core.fitting.verify import (axes_within, axis_within,
+                                              check_axial_sunk_in_support, check_bulk_length,
                                               check_radius)
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.params import ModelingParams
@@ -64,7 +65,9 @@ def fit_cylinder(task: FitTask) -> FitOutcome:
     """Fit a cylinder to the curved faces of ``task.cloud``; planar faces may close its ends.
 
     The axis follows ``task.axis_prior`` or else the main planar face's normal, if any.
-    Returns a cylinder whose z (its axis) points towards the sensor, or the rejection.
+    Returns a cylinder whose z (its axis) points towards the sensor, or the rejection
+    (also when it would reach into the support its object stands on,
+    :func:`~.verify.check_axial_sunk_in_support`).
     """
     cloud, params = task.cloud, task.cloud.params
     prior = axis_prior(task)
@@ -89,7 +92,12 @@ def fit_cylinder(task: FitTask) -> FitOutcome:
     # After the bulk check: a completed height is longer than the points' bulk.
     lo, hi, completed = complete_axial(cloud, model.point, axis, model.radius, lo, hi)
     axis, lo, hi = axis_toward_sensor(axis, model.point, lo, hi)
-    prim = Primitive(cloud.oid, CYLINDER, model.point + axis * (lo + hi) / 2, frame_with_z(axis),
+    center = model.point + axis * (lo + hi) / 2
+    radius = float(model.radius)
+    bad = check_axial_sunk_in_support(center, axis, hi - lo, (radius, radius), cloud, CYLINDER)
+    if bad:
+        return bad
+    prim = Primitive(cloud.oid, CYLINDER, center, frame_with_z(axis),
                      {"radius": float(model.radius), "height": float(hi - lo)},
                      len(cloud.points), side.rmse, completed=("height",) if completed else ())
     return Fitted(prim, "cylinder verified")

@@ -35,8 +35,8 @@ from geomodel_ros.core.fitting.measure import bulk_extent, bulk_reach
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
 from geomodel_ros.core.fitting.slow_taper import slow_taper
 from geomodel_ros.core.fitting.taper_spread import least_taper
-from geomodel_ros.core.fitting.verify import (CONE_APEX_REACH, check_bulk_length,
-                                              check_bulk_reach, check_radius)
+from geomodel_ros.core.fitting.verify import (CONE_APEX_REACH, check_axial_sunk_in_support,
+                                              check_bulk_length, check_bulk_reach, check_radius)
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.core.ransac import ConeModel
@@ -155,7 +155,8 @@ def fit_frustum(task: FitTask) -> FitOutcome:
 
     The axis follows ``task.axis_prior`` or else the main planar face's normal, if any.
     Returns a frustum whose z points from its base (larger circle) to its top, or the
-    rejection.
+    rejection (also when it would reach into the support its object stands on,
+    :func:`~.verify.check_axial_sunk_in_support`).
     """
     cloud = _own_stream(task.cloud)
     task = dataclasses.replace(task, cloud=cloud)
@@ -167,7 +168,11 @@ def fit_frustum(task: FitTask) -> FitOutcome:
     dims = _sized(task, model, lo, hi, side_points)
     if isinstance(dims, Rejected):
         return dims
-    prim = Primitive(cloud.oid, FRUSTUM, model.apex + model.axis * (lo + hi) / 2,
-                     frame_with_z(-model.axis), {k: float(v) for k, v in dims.items()},
-                     len(cloud.points), side.rmse)
+    center = model.apex + model.axis * (lo + hi) / 2
+    bad = check_axial_sunk_in_support(center, model.axis, dims["height"],
+                                      (dims["top_radius"], dims["radius"]), cloud, FRUSTUM)
+    if bad:
+        return bad
+    prim = Primitive(cloud.oid, FRUSTUM, center, frame_with_z(-model.axis),
+                     {k: float(v) for k, v in dims.items()}, len(cloud.points), side.rmse)
     return Fitted(prim, "frustum verified")

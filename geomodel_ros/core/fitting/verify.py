@@ -3,8 +3,8 @@
 A model that RANSAC and least squares found is only accepted when it describes the
 object: enough inliers on the fitted faces, enough of the object's points on it, a wide
 enough arc round a curved side, a straight profile along it, no length or radius beyond
-the object's bulk, (for a cone) points that reach towards its apex, and (for a sphere) no
-reach into the support beneath it and no view of the scene through it.
+the object's bulk, (for a cone) points that reach towards its apex, no reach of a round
+solid into the support beneath it, and (for a sphere) no view of the scene through it.
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ __all__ = ["OUTLIER_FACTOR", "MIN_COVERAGE", "CONE_APEX_REACH", "CONE_BEHIND_APE
            "check_coverage", "check_radius", "check_axis", "check_arc", "check_bulk_length",
            "check_apex", "check_bulk_reach", "NOISE_SCATTER_BOUND", "check_noise_scatter",
            "check_profile_bow", "PROFILE_BOWS", "bowed_profile", "SUPPORT_BELOW_PERCENTILE",
-           "SUPPORT_TOLERANCE_FACTOR", "standing_on", "check_sunk_in_support", "SEE_THROUGH_CORE",
+           "SUPPORT_TOLERANCE_FACTOR", "standing_on", "check_sunk_in_support",
+           "check_axial_sunk_in_support", "SEE_THROUGH_CORE",
            "SEE_THROUGH_CELL_SPACINGS", "sphere_cap_targets", "check_seen_through"]
 
 #: Points farther than this many RANSAC thresholds from the fitted surfaces are outliers
@@ -294,6 +295,42 @@ def check_sunk_in_support(center: NDArray[np.float64], radius: float, cloud: Obj
         sunk = radius - side * (float(center @ n) + d)
         if sunk > params.ransac_threshold:
             return Rejected(kind, f"{kind} rejected: it reaches {sunk * 1000:.0f} mm into "
+                                  "the support beneath it", misfit=True)
+    return None
+
+
+def check_axial_sunk_in_support(center: NDArray[np.float64], axis: NDArray[np.float64],
+                                height: float, end_radii: tuple[float, float],
+                                cloud: ObjectCloud, kind: PrimitiveType) -> Rejected | None:
+    """Reject a cylinder, cone or frustum that reaches into a support its object rests on or above.
+
+    The solid is the convex hull of its two end circles, centred at ``center`` (3,) [m]
+    -/+ ``height`` / 2 [m] along the unit ``axis`` (3,), of radii ``end_radii`` [m] (in
+    that order; 0 for a cone's apex). Its lowest point on the object's side of a support
+    plane (:func:`_one_side_of`) lies on one of those circles: the circle's centre height
+    less its radius times the sine of the circle's tilt (the axis's angle to the plane's
+    normal). The fitted axis is known to within ``angle_tolerance`` (the units' own
+    tolerance for axis directions; a can standing upright comes out a few degrees off
+    its table's normal, and its rim then dips by its radius times that sine): the tilt
+    is taken that much smaller. As for a sphere (:func:`check_sunk_in_support`), a solid
+    on one side of a support cannot pass through it: one reaching below it by more than
+    the RANSAC threshold (the noise band) is rejected as a misfit. Such a model explains
+    a patch of points above the support (a bump on a box's side taken as a wide cone
+    whose axis runs along the support), not a solid standing or lying on it: a real one
+    touches the support at most along its base rim or a line of its side. Only with
+    ``noise_model = auto``.
+    """
+    params = cloud.params
+    if params.noise_model != "auto":
+        return None
+    half = 0.5 * height * np.asarray(axis, dtype=np.float64)
+    ends = ((center - half, end_radii[0]), (center + half, end_radii[1]))
+    for n, d, side, _, _ in _one_side_of(cloud):
+        tilt = math.acos(min(1.0, abs(float(axis @ n))))
+        across = math.sin(max(0.0, tilt - params.angle_tolerance))
+        lowest = min(side * (float(c @ n) + d) - r * across for c, r in ends)
+        if -lowest > params.ransac_threshold:
+            return Rejected(kind, f"{kind} rejected: it reaches {-lowest * 1000:.0f} mm into "
                                   "the support beneath it", misfit=True)
     return None
 
