@@ -21,7 +21,7 @@ from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.slow_taper import slow_bow
 from geomodel_ros.core.fitting.taper_spread import least_bow, profile_bow
 from geomodel_ros.core.geometry import perpendicular_basis
-from geomodel_ros.core.noise import K_AMPLITUDE
+from geomodel_ros.core.noise import K_AMPLITUDE, MIN_INCIDENCE_COS
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import PrimitiveType
 from geomodel_ros.core.ransac import ConeModel, CylinderModel
@@ -130,11 +130,18 @@ def check_axis(axis: NDArray[np.float64], prior: NDArray[np.float64] | None,
     return None
 
 
-def check_arc(arc: float, params: ModelingParams, kind: PrimitiveType) -> Rejected | None:
-    """Reject a curved side whose points span less than ``min_arc`` [rad] round the axis."""
+def check_arc(arc: float, params: ModelingParams, kind: PrimitiveType,
+              steep: bool = False) -> Rejected | None:
+    """Reject a curved side whose points span less than ``min_arc`` [rad] round the axis.
+
+    ``steep``: the arc is that of the points seen within acos(MIN_INCIDENCE_COS) of the
+    side's normal (:func:`~.measure.steep_arc_span`), which the rejection says.
+    """
     if arc < params.min_arc:
-        return Rejected(kind, f"{kind} rejected: its points span only {math.degrees(arc):.0f} "
-                              "deg around the axis")
+        seen = (f" seen within {math.degrees(math.acos(MIN_INCIDENCE_COS)):.0f} deg of its "
+                "normal") if steep else ""
+        return Rejected(kind, f"{kind} rejected: its points{seen} span only "
+                              f"{math.degrees(arc):.0f} deg around the axis")
     return None
 
 
