@@ -7,7 +7,9 @@ from the analytic support functions), the same seed gives the same scene. The se
 is checked on hand-built layouts of the failures seen on real clutter (cans apart on a bare
 table, a can lying against a tin, touching objects whose tops differ by a few millimetres)
 and on what must still be joined (a cup's inner and outer wall, a box split by a nearer
-pole).
+pole); under the correlated noise of real frames, single objects stay whole and a sphere
+against a box stays apart, while two contacts that one smooth patch grows across (a can
+beside a cup, a can top 2.5 mm above a box top) are known limits.
 """
 
 from __future__ import annotations
@@ -27,7 +29,9 @@ from geomodel_ros.tools.synth.clutter import (KIND_BUILDERS, KINECT_CAMERA, KINE
                                               OpenFrustum, Placeable, camera_pose,
                                               clutter_layout, footprints_overlap, make_box,
                                               make_can, make_container, make_lying_can,
-                                              render_clutter, render_layout, stack_on)
+                                              make_sphere, render_clutter, render_layout,
+                                              stack_on)
+from geomodel_ros.tools.synth.scenes import KINECT_REAL_NOISE
 
 SEEDS = range(6)
 UP = np.array([0.0, 0.0, 1.0])
@@ -349,6 +353,89 @@ def test_a_box_split_by_a_nearer_pole_is_one_segment(noisy):
     assert parts == 2
     assert scores[1].iou >= 0.8 and not scores[1].over, report
     assert not scores[2].under, report
+
+
+# --------------------------------------------------------------------------------------
+# Hand-built layouts under the correlated noise of real frames (KINECT_REAL_NOISE)
+# --------------------------------------------------------------------------------------
+
+#: Noise seeds of the layouts under ``KINECT_REAL_NOISE`` (each draws its own correlated
+#: error field, dropout and holes).
+REAL_NOISE_SEEDS = (0, 2)
+
+
+def _segment_real(items: list[Placeable], rng: int):
+    """Segment a layout on the desk under KINECT_REAL_NOISE with the defaults.
+
+    The defaults' tolerances follow the frame's measured noise, as in the benchmark's
+    kinect-real row.
+    """
+    scene = render_layout(items, [0] * len(items), FRONT, noise=KINECT_REAL_NOISE, rng=rng)
+    seg = segment_scene(scene.organized, ModelingParams())
+    ids = list(range(1, len(items) + 1))
+    scores = {s.gt_id: s for s in segmentation_scores(seg.labels, scene.label_image.ravel(), ids)}
+    report = {g: (round(s.iou, 3), s.under, s.over) for g, s in scores.items()}
+    return scores, report
+
+
+@pytest.mark.parametrize("rng", REAL_NOISE_SEEDS)
+@pytest.mark.parametrize("kind", ["sphere", "box", "can"])
+def test_one_object_under_real_noise_stays_whole(kind, rng):
+    # One object alone on the desk: one segment holds it (IoU >= 0.8), no second segment
+    # holds a fifth of it. Measured IoU 0.96-1.00 over noise seeds 0-5.
+    obj = {"sphere": make_sphere(0.043), "box": make_box(0.10, 0.075, 0.054),
+           "can": make_can(0.04, 0.10)}[kind]
+    scores, report = _segment_real([_at(obj, 0.0, 0.0)], rng)
+    assert scores[1].iou >= 0.8 and not scores[1].over, report
+
+
+@pytest.mark.parametrize("rng", REAL_NOISE_SEEDS)
+def test_a_sphere_against_a_box_under_real_noise_stays_apart(rng):
+    # The sphere (r 43 mm) touches the box's +x face at 43 mm height, below the box's top
+    # (54 mm): a concave contact seen from the front. Measured IoU 0.96-1.00 over noise
+    # seeds 0-5 (the clutter benchmark's scene 5 joined such a pair through a strip of edge
+    # points given to the box's face).
+    box = _at(make_box(0.10, 0.075, 0.054), 0.0, 0.0)
+    ball = _at(make_sphere(0.043), 0.05 + 0.043, 0.0)
+    assert not footprints_overlap(box.footprint, ball.footprint)
+    scores, report = _segment_real([box, ball], rng)
+    _assert_each_object_its_own_segment(scores, report)
+
+
+#: Contacts that one smooth patch grows across under the correlated noise (traced on the
+#: clutter benchmark's kinect-real row, scenes 3, 10 and 18): the links between the two
+#: objects fold or step by less than the noise of one link, so a patch of both forms
+#: before any border is judged, and the border tests (:func:`_creased_borders`, the
+#: votes) never see the contact. Tightening the per-link step to the noise that
+#: neighbours do not share does not part them either (measured: same IoU on every seed).
+#: Measured IoU of the two objects 0.30-0.58, under-segmented, on noise seeds 0-5 (the
+#: tops: 5 of 6).
+_SMOOTH_CONTACT = pytest.mark.xfail(strict=True, reason="one patch across the contact "
+                                    "(see _SMOOTH_CONTACT)")
+
+
+@_SMOOTH_CONTACT
+@pytest.mark.parametrize("rng", REAL_NOISE_SEEDS)
+def test_a_can_beside_a_cup_under_real_noise_stays_apart(rng):
+    # The can (r 28 mm) touches the cup's rim circle (r 46 mm); both round fronts face the
+    # camera and meet at a tangential concave contact.
+    cup = _at(make_container(0.036, 0.046, 0.065), 0.0, 0.0)
+    can = _at(make_can(0.028, 0.091), 0.046 + 0.028, 0.0)
+    assert not footprints_overlap(cup.footprint, can.footprint)
+    scores, report = _segment_real([cup, can], rng)
+    _assert_each_object_its_own_segment(scores, report)
+
+
+@_SMOOTH_CONTACT
+@pytest.mark.parametrize("rng", REAL_NOISE_SEEDS)
+def test_a_can_whose_top_is_2_5mm_above_a_touching_box_top_stays_apart(rng):
+    # Two parallel tops 2.5 mm apart in height (scenes 3 and 10: 119 / 121.5 mm and
+    # 91.5 / 94.1 mm), side by side: a step below the noise of one link (3.3 mm there).
+    box = _at(make_box(0.10, 0.08, 0.10), 0.0, 0.0)
+    can = _at(make_can(0.04, 0.1025), 0.05 + 0.04, 0.0)
+    assert not footprints_overlap(box.footprint, can.footprint)
+    scores, report = _segment_real([box, can], rng)
+    _assert_each_object_its_own_segment(scores, report)
 
 
 # --------------------------------------------------------------------------------------
