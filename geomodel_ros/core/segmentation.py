@@ -318,7 +318,7 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     comp = join_terraces(wp, comp, comp_ok, step, params)
     if params.seg_join_contained and supports:
         comp = join_contained_parts(wp, wn, comp, comp_ok,
-                                    fit_plane_svd(take_rows(wp, supports[0])))
+                                    fit_plane_svd(take_rows(wp, supports[0])), noise)
     wlabel[comp_ok] = len(supports) + _size_ranks(comp[comp_ok], counts[comp_ok])
     return wlabel
 
