@@ -90,6 +90,11 @@ MIN_FLAT_MEAN_NORM = 1e-9
 #: The planar faces of a mixed object may be patches of its curved surface when its curved
 #: faces hold more than this share of its working points (the curved surface dominates).
 CURVED_MAJORITY = 0.5
+#: Planar faces without a rule are fitted as the box of the point normals' modes only
+#: when at least this share of the working points' normals face one of its sides (a
+#: simple majority: a box's normals gather on its sides, and only its edges' mixed
+#: normals lie off them).
+BOX_NORMALS_MIN_SHARE = 0.5
 ROUND_TYPES = (PrimitiveType.CYLINDER, PrimitiveType.CONE, PrimitiveType.FRUSTUM)
 FLAT_TYPES = (PrimitiveType.PLANE, PrimitiveType.CUBOID)
 
@@ -814,11 +819,56 @@ class DoublyCurvedAsSphere:
                        note=f"curved two ways ({why}): every face taken as curved")
 
 
+class PlanarFacesWithoutRule:
+    """The box of the point normals' modes for planar faces that fit no rule.
+
+    Far from the sensor the noise cuts a box's sides, and a round side, into facets that
+    each pass as planar but meet at no right angles: the model graph has no rule for
+    them ("planar faces not aligned with three orthogonal axes"). The faces are then no
+    evidence; the measured normals of the whole object are (:func:`normal_box_rival`:
+    a box's normals gather about its three axes). The box is fitted to the sides its
+    normals' modes give and, like every cuboid, compared with the round model of all
+    the object's faces (:func:`prefer_round`: the round one replaces it when its costs
+    are lower beyond the noise). As the faces are no evidence, the normals must be
+    strong evidence: it is tried only when most of them face one of its sides
+    (:data:`BOX_NORMALS_MIN_SHARE`; a round side's normals turn across the sides'
+    directions) and they show sides along all three axes (a corner of the box, as the
+    sides of :data:`~.normal_box.MIN_SIDE_NORMALS` normals each). Only with
+    ``noise_model = auto``.
+    """
+
+    name = "planar faces without a rule"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True for planar faces without a candidate (``auto`` noise)."""
+        d = situation.decision
+        return (situation.cloud.params.noise_model == "auto" and d.category == "planar"
+                and not d.candidates and len(situation.cloud.faces) > 1)
+
+    def attempt(self, situation: Situation) -> Attempt | None:
+        """Fit the cuboid to the sides of the point normals' modes, if most face them."""
+        cloud = situation.cloud
+        tol = cloud.params.angle_tolerance
+        axes = box_axes(cloud.wc.normals, tol)
+        if axes is None:
+            return None
+        labels = side_labels(cloud.wc.normals, axes, tol)
+        sides = np.flatnonzero(np.bincount(labels[labels >= 0], minlength=6)
+                               >= MIN_SIDE_NORMALS)
+        if np.mean(labels >= 0) < BOX_NORMALS_MIN_SHARE or len(set(sides // 2)) < 3:
+            return None
+        rival = normal_box_rival(cloud, axes)
+        if rival is None:
+            return None
+        return Attempt(rival.cloud, rival.decision,
+                       note=f"planar faces without a rule; {rival.note}")
+
+
 #: The strategies in the order they are tried.
 STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
                                     FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
                                     PlanarPatchesOfCurvedObjects(), BoxOfFlatCores(),
-                                    DoublyCurvedAsSphere())
+                                    DoublyCurvedAsSphere(), PlanarFacesWithoutRule())
 
 
 def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES
