@@ -37,8 +37,9 @@ def test_the_strategies_are_tried_in_the_documented_order():
                                             "flat curved faces as planar",
                                             "upright above the support",
                                             "planar patches of a curved object",
-                                            "box of the flat cores", "doubly curved as a sphere",
-                                            "planar faces without a rule"]
+                                            "box of the flat cores",
+                                            "planar faces without a rule",
+                                            "doubly curved as a sphere"]
 
 
 def test_model_graph_candidates_apply_only_when_the_graph_proposed_a_type():

@@ -778,47 +778,6 @@ class BoxOfFlatCores:
                        note=f"no round model explains the points; {rival.note}")
 
 
-class DoublyCurvedAsSphere:
-    """Try a sphere on an object whose surface is curved two ways, when nothing else fitted.
-
-    A cylinder, cone or frustum bends around its axis only; a sphere bends along every
-    direction. Two observations show the second bend when no strategy typed the object:
-    an axial model whose side's profile bows (:func:`~.verify.check_profile_bow`: its
-    tangent turns by more than ``min_arc`` along the axis, significantly; the profile of a
-    sphere is a circle arc), or principal curvatures whose ratio lies between the
-    developable and the spherical bound (:attr:`Situation.no_round_shape`; depth noise
-    pulls the smaller curvature of a sphere's points down, the larger one up). A small
-    sphere far from the sensor shows both: part of its cap passes as planar, or its
-    curvature ratio falls below ``sphere_curvature_ratio``. Every face is then taken as
-    curved and the sphere unit's own checks (inliers, radius, scatter against the
-    measured noise) decide; a torus, whose profile bows as well, scatters about its best
-    sphere far beyond the noise. Tried last, so it only types objects that would
-    otherwise be ``unknown``; only with ``noise_model = auto`` (``fixed`` keeps the
-    previous strategies exactly).
-    """
-
-    name = "doubly curved as a sphere"
-
-    def applies(self, situation: Situation) -> bool:
-        """Return True when a bowed profile or non-developable curvatures were seen."""
-        if situation.cloud.params.noise_model != "auto":
-            return False
-        bowed = any(bowed_profile(r) for r in situation.rejected)
-        return bowed or (situation.no_round_shape and
-                         situation.fit_decision.reason != NO_CURVATURE)
-
-    def attempt(self, situation: Situation) -> Attempt:
-        """Fit a sphere to every face taken as curved."""
-        cloud = situation.cloud
-        bowed = any(bowed_profile(r) for r in situation.rejected)
-        why = "a side's profile bows" if bowed else \
-            "curvatures neither developable nor spherical"
-        faces = [as_curved(f) for f in cloud.faces]
-        return Attempt(dataclasses.replace(cloud, faces=faces),
-                       GraphDecision("curved", (PrimitiveType.SPHERE.value,), -1, (), why),
-                       note=f"curved two ways ({why}): every face taken as curved")
-
-
 class PlanarFacesWithoutRule:
     """The box of the point normals' modes for planar faces that fit no rule.
 
@@ -864,11 +823,52 @@ class PlanarFacesWithoutRule:
                        note=f"planar faces without a rule; {rival.note}")
 
 
+class DoublyCurvedAsSphere:
+    """Try a sphere on an object whose surface is curved two ways, when nothing else fitted.
+
+    A cylinder, cone or frustum bends around its axis only; a sphere bends along every
+    direction. Two observations show the second bend when no strategy typed the object:
+    an axial model whose side's profile bows (:func:`~.verify.check_profile_bow`: its
+    tangent turns by more than ``min_arc`` along the axis, significantly; the profile of a
+    sphere is a circle arc), or principal curvatures whose ratio lies between the
+    developable and the spherical bound (:attr:`Situation.no_round_shape`; depth noise
+    pulls the smaller curvature of a sphere's points down, the larger one up). A small
+    sphere far from the sensor shows both: part of its cap passes as planar, or its
+    curvature ratio falls below ``sphere_curvature_ratio``. Every face is then taken as
+    curved and the sphere unit's own checks (inliers, radius, scatter against the
+    measured noise) decide; a torus, whose profile bows as well, scatters about its best
+    sphere far beyond the noise. Tried last, so it only types objects that would
+    otherwise be ``unknown``; only with ``noise_model = auto`` (``fixed`` keeps the
+    previous strategies exactly).
+    """
+
+    name = "doubly curved as a sphere"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True when a bowed profile or non-developable curvatures were seen."""
+        if situation.cloud.params.noise_model != "auto":
+            return False
+        bowed = any(bowed_profile(r) for r in situation.rejected)
+        return bowed or (situation.no_round_shape and
+                         situation.fit_decision.reason != NO_CURVATURE)
+
+    def attempt(self, situation: Situation) -> Attempt:
+        """Fit a sphere to every face taken as curved."""
+        cloud = situation.cloud
+        bowed = any(bowed_profile(r) for r in situation.rejected)
+        why = "a side's profile bows" if bowed else \
+            "curvatures neither developable nor spherical"
+        faces = [as_curved(f) for f in cloud.faces]
+        return Attempt(dataclasses.replace(cloud, faces=faces),
+                       GraphDecision("curved", (PrimitiveType.SPHERE.value,), -1, (), why),
+                       note=f"curved two ways ({why}): every face taken as curved")
+
+
 #: The strategies in the order they are tried.
 STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
                                     FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
                                     PlanarPatchesOfCurvedObjects(), BoxOfFlatCores(),
-                                    DoublyCurvedAsSphere(), PlanarFacesWithoutRule())
+                                    PlanarFacesWithoutRule(), DoublyCurvedAsSphere())
 
 
 def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES
