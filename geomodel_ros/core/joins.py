@@ -765,7 +765,7 @@ def _noise_reach(points: NDArray[np.float64], up: NDArray[np.float64],
     """
     if noise is None:
         return 0.0
-    rng = np.linalg.norm(points, axis=1)
+    rng = row_norms(points)
     along = (points @ up) / np.maximum(rng, _TINY)
     across = float(np.median(np.sqrt(np.clip(1.0 - along * along, 0.0, 1.0))))
     return CONTAINED_NOISE_SIGMAS * float(noise.sigma(float(np.median(rng)))) * across
