@@ -296,23 +296,27 @@ def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.i
     ``correlation``: the frame's ratio of slow to local noise, ``slow_null`` the bends of
     its slow errors (see :func:`_bent`).
     """
+    # The face's working points (M, 3) [m], their unit normals (M, 3) and counts (M,),
+    # gathered once (none of the calls below writes to them).
+    points, normals, counts = take_rows(wc.points, widx), take_rows(wc.normals, widx), \
+        wc.counts[widx]
     # Eqs. 1-6 on the face's voxel centroids weighted by the points each stands for
     # (the full-resolution covariance at a fraction of the cost).
-    feat = face_feature(wc.points[widx], params.cf_weights, params.cf_threshold,
-                        params.cf_radius_fraction, wc.counts[widx])
-    plane, plane_rmse = face_plane(wc.points[widx], wc.normals[widx], params.ransac_threshold)
+    feat = face_feature(points, params.cf_weights, params.cf_threshold,
+                        params.cf_radius_fraction, counts)
+    plane, plane_rmse = face_plane(points, normals, params.ransac_threshold)
     planar = _checked_planar(feat.planar, plane_rmse, params.ransac_threshold,
-                             lambda: _bent(wc.points[widx], wc.counts[widx], plane.normal,
+                             lambda: _bent(points, counts, plane.normal,
                                            feat, params, correlation, slow_null))
-    center = wc.counts[widx] @ wc.points[widx] / max(int(wc.counts[widx].sum()), 1)
+    center = counts @ points / max(int(counts.sum()), 1)
     if planar:
         normal = toward_sensor(plane.normal, center)
         offset = float(-normal @ center)
     else:
-        mn = wc.normals[widx].mean(axis=0)
+        mn = normals.mean(axis=0)
         normal = mn / max(np.linalg.norm(mn), MIN_MEAN_NORMAL)
         offset = 0.0
-    info = FaceInfo(planar, normal, offset, len(widx), wc.normals[widx], center)
+    info = FaceInfo(planar, normal, offset, len(widx), normals, center)
     summary = FaceSummary("planar" if planar else "curved", feat.cf_total, len(pidx), normal)
     return ObjectFace(info, summary, widx, pidx)
 
