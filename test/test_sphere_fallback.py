@@ -21,7 +21,7 @@ import pytest
 from data_helpers import DATA, require
 from geomodel_ros.core.fitting.result import Rejected
 from geomodel_ros.core.fitting.strategies import (STRATEGIES, DoublyCurvedAsSphere,
-                                                  support_below)
+                                                  PlanarFacesWithoutRule, support_below)
 from geomodel_ros.core.fitting.verify import (SEE_THROUGH_CORE, bowed_profile,
                                               check_seen_through, check_sunk_in_support,
                                               sphere_cap_targets, standing_on)
@@ -149,7 +149,18 @@ def test_the_sphere_fallback_needs_a_second_bend():
 
 
 def test_the_sphere_fallback_is_tried_last():
-    assert isinstance(STRATEGIES[-1], DoublyCurvedAsSphere)
+    # After it come only strategies for planar faces that fit no rule of the model graph:
+    # they never apply where the fallback does (a round fit was tried, or the curved
+    # faces' curvatures fit no primitive), so the fallback is the last one tried there.
+    last = max(k for k, s in enumerate(STRATEGIES) if isinstance(s, DoublyCurvedAsSphere))
+    after = STRATEGIES[last + 1:]
+    assert all(isinstance(s, PlanarFacesWithoutRule) for s in after)
+    for sit in (situation([BOWED]), situation((), (), "principal curvature ratio 0.41 fits "
+                                                     "no primitive")):
+        assert DoublyCurvedAsSphere().applies(sit)
+        sit.decision = sit.fit_decision
+        sit.cloud.faces = [None, None]
+        assert not any(s.applies(sit) for s in after)
 
 
 @pytest.mark.parametrize("seed", [2, 3])
