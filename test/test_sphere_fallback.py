@@ -20,7 +20,8 @@ import pytest
 
 from data_helpers import DATA, require
 from geomodel_ros.core.fitting.result import Rejected
-from geomodel_ros.core.fitting.strategies import (STRATEGIES, DoublyCurvedAsSphere,
+from geomodel_ros.core.fitting.strategies import (STRATEGIES, CurvedMajorityAfterAll,
+                                                  DoublyCurvedAsSphere,
                                                   PlanarFacesWithoutRule, support_below)
 from geomodel_ros.core.fitting.verify import (SEE_THROUGH_CORE, bowed_profile,
                                               check_seen_through, check_sunk_in_support,
@@ -149,12 +150,14 @@ def test_the_sphere_fallback_needs_a_second_bend():
 
 
 def test_the_sphere_fallback_is_tried_last():
-    # After it come only strategies for planar faces that fit no rule of the model graph:
-    # they never apply where the fallback does (a round fit was tried, or the curved
-    # faces' curvatures fit no primitive), so the fallback is the last one tried there.
+    # After it come only the strategy for planar faces that fit no rule of the model graph,
+    # which never applies where the fallback does (a round fit was tried, or the curved
+    # faces' curvatures fit no primitive), and the last resort of mostly curved mixed
+    # objects (test_curved_majority_after_all.py).
     last = max(k for k, s in enumerate(STRATEGIES) if isinstance(s, DoublyCurvedAsSphere))
-    after = STRATEGIES[last + 1:]
-    assert all(isinstance(s, PlanarFacesWithoutRule) for s in after)
+    assert [type(s) for s in STRATEGIES[last + 1:]] == [PlanarFacesWithoutRule,
+                                                         CurvedMajorityAfterAll]
+    after = [s for s in STRATEGIES[last + 1:] if isinstance(s, PlanarFacesWithoutRule)]
     for sit in (situation([BOWED]), situation((), (), "principal curvature ratio 0.41 fits "
                                                      "no primitive")):
         assert DoublyCurvedAsSphere().applies(sit)

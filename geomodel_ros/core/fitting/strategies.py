@@ -864,11 +864,44 @@ class PlanarFacesWithoutRule:
                        note=f"planar faces without a rule; {rival.note}")
 
 
+class CurvedMajorityAfterAll:
+    """Every face of a mostly curved mixed object taken as curved, when nothing else fits.
+
+    A planar face of a mixed object whose bend stays within the frame's noise is taken
+    for a true flat end (a lid, a base) and the mixed rules apply
+    (:class:`PlanarPatchesOfCurvedObjects`). Far from the sensor a small patch of a round
+    surface bends within the noise as well (a ball at 1.5 m under slow sensor errors: a
+    48-point patch on its top and the cone and cylinder of the mixed rules, their axes
+    along its normal, fail). When every strategy before this one found no model, the
+    flat-end reading has failed and the patch's flatness is no evidence against the
+    curved one: as for :class:`PlanarPatchesOfCurvedObjects`, when the curved faces hold
+    most of the object (:data:`CURVED_MAJORITY`) every face is taken as curved and the
+    candidates of the object's principal curvatures are fitted, under their units' own
+    checks. Tried last, so it changes only objects otherwise left ``unknown``; only with
+    ``noise_model = auto``.
+    """
+
+    name = "mostly curved, all faces curved"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True for a mixed object whose curved faces hold most of its points."""
+        cloud = situation.cloud
+        if situation.decision.category != "mixed" or cloud.params.noise_model != "auto":
+            return False
+        curved = sum(f.info.size for f in cloud.faces if not f.info.planar)
+        return curved > CURVED_MAJORITY * sum(f.info.size for f in cloud.faces)
+
+    def attempt(self, situation: Situation) -> Attempt | None:
+        """Take every face as curved and propose the curvatures' candidates."""
+        return all_faces_curved(situation.cloud, "mostly curved, all faces taken as curved")
+
+
 #: The strategies in the order they are tried.
 STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
                                     FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
                                     PlanarPatchesOfCurvedObjects(), BoxOfFlatCores(),
-                                    DoublyCurvedAsSphere(), PlanarFacesWithoutRule())
+                                    DoublyCurvedAsSphere(), PlanarFacesWithoutRule(),
+                                    CurvedMajorityAfterAll())
 
 
 def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES
