@@ -38,7 +38,8 @@ def test_the_strategies_are_tried_in_the_documented_order():
                                             "upright above the support",
                                             "planar patches of a curved object",
                                             "box of the flat cores", "doubly curved as a sphere",
-                                            "planar faces without a rule"]
+                                            "planar faces without a rule",
+                                            "mostly curved, all faces curved"]
 
 
 def test_model_graph_candidates_apply_only_when_the_graph_proposed_a_type():

@@ -16,7 +16,10 @@ beat the round model of all the object's faces taken as curved, on the same cost
 (:func:`prefer_round`). Last, an object that no
 strategy typed but whose surface showed itself curved two ways (a side rejected for a
 bowed profile, or curvatures neither developable nor spherical) is tried as a sphere
-(:class:`DoublyCurvedAsSphere`).
+(:class:`DoublyCurvedAsSphere`); planar faces that fit no rule of the model graph as the
+box of the point normals' modes (:class:`PlanarFacesWithoutRule`); and, after everything
+else, a mixed object whose curved faces hold most of its points with every face taken as
+curved (:class:`CurvedMajorityAfterAll`).
 """
 
 from __future__ import annotations
