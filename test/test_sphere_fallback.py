@@ -20,8 +20,9 @@ import pytest
 
 from data_helpers import DATA, require
 from geomodel_ros.core.fitting.result import Rejected
-from geomodel_ros.core.fitting.strategies import (STRATEGIES, DoublyCurvedAsSphere,
-                                                  support_below)
+from geomodel_ros.core.fitting.strategies import (STRATEGIES, CurvedMajorityAfterAll,
+                                                  DoublyCurvedAsSphere,
+                                                  PlanarFacesWithoutRule, support_below)
 from geomodel_ros.core.fitting.verify import (SEE_THROUGH_CORE, bowed_profile,
                                               check_seen_through, check_sunk_in_support,
                                               sphere_cap_targets, standing_on)
@@ -148,8 +149,20 @@ def test_the_sphere_fallback_needs_a_second_bend():
     assert not fallback.applies(situation([BOWED], noise_model="fixed"))
 
 
-def test_the_sphere_fallback_is_tried_last():
-    assert isinstance(STRATEGIES[-1], DoublyCurvedAsSphere)
+def test_the_sphere_fallback_is_followed_only_by_the_last_resort():
+    # After it comes only the last resort of mostly curved mixed objects
+    # (test_curved_majority_after_all.py); the strategy for planar faces that fit no rule of
+    # the model graph, just before it, never applies where it does (a round fit was tried,
+    # or the curved faces' curvatures fit no primitive).
+    last = max(k for k, s in enumerate(STRATEGIES) if isinstance(s, DoublyCurvedAsSphere))
+    assert [type(s) for s in STRATEGIES[last + 1:]] == [CurvedMajorityAfterAll]
+    assert isinstance(STRATEGIES[last - 1], PlanarFacesWithoutRule)
+    for sit in (situation([BOWED]), situation((), (), "principal curvature ratio 0.41 fits "
+                                                     "no primitive")):
+        assert DoublyCurvedAsSphere().applies(sit)
+        sit.decision = sit.fit_decision
+        sit.cloud.faces = [None, None]
+        assert not PlanarFacesWithoutRule().applies(sit)
 
 
 @pytest.mark.parametrize("seed", [2, 3])

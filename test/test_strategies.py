@@ -39,7 +39,8 @@ def test_the_strategies_are_tried_in_the_documented_order():
                                             "planar patches of a curved object",
                                             "box of the flat cores",
                                             "planar faces without a rule",
-                                            "doubly curved as a sphere"]
+                                            "doubly curved as a sphere",
+                                            "mostly curved, all faces curved"]
 
 
 def test_model_graph_candidates_apply_only_when_the_graph_proposed_a_type():
