@@ -595,6 +595,18 @@ def as_curved(face: ObjectFace) -> ObjectFace:
                       face.points)
 
 
+def _mostly_curved_mixed(situation: Situation) -> bool:
+    """Whether a mixed object's curved faces hold most of its points (``auto`` noise only).
+
+    More than :data:`CURVED_MAJORITY` of the faces' working points.
+    """
+    cloud = situation.cloud
+    if situation.decision.category != "mixed" or cloud.params.noise_model != "auto":
+        return False
+    curved = sum(f.info.size for f in cloud.faces if not f.info.planar)
+    return curved > CURVED_MAJORITY * sum(f.info.size for f in cloud.faces)
+
+
 class PlanarPatchesOfCurvedObjects:
     """Take the planar faces of a mainly curved object as patches of its curved surface.
 
@@ -620,10 +632,7 @@ class PlanarPatchesOfCurvedObjects:
         """Return True for a mixed object, mostly curved, whose planar faces all bend."""
         cloud = situation.cloud
         faces = cloud.faces
-        if situation.decision.category != "mixed" or cloud.params.noise_model != "auto":
-            return False
-        curved = sum(f.info.size for f in faces if not f.info.planar)
-        if curved <= CURVED_MAJORITY * sum(f.info.size for f in faces):
+        if not _mostly_curved_mixed(situation):
             return False
         # A planar face without a significant bend is a true flat end (a lid, a base).
         wc, params = cloud.wc, cloud.params
@@ -892,11 +901,7 @@ class CurvedMajorityAfterAll:
 
     def applies(self, situation: Situation) -> bool:
         """Return True for a mixed object whose curved faces hold most of its points."""
-        cloud = situation.cloud
-        if situation.decision.category != "mixed" or cloud.params.noise_model != "auto":
-            return False
-        curved = sum(f.info.size for f in cloud.faces if not f.info.planar)
-        return curved > CURVED_MAJORITY * sum(f.info.size for f in cloud.faces)
+        return _mostly_curved_mixed(situation)
 
     def attempt(self, situation: Situation) -> Attempt | None:
         """Take every face as curved and propose the curvatures' candidates."""
