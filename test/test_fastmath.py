@@ -37,6 +37,24 @@ def test_knn_asks_for_no_more_neighbours_than_there_are_points():
     assert empty.shape == none.shape == (0, 0)
 
 
+def test_knn_of_other_query_points_and_of_a_single_neighbour():
+    rng = np.random.default_rng(12)
+    p = rng.uniform(0.0, 0.1, (300, 3))
+    q = rng.uniform(0.0, 0.1, (40, 3))
+    idx, sqdist = knn(p, 5, return_sqdist=True, queries=q)
+    d = q[:, None, :] - p[None, :, :]
+    full = (d[..., 0] ** 2 + d[..., 1] ** 2) + d[..., 2] ** 2
+    expected = np.argsort(full, axis=1)[:, :5]
+    assert idx.shape == sqdist.shape == (40, 5)
+    np.testing.assert_array_equal(idx, expected)
+    np.testing.assert_allclose(sqdist, np.take_along_axis(full, expected, axis=1),
+                               rtol=1e-12, atol=0)
+    # k = 1: each point's nearest is itself, still as an (M, 1) array
+    one = knn(p, 1)
+    assert one.shape == (300, 1) and one.dtype == np.int64
+    np.testing.assert_array_equal(one[:, 0], np.arange(300))
+
+
 def _brute_knn(p, k):
     d = p[:, None, :] - p[None, :, :]
     full = (d[..., 0] ** 2 + d[..., 1] ** 2) + d[..., 2] ** 2

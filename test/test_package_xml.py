@@ -5,7 +5,7 @@ tests) is read with ``ast``; each import that is neither the standard library no
 package itself must map (table below) onto a dependency that package.xml declares, or, for a
 library without a rosdep key, onto a comment in package.xml that says how to install it.
 The rosdep keys were looked up in rosdistro's ``rosdep/python.yaml`` (``python3-open3d-pip``
-and ``python3-hypothesis`` exist there; no key provides ``rosbags`` or ``lzf``).
+and ``python3-hypothesis`` exist there; no key provides ``rosbags``, ``lzf`` or ``pykdtree``).
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ ROSDEP_KEYS = {
 NO_ROSDEP_KEY = {
     "rosbags": "pip install rosbags",
     "lzf": "pip install python-lzf",
+    "pykdtree": "pip install pykdtree",
 }
 #: Development tools (not used by the node, the CLI or the launch file): their imports may be
 #: test dependencies.
@@ -132,7 +133,8 @@ def test_keys_without_rosdep_entry_are_not_declared(manifest):
     # declaring a key rosdep does not know breaks `rosdep install` for users
     declared = _declared(manifest, TEST_TAGS + ("build_depend",))
     assert not declared & set(NO_ROSDEP_KEY)
-    assert not declared & {"python3-rosbags", "python3-lzf", "python3-open3d"}
+    assert not declared & {"python3-rosbags", "python3-lzf", "python3-open3d",
+                                "python3-pykdtree"}
 
 
 def test_no_dependency_is_declared_twice(manifest):

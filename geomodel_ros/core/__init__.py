@@ -1,1 +1,1 @@
-"""The ROS-free core: scene segmentation and geometric modeling (numpy, scipy, open3d only)."""
+"""The ROS-free core: scene segmentation and geometric modeling (numpy, scipy, open3d, pykdtree)."""
