@@ -6,7 +6,9 @@
    ``seg_min_support_area``.
 3. The rest is split into objects by local convexity (as in LCCP, Stein et al. 2014):
    smooth patches are joined where most neighbour links across their common border are
-   flat or convex, not across a concave crease (object on object, object against object),
+   flat or convex (under noise: most of the share that the links inside the patches pass,
+   :func:`_surface_pass_rate`), not across a concave crease (object on object, object
+   against object),
    a step (parallel faces at different heights) nor a depth jump (occlusion boundary);
    tiny objects are noise; a border whose links show a crease at their median (the
    evidence of the whole border against the noise of that median) is never joined.
