@@ -239,7 +239,8 @@ class DisjointSets:
 def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDArray,
                   yes: NDArray, sizes: NDArray | None = None,
                   exact: NDArray[np.bool_] | None = None,
-                  creased: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
+                  creased: NDArray[np.bool_] | None = None,
+                  pass_rate: float = 1.0) -> NDArray[np.int64]:
     """Group patches into objects from their border votes.
 
     Parameters
@@ -260,6 +261,12 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
         Borders found to hold a crease along their whole length (e.g. from the median of
         their links, :func:`geomodel_ros.core.segmentation._creased_borders`): never
         joined, whatever their votes, and clear creases for the test below.
+    pass_rate : float
+        Share (0, 1] of the links on one smooth surface that vote flat or convex in this
+        frame (e.g. :func:`geomodel_ros.core.segmentation._surface_pass_rate`: under noise
+        the link tests fail by chance); the share of yes votes of every border not between
+        two ``exact`` patches is taken relative to it, so the tests below compare the
+        border with what one surface gives. 1 (the default): the shares as counted.
 
     Returns
     -------
@@ -276,7 +283,10 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     (:class:`_GroupContacts`). Both refusals depend on the joins made before them, so the
     pairs are joined one by one in order of evidence.
     """
-    share = yes / np.maximum(votes, 1)
+    summed = np.zeros(len(a), dtype=bool) if exact is None else \
+        np.take(exact, a) & np.take(exact, b)
+    # Where both patches were tested exactly, a failed link meets a real edge, not noise.
+    share = yes / (np.maximum(votes, 1) * np.where(summed, 1.0, pass_rate))
     crease = (votes >= CREASE_MIN_VOTES) & (share < CREASE_MAX_CONVEX_SHARE)
     joinable = share >= JOIN_MIN_CONVEX_SHARE
     if creased is not None:
@@ -286,8 +296,6 @@ def merge_patches(n: int, a: NDArray[np.int64], b: NDArray[np.int64], votes: NDA
     if sizes is not None:
         smaller = np.minimum(np.take(sizes, a), np.take(sizes, b))
         joinable &= votes >= JOIN_MIN_BORDER_VOTES * np.sqrt(smaller)
-    summed = np.zeros(len(a), dtype=bool) if exact is None else \
-        np.take(exact, a) & np.take(exact, b)
     sets = DisjointSets(range(n))
     members: dict[int, set[int]] = {}
     contact = _GroupContacts(a, b, votes, yes)
