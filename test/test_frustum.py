@@ -103,11 +103,15 @@ def test_sizes_are_the_cone_radii_at_the_ends_of_the_points():
     dims = frustum_sizes(cone, 0.12, 0.2, 0.002)
     assert dims == pytest.approx({"radius": 0.1, "top_radius": 0.06, "height": 0.08},
                                  abs=1e-15)
-    # Points that reach half the height of the apex are a cone (FRUSTUM_MIN_TOP_RATIO).
-    assert FRUSTUM_MIN_TOP_RATIO == 0.5
-    out = frustum_sizes(cone, 0.1, 0.2, 0.002)
+    # Points that reach a quarter of the height of the apex are a cone
+    # (FRUSTUM_MIN_TOP_RATIO); beyond it, a frustum.
+    assert FRUSTUM_MIN_TOP_RATIO == 0.25
+    out = frustum_sizes(cone, 0.05, 0.2, 0.002)
     assert isinstance(out, Rejected) and out.reason == (
-        "frustum rejected: its points reach 100 mm from the apex of a 200 mm cone (a cone)")
+        "frustum rejected: its points reach 50 mm from the apex of a 200 mm cone (a cone)")
+    dims = frustum_sizes(cone, 0.06, 0.2, 0.002)  # top / base 0.3: a frustum
+    assert dims == pytest.approx({"radius": 0.1, "top_radius": 0.03, "height": 0.14},
+                                 abs=1e-15)
     assert isinstance(frustum_sizes(cone, -0.01, 0.2, 0.002), Rejected)  # both sides of it
 
 

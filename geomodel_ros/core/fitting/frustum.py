@@ -48,9 +48,10 @@ FRUSTUM = PrimitiveType.FRUSTUM
 #: A frustum's top radius is more than this share of its base radius: its points stop
 #: farther from the cone's apex than this share of the base's distance (radius grows
 #: linearly from the apex). It is the cone unit's CONE_APEX_REACH, so that a truncated
-#: cone is exactly one of the two: a cone when its points reach within half its height
-#: of the apex, a frustum otherwise. Half the height is a clear truncation: noise and the
-#: edge lose a cone a few millimetres round its tip, never half of it.
+#: cone is exactly one of the two: a cone when its points reach within a quarter of its
+#: height of the apex, a frustum otherwise. A quarter of the height is a clear truncation:
+#: noise and the edge lose a cone a few millimetres round its tip (within 4.5 % of the
+#: height on the sensor suite), never a quarter of it.
 FRUSTUM_MIN_TOP_RATIO = CONE_APEX_REACH
 #: Where the noise is not measured (``noise_model = fixed``) or a side has too few points
 #: for its own test (:mod:`~.taper_spread`), a frustum's radii differ by more than this
