@@ -860,12 +860,15 @@ def contained_floors(points: NDArray[np.float64], normals: NDArray[np.float64],
         return empty, empty
     sp = take_rows(points, support)
     sh = sp @ n + d
+    # The sensor's foot is the plane's origin: the ray from a point meets the rim's height
+    # at the point's own coordinates scaled by (d - rim) / (d - h).
+    sx, sy = sp @ basis[:, 0], sp @ basis[:, 1]
     free = np.ones(len(support), dtype=bool)
     taken, owner = [], []
     for _, i, center, rim, opening in sorted(walls, key=lambda w: (-w[0], w[1])):
-        t = (rim - sh) / (d - sh)  # the ray from the point to the sensor at the rim's height
-        seen = free & (sh < rim) & (np.linalg.norm(
-            (sp * (1.0 - t)[:, None]) @ basis - center, axis=1) <= opening)
+        scale = (d - rim) / (d - sh)
+        seen = free & (sh < rim) & ((sx * scale - center[0]) ** 2
+                                    + (sy * scale - center[1]) ** 2 <= opening * opening)
         cand = support[seen]
         if not len(cand):
             continue

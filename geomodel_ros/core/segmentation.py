@@ -14,7 +14,10 @@
    evidence of the whole border against the noise of that median) is never joined.
    Two further joins
    (:mod:`geomodel_ros.core.joins`) put together the parts of one surface cut by an
-   occluder and the inner and outer walls of an open round container.
+   occluder and the inner and outer walls of an open round container; the floor of such a
+   container, when it lies in a support's band (a real sensor's band is 10-14 mm thick),
+   goes back to it from the support (support points seen through its opening and bounded
+   by it, :func:`geomodel_ros.core.joins.contained_floors`).
 4. Objects are numbered by size, largest first, after the supports; labels go back to every
    input point through the voxel map, and object points in a support's plane band (the
    contact rims) go to the support.
