@@ -308,7 +308,8 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     counts : (M,) int64 array
         Input points per working point.
     supports : list of int64 arrays
-        Working-point indices of each support plane.
+        Working-point indices of each support plane (a container's floor leaves its
+        support's array, in place: :func:`_return_floors`).
     params : ModelingParams
     grid : GridCloud, optional
         The organized working cloud ``wp`` comes from (its neighbours are reused).
