@@ -14,7 +14,10 @@
    evidence of the whole border against the noise of that median) is never joined.
    Two further joins
    (:mod:`geomodel_ros.core.joins`) put together the parts of one surface cut by an
-   occluder and the inner and outer walls of an open round container.
+   occluder and the inner and outer walls of an open round container; the floor of such a
+   container, when it lies in a support's band (a real sensor's band is 10-14 mm thick),
+   goes back to it from the support (support points seen through its opening and bounded
+   by it, :func:`geomodel_ros.core.joins.contained_floors`).
 4. Objects are numbered by size, largest first, after the supports; labels go back to every
    input point through the voxel map, and object points in a support's plane band (the
    contact rims) go to the support.
@@ -41,8 +44,8 @@ from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, knn_among, link_components,
                                         robust_sigma, rows_finite, take_rows)
 from geomodel_ros.core.noise import K_SUPPORT, NoiseEstimate, disparity_step, resolve_params
-from geomodel_ros.core.joins import (join_contained_parts, join_occluded_parts, join_terraces,
-                                     merge_patches)
+from geomodel_ros.core.joins import (contained_floors, join_contained_parts, join_occluded_parts,
+                                     join_terraces, merge_patches)
 from geomodel_ros.core.organized import GridCloud, grid_cloud
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import fit_plane_svd
@@ -286,13 +289,15 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     timing["seg_supports_s"] = t2 - t1
     step = disparity_step(p)
     quantum = level_quantum(p, inverse, counts, step, params.seg_voxel_size)
+    floors = np.zeros(len(wp), dtype=bool)
     own_labels = _working_labels(wp, wn, counts, supports, params, grid, noise, step, quantum,
-                                 None if grid is not None else (nbrs, sqdist))[inverse]
+                                 None if grid is not None else (nbrs, sqdist),
+                                 (nbrs, sqdist), floors)[inverse]
     planes = _claim_contact_rims(
         p, own_labels, len(supports), params, rng,
         None if noise is None or noise.samples == 0 else
         LocalSupport(wp, inverse, counts, noise, quantum, configured_band,
-                     SUPPORT_LINK_VOXELS * params.seg_voxel_size))
+                     SUPPORT_LINK_VOXELS * params.seg_voxel_size), floors[inverse])
     labels[finite] = own_labels
     timing["seg_objects_s"] = time.perf_counter() - t2
     timing["segmentation_s"] = time.perf_counter() - t0
@@ -303,8 +308,9 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
                     supports: list[NDArray[np.int64]], params: ModelingParams,
                     grid: GridCloud | None = None, noise: DepthNoise | None = None,
                     step: float | None = None, quantum: NDArray[np.float64] | None = None,
-                    near: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
-                    ) -> NDArray[np.int64]:
+                    near: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None,
+                    links: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None,
+                    floors: NDArray[np.bool_] | None = None) -> NDArray[np.int64]:
     """Label of every working point: supports 0 .. S-1, objects S, S+1, ... by size, -1 noise.
 
     Parameters
@@ -314,7 +320,8 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     counts : (M,) int64 array
         Input points per working point.
     supports : list of int64 arrays
-        Working-point indices of each support plane.
+        Working-point indices of each support plane (a container's floor leaves its
+        support's array, in place: :func:`_return_floors`).
     params : ModelingParams
     grid : GridCloud, optional
         The organized working cloud ``wp`` comes from (its neighbours are reused).
@@ -329,6 +336,12 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
         The (M, k) nearest neighbours of every working point and their squared distances
         [m^2] (voxel path): the objects' neighbours among the points of no support are
         taken from them where they can be (:func:`_rest_neighbourhood`).
+    links : (neighbors, sqdist), optional
+        The same for either path: with them (and ``seg_join_contained``) the floor of an
+        open container that a support took goes back to the container
+        (:func:`geomodel_ros.core.joins.contained_floors`).
+    floors : (M,) bool array, optional
+        Set in place where a working point is such a floor.
 
     Returns
     -------
@@ -344,8 +357,44 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     if params.seg_join_contained and supports:
         comp = join_contained_parts(wp, wn, comp, comp_ok,
                                     fit_plane_svd(take_rows(wp, supports[0])), noise)
+        if links is not None:
+            taken = _return_floors(wp, wn, comp, comp_ok, wlabel, supports, params, links,
+                                   noise)
+            if floors is not None:
+                floors[taken] = True
     wlabel[comp_ok] = len(supports) + _size_ranks(comp[comp_ok], counts[comp_ok])
     return wlabel
+
+
+def _return_floors(wp: NDArray[np.float64], wn: NDArray[np.float64], comp: NDArray[np.int64],
+                   comp_ok: NDArray[np.bool_], wlabel: NDArray[np.int64],
+                   supports: list[NDArray[np.int64]], params: ModelingParams,
+                   links: tuple[NDArray[np.int64], NDArray[np.float64]],
+                   noise: DepthNoise | None) -> NDArray[np.int64]:
+    """Give the floors of open containers that the supports took back to the containers.
+
+    In place, and return their working points: the points that
+    :func:`geomodel_ros.core.joins.contained_floors` finds leave their support
+    (``supports``, ``wlabel`` set to -1) and join their container's segment (``comp``,
+    ``comp_ok``). An object stands on a support when its lowest working point
+    lies within the support's band plus one voxel (a working point is the centroid of its
+    voxel's points). Supports are visited in order, the objects as the earlier ones left
+    them.
+    """
+    in_support = wlabel >= 0
+    stand = params.seg_plane_threshold + params.seg_voxel_size
+    link = SUPPORT_LINK_VOXELS * params.seg_voxel_size
+    every = []
+    for sid, sel in enumerate(supports):
+        taken, owner = contained_floors(wp, wn, comp, comp_ok, sel,
+                                        fit_plane_svd(take_rows(wp, sel)), in_support,
+                                        *links, link, stand, noise)
+        if len(taken):
+            comp[taken], comp_ok[taken] = owner, True
+            wlabel[taken], in_support[taken] = -1, False
+            supports[sid] = np.setdiff1d(sel, taken, assume_unique=True)
+            every.append(taken)
+    return np.concatenate(every) if every else np.zeros(0, dtype=np.int64)
 
 
 def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
@@ -434,7 +483,8 @@ class LocalSupport:
 
 def _claim_contact_rims(p: NDArray[np.float64], labels: NDArray[np.int64], n_supports: int,
                         params: ModelingParams, rng: np.random.Generator,
-                        local: LocalSupport | None = None
+                        local: LocalSupport | None = None,
+                        floors: NDArray[np.bool_] | None = None
                         ) -> dict[int, tuple[NDArray[np.float64], float]]:
     """Refit each support's plane and give it the object points in its plane band.
 
@@ -448,6 +498,8 @@ def _claim_contact_rims(p: NDArray[np.float64], labels: NDArray[np.int64], n_sup
     support (four sigma of the noise along the normal, the frame's slowly varying error
     included), so under a real sensor's noise it reaches 10-14 mm up every object's wall
     (kinect-real clutter: a cone, cup or bowl lost 20-36 % of its points to the desk).
+    The points ``floors`` (F,) (a container's floor seen through its opening, taken back
+    from a support by :func:`_return_floors`) are never claimed.
 
     Returns
     -------
@@ -458,7 +510,8 @@ def _claim_contact_rims(p: NDArray[np.float64], labels: NDArray[np.int64], n_sup
     if local is not None:  # the label of every working point (shared by its points)
         working = np.full(len(local.counts), -1, dtype=np.int64)
         working[local.inverse] = labels
-    obj = np.flatnonzero(labels >= n_supports)
+    obj = np.flatnonzero((labels >= n_supports) if floors is None else
+                         (labels >= n_supports) & ~floors)
     obj_pts = take_rows(p, obj)
     for sid in range(n_supports):
         own = np.flatnonzero(labels == sid)
