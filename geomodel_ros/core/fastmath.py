@@ -210,8 +210,8 @@ def knn(points: NDArray[np.float64], k: int, return_sqdist: bool = False,
 
     pykdtree's k-d tree (OpenMP over the queries). Measured on osd_learn working clouds
     (55k points, k = 16, 2 cores): 41 ms against 58 ms for open3d's multithreaded search and
-    66-72 ms for :class:`scipy.spatial.cKDTree` with two workers (BENCHMARKS.md, "Real
-    time, twelfth round"). Neighbours at exactly equal distances (voxel centroids of a
+    66-72 ms for :class:`scipy.spatial.cKDTree` with two workers (BENCHMARKS.md section
+    21). Neighbours at exactly equal distances (voxel centroids of a
     depth-quantised frame) come in the tree's order.
     """
     from pykdtree.kdtree import KDTree  # imported on first use: the module stays cheap
