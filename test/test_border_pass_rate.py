@@ -49,24 +49,17 @@ def _noisy_plane(seed: int, sigma: float = SIGMA, n: int = 60):
     return points, normals, nbrs, sqdist, np.zeros(len(points), dtype=np.int64)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_a_noisy_plane_passes_the_step_test_as_a_gaussian_difference_does(seed):
+@pytest.mark.parametrize("step_sigmas, seed", [(1.0, 0), (1.0, 1), (1.0, 2), (2.0, 3)])
+def test_a_noisy_plane_passes_the_step_test_as_a_gaussian_difference_does(step_sigmas, seed):
     # With exact normals every link's fold is 0 (it passes any tolerance), and
-    # below_i = -below_j = e_i - e_j ~ N(0, 2 sigma^2): the step test at one sigma passes
-    # |e_i - e_j| <= sigma, P(|Z| <= 1 / sqrt(2)) = erf(1 / 2) = 0.5205.
+    # below_i = -below_j = e_i - e_j ~ N(0, 2 sigma^2): the step test at s sigma passes
+    # |e_i - e_j| <= s sigma, P(|Z| <= s / sqrt(2)) = erf(s / 2): 0.5205 at one sigma,
+    # 0.8427 at two.
     points, normals, nbrs, sqdist, patches = _noisy_plane(seed)
     rate = _surface_pass_rate(points, normals, nbrs, sqdist, patches, MAX_EDGE, 0.1,
-                              np.full(len(points), SIGMA), np.ones(len(points), dtype=bool))
-    assert rate == pytest.approx(math.erf(0.5), abs=0.03)
-
-
-def test_a_step_of_two_sigma_passes_more_links():
-    # At a step of 2 sigma: P(|Z| <= sqrt(2)) = erf(1) = 0.8427.
-    points, normals, nbrs, sqdist, patches = _noisy_plane(3)
-    rate = _surface_pass_rate(points, normals, nbrs, sqdist, patches, MAX_EDGE, 0.1,
-                              np.full(len(points), 2.0 * SIGMA),
+                              np.full(len(points), step_sigmas * SIGMA),
                               np.ones(len(points), dtype=bool))
-    assert rate == pytest.approx(math.erf(1.0), abs=0.03)
+    assert rate == pytest.approx(math.erf(step_sigmas / 2.0), abs=0.03)
 
 
 def test_the_rate_is_never_below_its_floor():
