@@ -44,9 +44,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import nnls
-from scipy.spatial import cKDTree
 
-from geomodel_ros.core.fastmath import rows_finite, take_rows
+from geomodel_ros.core.fastmath import knn, rows_finite, take_rows
 from geomodel_ros.core.input import in_range
 from geomodel_ros.core.params import ModelingParams
 
@@ -250,7 +249,8 @@ def _neighbourhoods(sub: NDArray[np.float64], fraction: float
     neighbourhoods would bias it low.
     """
     k = min(NOISE_NEIGHBORS, len(sub))
-    dist, nb = cKDTree(sub).query(sub[:NOISE_QUERIES], k=k)
+    nb, sqdist = knn(sub, k, return_sqdist=True, queries=sub[:NOISE_QUERIES])
+    dist = np.sqrt(sqdist)
     hood = np.take(sub, nb, axis=0)                            # (Q, k, 3)
     centre = hood.mean(axis=1)
     d = hood - centre[:, None, :]
