@@ -842,20 +842,7 @@ def contained_floors(points: NDArray[np.float64], normals: NDArray[np.float64],
     if d < 0:  # normal towards the sensor (at the origin): its height is d
         n, d = -n, -d
     basis = np.column_stack(perpendicular_basis(n))
-    walls = []
-    for i, m in segment_members(comp, valid).items():
-        if len(m) < CONTAINED_MIN_POINTS:
-            continue
-        pts = take_rows(points, m)
-        height = pts @ n + d
-        if height.min() > stand:
-            continue
-        wall = _round_footprint(pts @ basis, take_rows(normals, m) @ basis, height)
-        if wall is not None:
-            rim = float(np.quantile(height, RIM_HEIGHT_QUANTILE))
-            opening = float(wall.radius_at(np.array([rim]))[0]) - _noise_reach(pts, n, noise)
-            if 0.0 < rim < d and opening > 0.0:
-                walls.append((len(m), i, wall.center, rim, opening))
+    walls = _standing_walls(points, normals, comp, valid, n, d, basis, stand, noise)
     if not walls:
         return empty, empty
     sp = take_rows(points, support)
@@ -880,6 +867,35 @@ def contained_floors(points: NDArray[np.float64], normals: NDArray[np.float64],
     if not taken:
         return empty, empty
     return np.concatenate(taken), np.concatenate(owner)
+
+
+def _standing_walls(points: NDArray[np.float64], normals: NDArray[np.float64],
+                    comp: NDArray[np.int64], valid: NDArray[np.bool_], n: NDArray[np.float64],
+                    d: float, basis: NDArray[np.float64], stand: float, noise
+                    ) -> list[tuple[int, int, NDArray[np.float64], float, float]]:
+    """Return the round walls standing on the plane n . x + d = 0 (normal to the sensor).
+
+    One entry per segment of ``comp`` (``valid`` points) of at least
+    :data:`CONTAINED_MIN_POINTS` whose lowest point lies within ``stand`` [m] of the plane
+    and whose footprint in ``basis`` (3, 2) is a wall of revolution
+    (:func:`_round_footprint`): (points, segment id, the wall's centre (2,), the rim's
+    height [m], the opening's radius [m] narrowed by :func:`_noise_reach`).
+    """
+    walls = []
+    for i, m in segment_members(comp, valid).items():
+        if len(m) < CONTAINED_MIN_POINTS:
+            continue
+        pts = take_rows(points, m)
+        height = pts @ n + d
+        if height.min() > stand:
+            continue
+        wall = _round_footprint(pts @ basis, take_rows(normals, m) @ basis, height)
+        if wall is not None:
+            rim = float(np.quantile(height, RIM_HEIGHT_QUANTILE))
+            opening = float(wall.radius_at(np.array([rim]))[0]) - _noise_reach(pts, n, noise)
+            if 0.0 < rim < d and opening > 0.0:
+                walls.append((len(m), i, wall.center, rim, opening))
+    return walls
 
 
 def _bounded_by(cand: NDArray[np.int64], owner: int, comp: NDArray[np.int64],

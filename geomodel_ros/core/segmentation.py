@@ -769,9 +769,7 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
         creased = creased | _outlines(points, normals, nbrs, sqdist, patches, a, b, params,
                                       noise_w / getattr(noise, "scale", 1.0), quantum)
     if stepped and creased is not None:  # a split patch's two levels meet at a step
-        key = a * n_p + b
-        for x, y in stepped:
-            creased |= key == min(x, y) * n_p + max(x, y)
+        creased |= np.isin(a * n_p + b, [min(x, y) * n_p + max(x, y) for x, y in stepped])
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
                         exact=None if noise is None else
                         np.bincount(patches[step > floor], minlength=n_p) == 0,
@@ -1599,12 +1597,46 @@ def _level_split(p: NDArray[np.float64], nr: NDArray[np.float64], nb: NDArray[np
         return None  # not flat: its normals turn
     u, v = perpendicular_basis(mean)
     q = p - p.mean(axis=0)
-    x, y, z = q @ u, q @ v, q @ mean
+    xyz = np.column_stack([q @ u, q @ v, q @ mean])
     local = np.full(m, -1, dtype=np.int64)
     local[idx] = np.arange(len(idx))
     ln = local[nb]
     ok = (ln >= 0) & within & (ln != np.arange(len(idx))[:, None])
     half = np.arange(len(idx)) % 2 == 0  # the levels are found from this half alone
+    found = _two_levels(xyz, ln, ok, half)
+    if found is None:
+        return None
+    upper, flat = found
+    n_up = int(upper.sum())
+    if n_up < min_points or len(upper) - n_up < min_points:
+        return None
+    delta = _held_out_step(xyz, upper, ~half, floor)
+    if delta is None or not _side_by_side(xyz[:, :2], upper, ln, ok):
+        return None
+    # The step along the border: the links from the lower level to the upper one.
+    ii, jj = np.nonzero(ok & upper[np.maximum(ln, 0)] & ~upper[:, None])
+    if len(ii) < 3:
+        return None
+    rise = float(np.median(flat[ln[ii, jj]] - flat[ii]))
+    votes = max(len(np.unique(ii)) / BORDER_STRIP_POINTS, 1.0)
+    bound = max(floor, LEVEL_SIGMAS * MEDIAN_STANDARD_ERROR * math.sqrt(2.0)
+                * float(np.median(noise[ii])) / math.sqrt(votes))
+    if np.sign(rise) != np.sign(delta) or abs(rise) <= bound:
+        return None
+    return upper
+
+
+def _two_levels(xyz: NDArray[np.float64], ln: NDArray[np.int64], ok: NDArray[np.bool_],
+                half: NDArray[np.bool_]
+                ) -> tuple[NDArray[np.bool_], NDArray[np.float64]] | None:
+    """Return a patch's upper level and heights above its tilted plane, found from ``half``.
+
+    ``xyz`` (L, 3): in-plane coordinates and height [m]; ``ln``, ``ok`` (L, k): the patch's
+    neighbour lists (local indices) and the links used. Each point goes to the level
+    nearer the mean height of its neighbours in ``half``; the tilted plane with the two
+    offsets is fitted to ``half`` alone. None when one level is empty.
+    """
+    x, y, z = xyz.T
     from_half = ok & half[np.maximum(ln, 0)]
     count = np.maximum(from_half.sum(axis=1), 1)
 
@@ -1625,45 +1657,47 @@ def _level_split(p: NDArray[np.float64], nr: NDArray[np.float64], nb: NDArray[np
         if (new == upper).all():
             break
         upper = new
-    n_up = int(upper.sum())
-    if n_up < min_points or len(upper) - n_up < min_points:
-        return None
-    # The levels' heights from the other half alone (their tilt too): its points' levels
-    # were chosen without their own heights.
-    test = ~half
+    return upper, flat
+
+
+def _held_out_step(xyz: NDArray[np.float64], upper: NDArray[np.bool_],
+                   test: NDArray[np.bool_], floor: float) -> float | None:
+    """Return the height of the upper level over the lower [m] on the ``test`` points, or None.
+
+    The tilted plane and two offsets are fitted to the ``test`` points alone (their levels
+    were chosen without their own heights); None unless the difference exceeds ``floor``
+    and :data:`LEVEL_SIGMAS` of its standard error.
+    """
     if (test & upper).sum() < 3 or (test & ~upper).sum() < 3:
         return None
-    design = np.column_stack([x, y, ~upper, upper]).astype(np.float64)[test]
-    coef, *_ = np.linalg.lstsq(design, z[test], rcond=None)
+    x, y, z = xyz[test].T
+    up = upper[test]
+    design = np.column_stack([x, y, ~up, up]).astype(np.float64)
+    coef, *_ = np.linalg.lstsq(design, z, rcond=None)
     inv = np.linalg.pinv(design.T @ design)
     delta = float(coef[3] - coef[2])
-    se = robust_sigma(z[test] - design @ coef) * math.sqrt(
+    se = robust_sigma(z - design @ coef) * math.sqrt(
         max(float(inv[2, 2] + inv[3, 3] - 2.0 * inv[2, 3]), 0.0))
-    if abs(delta) <= max(floor, LEVEL_SIGMAS * se):
-        return None
-    # Two regions meet along a border: few of the links join the two levels, far fewer
-    # than if the levels were drawn at random in the same proportions (noise).
-    share = n_up / len(upper)
+    return delta if abs(delta) > max(floor, LEVEL_SIGMAS * se) else None
+
+
+def _side_by_side(xy: NDArray[np.float64], upper: NDArray[np.bool_], ln: NDArray[np.int64],
+                  ok: NDArray[np.bool_]) -> bool:
+    """Whether two levels lie side by side, as two objects' faces do.
+
+    Few of the links ``ln``/``ok`` join them (at most :data:`LEVEL_MIXING` of the share
+    levels drawn at random in the same proportions would give: the noise interleaves
+    such levels), and neither level's centre lies within the other's outline in ``xy``
+    (a face's rim, rounded down by the noise and the edge, surrounds it).
+    """
+    share = float(np.mean(upper))
     cross = float(np.mean((upper[np.maximum(ln, 0)] != upper[:, None])[ok]))
     if cross > LEVEL_MIXING * 2.0 * share * (1.0 - share):
-        return None
-    # Side by side, as two objects' faces are: neither level's centre lies within the
-    # other's outline (a face's rim, rounded down by the noise and the edge, surrounds it).
-    xy = np.column_stack([x, y])
-    for a, b in ((upper, ~upper), (~upper, upper)):
+        return False
+    for inner, outer in ((upper, ~upper), (~upper, upper)):
         try:
-            if Delaunay(xy[b]).find_simplex(xy[a].mean(axis=0)) >= 0:
-                return None
+            if Delaunay(xy[outer]).find_simplex(xy[inner].mean(axis=0)) >= 0:
+                return False
         except QhullError:
-            return None
-    # The step along the border: the links from the lower level to the upper one.
-    ii, jj = np.nonzero(ok & upper[np.maximum(ln, 0)] & ~upper[:, None])
-    if len(ii) < 3:
-        return None
-    rise = float(np.median(flat[ln[ii, jj]] - flat[ii]))
-    votes = max(len(np.unique(ii)) / BORDER_STRIP_POINTS, 1.0)
-    bound = max(floor, LEVEL_SIGMAS * MEDIAN_STANDARD_ERROR * math.sqrt(2.0)
-                * float(np.median(noise[ii])) / math.sqrt(votes))
-    if np.sign(rise) != np.sign(delta) or abs(rise) <= bound:
-        return None
-    return upper
+            return False
+    return True
