@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import multiprocessing
+
 import numpy as np
 
 import pytest
@@ -53,6 +55,32 @@ def test_knn_of_other_query_points_and_of_a_single_neighbour():
     one = knn(p, 1)
     assert one.shape == (300, 1) and one.dtype == np.int64
     np.testing.assert_array_equal(one[:, 0], np.arange(300))
+
+
+def _knn_in_child(queue, p, k):
+    queue.put(knn(p, k, return_sqdist=True))
+
+
+@pytest.mark.skipif("fork" not in multiprocessing.get_all_start_methods(),
+                    reason="no fork on this platform")
+def test_knn_in_a_child_forked_after_a_parallel_search():
+    # The parent's search starts the OpenMP team (50k queries run in parallel); a child
+    # forked after it must still search (GNU OpenMP's threads are not in the child).
+    rng = np.random.default_rng(13)
+    knn(rng.uniform(0.0, 1.0, (50_000, 3)), 16)
+    p = rng.uniform(0.0, 0.1, (400, 3))
+    queue = multiprocessing.get_context("fork").Queue()
+    child = multiprocessing.get_context("fork").Process(target=_knn_in_child, args=(queue, p, 6))
+    child.start()
+    try:
+        idx, sqdist = queue.get(timeout=60)
+    finally:
+        child.join(timeout=10)
+        if child.is_alive():
+            child.kill()
+    want, want_sq = _brute_knn(p, 6)
+    np.testing.assert_array_equal(idx, want)
+    np.testing.assert_allclose(sqdist, want_sq, rtol=1e-12, atol=0)
 
 
 def _brute_knn(p, k):

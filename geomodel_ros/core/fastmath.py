@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
 import threading
 from contextlib import contextmanager
 from typing import Iterator
@@ -212,22 +213,44 @@ def knn(points: NDArray[np.float64], k: int, return_sqdist: bool = False,
     (55k points, k = 16, 2 cores): 41 ms against 58 ms for open3d's multithreaded search and
     66-72 ms for :class:`scipy.spatial.cKDTree` with two workers (BENCHMARKS.md section
     21). Neighbours at exactly equal distances (voxel centroids of a
-    depth-quantised frame) come in the tree's order.
+    depth-quantised frame) come in the tree's order. In a process forked after this one
+    searched (GNU OpenMP's threads do not survive fork), scipy's tree on one thread.
     """
-    from pykdtree.kdtree import KDTree  # imported on first use: the module stays cheap
-
     k = int(min(k, len(points)))
     m = len(points) if queries is None else len(queries)
     if m == 0 or k == 0:
         empty = np.zeros((m, k), dtype=np.int64)
         return (empty, np.zeros((m, k))) if return_sqdist else empty
     data = np.ascontiguousarray(points, dtype=np.float64)
-    tree = KDTree(data, leafsize=KNN_LEAF_SIZE)
-    sqdist, idx = tree.query(data if queries is None else
-                             np.ascontiguousarray(queries, dtype=np.float64), k=k,
-                             sqr_dists=True)
+    q = data if queries is None else np.ascontiguousarray(queries, dtype=np.float64)
+    if _openmp_inherited:
+        # A child forked after this process's OpenMP team started: GNU OpenMP's team does
+        # not survive fork (the child would wait for threads that do not exist).
+        from scipy.spatial import cKDTree
+        dist, idx = cKDTree(data).query(q, k=k, workers=1)
+        sqdist = np.square(dist).reshape(m, k)
+    else:
+        from pykdtree.kdtree import KDTree  # imported on first use: the module stays cheap
+        _openmp_started.set()
+        sqdist, idx = KDTree(data, leafsize=KNN_LEAF_SIZE).query(q, k=k, sqr_dists=True)
+        sqdist = sqdist.reshape(m, k)
     idx = idx.astype(np.int64, copy=False).reshape(m, k)
-    return (idx, sqdist.reshape(m, k)) if return_sqdist else idx
+    return (idx, sqdist) if return_sqdist else idx
+
+
+#: Set once this process has searched with pykdtree (its OpenMP team may be running).
+_openmp_started = threading.Event()
+#: True in a process forked after that (:func:`knn` then searches without OpenMP).
+_openmp_inherited = False
+
+
+def _after_fork_in_child() -> None:
+    global _openmp_inherited
+    _openmp_inherited = _openmp_inherited or _openmp_started.is_set()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 #: Points per leaf of the k-d tree of :func:`knn` (pykdtree's default).
