@@ -136,10 +136,10 @@ def test_rendered_cup_against_a_can_is_one_object_under_kinect_real_noise():
 def test_a_concave_patch_below_the_round_walls_lowest_point_is_not_taken():
     # A round segment seen only from 50 mm up (a sphere resting on a box) and a patch of
     # the box under it, flagged concave, its footprint inside the sphere's circle: a
-    # container's inside lies within its wall's heights.
+    # container's inside lies within its wall's heights (the two overlap by 2 mm here).
     rng = np.random.default_rng(9)
     upper = _wall(rng, (0.0, 0.0), CUP_R, (200.0, 340.0), (0.05, 0.09), 500)
-    under = _wall(rng, (0.0, 0.0), CUP_R - WALL, (20.0, 160.0), (0.0, 0.045), 300,
+    under = _wall(rng, (0.0, 0.0), CUP_R - WALL, (20.0, 160.0), (0.0, 0.052), 300,
                   inward=True)
     _, _, can = _cup_and_can(rng)
     got, _ = _run([upper, under, can], [OUTER, INNER, CAN], [-1, 7, -1])
