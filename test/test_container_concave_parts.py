@@ -4,9 +4,10 @@ A cup's inner back wall ends at its back rim; an object standing against the cup
 seen just beyond that rim, a wall's thickness behind it and with about the same normal, so
 the border votes may join the inner wall to that object before the container join. Then
 the segment holding the inner wall lies mostly outside the cup and the join refuses it.
-:func:`geomodel_ros.core.joins.join_contained_parts` with ``concave`` (the patch of every
-point whose patch is seen concave, -1 elsewhere) moves a concave patch that lies inside a
-round wall, below its rim, to the wall's segment; the rest of its segment stays. The desk
+:func:`geomodel_ros.core.joins.join_contained_parts` with ``patches`` (the smooth patch of
+every point and a test that tells which patches are seen concave) moves a concave patch
+that lies inside a round wall, within its heights, to the wall's segment; the rest of its
+segment stays. The desk
 is z = 0, heights are z, the sensor looks from -y.
 """
 
@@ -44,13 +45,27 @@ def _cup_and_can(rng, can_points=600):
     return outer, inner, can
 
 
-def _run(parts, segs, concave_ids):
+def _run(parts, segs, concave_flags, asked=None):
+    """Join with each part a patch of its own, ``concave_flags`` telling which are concave.
+
+    Return the labels of each part's points with and without the patches; the patch ids
+    the concavity test was asked about go to ``asked``.
+    """
     points = np.vstack([p for p, _ in parts])
     normals = np.vstack([q for _, q in parts])
     comp = np.repeat(segs, [len(p) for p, _ in parts])
-    concave = np.repeat(concave_ids, [len(p) for p, _ in parts])
+    labels = np.repeat(np.arange(len(parts)), [len(p) for p, _ in parts])
+    flags = np.asarray(concave_flags, dtype=bool)
+
+    def concave(which):
+        if asked is not None:
+            asked.extend(which.tolist())
+        out = np.zeros(len(parts), dtype=bool)
+        out[which] = flags[which]
+        return out
+
     valid = np.ones(len(comp), dtype=bool)
-    out = join_contained_parts(points, normals, comp, valid, DESK, None, concave)
+    out = join_contained_parts(points, normals, comp, valid, DESK, None, (labels, concave))
     bare = join_contained_parts(points, normals, comp, valid, DESK)
     bounds = np.cumsum([0] + [len(p) for p, _ in parts])
     return ([set(out[s:e].tolist()) for s, e in zip(bounds[:-1], bounds[1:])],
@@ -59,7 +74,10 @@ def _run(parts, segs, concave_ids):
 
 def test_an_inner_wall_joined_to_a_can_behind_goes_to_its_cup():
     outer, inner, can = _cup_and_can(np.random.default_rng(1))
-    got, bare = _run([outer, inner, can], [OUTER, INNER, CAN], [-1, 7, -1])
+    asked = []
+    got, bare = _run([outer, inner, can], [OUTER, INNER, CAN], [False, True, False], asked)
+    # Only the patch inside the wall and in another segment is tested for concavity.
+    assert asked == [1]
     # As a segment the inner wall and the can lie 1/3 inside the cup: refused.
     assert bare == [{OUTER}, {INNER}, {CAN}]
     # Its concave patch lies inside: it joins the cup, the can stays apart.
@@ -70,7 +88,7 @@ def test_an_inner_wall_joined_to_a_can_behind_goes_to_its_cup():
 @pytest.mark.parametrize("seed", [2, 3, 4])
 def test_the_join_holds_for_other_samples(seed):
     outer, inner, can = _cup_and_can(np.random.default_rng(seed))
-    got, _ = _run([outer, inner, can], [OUTER, INNER, CAN], [-1, 7, -1])
+    got, _ = _run([outer, inner, can], [OUTER, INNER, CAN], [False, True, False])
     assert got == [{OUTER}, {OUTER}, {CAN}]
 
 
@@ -82,15 +100,15 @@ def test_the_inner_wall_of_a_cup_beside_it_is_not_taken():
     far_inner = _wall(rng, (0.10, 0.0), CUP_R - WALL, (20.0, 160.0), (0.02, CUP_H), 300,
                       inward=True)
     far_can = _wall(rng, (0.10, CUP_R + CAN_R), CAN_R, (200.0, 340.0), (0.0, CAN_H), 600)
-    got, _ = _run([outer, far_inner, far_can], [OUTER, OTHER, OTHER], [-1, 7, -1])
+    got, _ = _run([outer, far_inner, far_can], [OUTER, OTHER, OTHER], [False, True, False])
     assert got == [{OUTER}, {OTHER}, {OTHER}]
 
 
 def test_convex_content_is_judged_as_its_segment_only():
-    # The same geometry with the inner piece flagged convex (-1): a fruit in the cup that
+    # The same geometry with the inner piece not concave: a fruit in the cup that
     # joined the can is no inner wall; its segment stays as the segment test decides.
     outer, inner, can = _cup_and_can(np.random.default_rng(6))
-    got, bare = _run([outer, inner, can], [OUTER, INNER, CAN], [-1, -1, -1])
+    got, bare = _run([outer, inner, can], [OUTER, INNER, CAN], [False, False, False])
     assert got == bare == [{OUTER}, {INNER}, {CAN}]
 
 
@@ -101,7 +119,7 @@ def test_a_concave_patch_above_the_rim_is_not_taken():
     outer, _, can = _cup_and_can(rng)
     above = _wall(rng, (0.0, 0.0), CUP_R - WALL, (20.0, 160.0), (CUP_H + 0.01, CUP_H + 0.06),
                   300, inward=True)
-    got, _ = _run([outer, above, can], [OUTER, INNER, CAN], [-1, 7, -1])
+    got, _ = _run([outer, above, can], [OUTER, INNER, CAN], [False, True, False])
     assert got == [{OUTER}, {INNER}, {CAN}]
 
 
@@ -110,7 +128,7 @@ def test_a_concave_patch_of_too_few_points_is_not_judged():
     outer, _, can = _cup_and_can(rng)
     small = _wall(rng, (0.0, 0.0), CUP_R - WALL, (20.0, 160.0), (0.02, CUP_H),
                   CONTAINED_MIN_POINTS - 1, inward=True)
-    got, _ = _run([outer, small, can], [OUTER, INNER, CAN], [-1, 7, -1])
+    got, _ = _run([outer, small, can], [OUTER, INNER, CAN], [False, True, False])
     assert got == [{OUTER}, {INNER}, {CAN}]
 
 
@@ -142,5 +160,5 @@ def test_a_concave_patch_below_the_round_walls_lowest_point_is_not_taken():
     under = _wall(rng, (0.0, 0.0), CUP_R - WALL, (20.0, 160.0), (0.0, 0.052), 300,
                   inward=True)
     _, _, can = _cup_and_can(rng)
-    got, _ = _run([upper, under, can], [OUTER, INNER, CAN], [-1, 7, -1])
+    got, _ = _run([upper, under, can], [OUTER, INNER, CAN], [False, True, False])
     assert got == [{OUTER}, {INNER}, {CAN}]
