@@ -350,13 +350,15 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     wlabel = np.full(len(wp), -1, dtype=np.int64)
     for sid, sel in enumerate(supports):
         wlabel[sel] = sid
-    comp, comp_ok = _object_segments(wp, counts, wlabel < 0, params, grid, noise, quantum, near)
+    comp, comp_ok, patches = _object_segments(wp, counts, wlabel < 0, params, grid, noise,
+                                              quantum, near)
     if params.seg_max_occlusion_gap > 0:
         comp = join_occluded_parts(wp, wn, comp, comp_ok, params)
     comp = join_terraces(wp, comp, comp_ok, step, params)
     if params.seg_join_contained and supports:
         comp = join_contained_parts(wp, wn, comp, comp_ok,
-                                    fit_plane_svd(take_rows(wp, supports[0])), noise)
+                                    fit_plane_svd(take_rows(wp, supports[0])), noise,
+                                    patches)
         if links is not None:
             taken = _return_floors(wp, wn, comp, comp_ok, wlabel, supports, params, links,
                                    noise)
@@ -402,7 +404,9 @@ def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
                      grid: GridCloud | None = None, noise: DepthNoise | None = None,
                      quantum: NDArray[np.float64] | None = None,
                      near: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
-                     ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+                     ) -> tuple[NDArray[np.int64], NDArray[np.bool_],
+                                tuple[NDArray[np.int64],
+                                      Callable[[NDArray[np.int64]], NDArray[np.bool_]]]]:
     """Convex objects among the ``free`` (M,) working points (not in a support).
 
     With the organized ``grid`` of ``wp`` the free points' normals come from its neighbour
@@ -419,12 +423,18 @@ def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
     comp_ok : (M,) bool array
         Points of the objects with at least ``seg_min_cluster_points`` input points (the
         smaller ones are noise).
+    patches : (labels, concave)
+        Smooth patch of every free working point (-1 elsewhere) and the test that tells
+        which patches are concave (:func:`_convex_objects`; none concave without free
+        points).
     """
     rest_idx = np.flatnonzero(free)
     comp = np.full(len(wp), -1, dtype=np.int64)
+    labels = np.full(len(wp), -1, dtype=np.int64)
+    concave = _none_concave
     if len(rest_idx) >= MIN_WORKING_POINTS:
         # Normals recomputed without the supports, so they do not blend into the desk.
-        comp[rest_idx] = _convex_objects(
+        comp[rest_idx], labels[rest_idx], concave = _convex_objects(
             take_rows(wp, rest_idx), counts[rest_idx], params, noise,
             None if grid is None else grid.restricted(rest_idx),
             None if quantum is None else quantum[rest_idx],
@@ -434,7 +444,12 @@ def _object_segments(wp: NDArray[np.float64], counts: NDArray[np.int64],
     size = np.bincount(comp[rest], weights=counts[rest], minlength=int(comp.max()) + 1)
     comp_ok = rest.copy()
     comp_ok[rest] = (size >= params.seg_min_cluster_points)[comp[rest]]
-    return comp, comp_ok
+    return comp, comp_ok, (labels, concave)
+
+
+def _none_concave(which: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Return no patch concave (the test of :func:`_object_segments` without patches)."""
+    return np.zeros(int(which.max(initial=-1)) + 1, dtype=bool)
 
 
 def _size_ranks(comp: NDArray[np.int64], counts: NDArray[np.int64]) -> NDArray[np.int64]:
@@ -694,7 +709,9 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                     params: ModelingParams, noise: DepthNoise | None = None,
                     neighbourhood: tuple[NDArray, ...] | None = None,
                     quantum: NDArray[np.float64] | None = None,
-                    own: tuple[NDArray, ...] | None = None) -> NDArray[np.int64]:
+                    own: tuple[NDArray, ...] | None = None
+                    ) -> tuple[NDArray[np.int64], NDArray[np.int64],
+                               Callable[[NDArray[np.int64]], NDArray[np.bool_]]]:
     """Object label of every point of a support-free working cloud (local convexity).
 
     Parameters
@@ -714,8 +731,16 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
 
     Returns
     -------
-    (M,) int64 array
+    objects : (M,) int64 array
         Object id 0 .. K-1 of every point.
+    patches : (M,) int64 array
+        Smooth patch 0 .. P-1 of every point (the objects are groups of them).
+    concave : callable
+        Given patch ids (Q,), tell which patches are concave as seen from the sensor
+        ((P,) bool array, :func:`_concave_patches`: a container's inside). An object may
+        hold such a patch together with patches of another object (the inner wall of a cup
+        against a can behind it, the two meeting smoothly at the cup's rim); the container
+        join judges it on its own (:func:`geomodel_ros.core.joins.join_contained_parts`).
 
     Notes
     -----
@@ -777,7 +802,9 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                         pass_rate=1.0 if noise is None else _surface_pass_rate(
                             points, normals, nbrs, sqdist, surfaces, max_edge,
                             params.seg_concavity_tolerance, step, step > floor, parallel))
-    return obj[patches].astype(np.int64)
+    return obj[patches].astype(np.int64), patches, \
+        lambda which: _concave_patches(points, normals, nbrs, sqdist, patches, n_p, max_edge,
+                                       which)
 
 
 def _planar_within_noise(off_plane: NDArray[np.float64], noise: NDArray[np.float64],
