@@ -797,13 +797,16 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     return obj[patches].astype(np.int64)
 
 
-def _fold_sides(normals: NDArray[np.float64]) -> tuple[NDArray[np.bool_], float, float]:
-    """Split a patch's unit normals (N, 3) into two clusters; return side, angle, middle.
+def _fold_sides(normals: NDArray[np.float64]
+                ) -> tuple[NDArray[np.bool_], float, float, NDArray[np.bool_]]:
+    """Split a patch's unit normals (N, 3) into two clusters.
 
-    The clusters start from the split along the normals' widest spread and are refined
-    as spherical 2-means (:data:`FOLD_ITERATIONS`). ``angle`` [rad] is that between the
-    two means; ``middle`` is the share of the normals between them (on the great circle
-    through the means) that lie in the middle half (:data:`FOLD_MIDDLE_SHARE`).
+    Returns side (N,) bool, angle, middle and core (N,) bool. The clusters start from the
+    split along the normals' widest spread and are refined as spherical 2-means
+    (:data:`FOLD_ITERATIONS`). ``angle`` [rad] is that between the two means; along the
+    great circle through them, ``middle`` is the share of the normals between the means
+    that lie in the middle half (:data:`FOLD_MIDDLE_SHARE`), and ``core`` marks the normals
+    outside that half (those of the faces, not of the strip that rounds a fold).
     """
     mu = normals.mean(axis=0)
     d = normals - mu
@@ -812,7 +815,7 @@ def _fold_sides(normals: NDArray[np.float64]) -> tuple[NDArray[np.bool_], float,
     c = np.zeros((2, 3))
     for _ in range(FOLD_ITERATIONS):
         if side.all() or not side.any():
-            return side, 0.0, 1.0
+            return side, 0.0, 1.0, side
         c[0] = normals[~side].sum(axis=0)
         c[1] = normals[side].sum(axis=0)
         c /= np.linalg.norm(c, axis=1, keepdims=True)
@@ -822,11 +825,11 @@ def _fold_sides(normals: NDArray[np.float64]) -> tuple[NDArray[np.bool_], float,
     e1 = c[1] - cos * c[0]
     norm = float(np.linalg.norm(e1))
     if norm < _FOLD_TINY or side.all() or not side.any():
-        return side, angle, 1.0
+        return side, angle, 1.0, side
     t = np.arctan2(normals @ (e1 / norm), normals @ c[0]) / angle
     between = np.count_nonzero((t >= 0.0) & (t <= 1.0))
-    middle = np.count_nonzero((t > 0.25) & (t < 0.75))
-    return side, angle, middle / max(between, 1)
+    mid = (t > 0.25) & (t < 0.75)
+    return side, angle, np.count_nonzero(mid) / max(between, 1), ~mid
 
 
 def _planar_face(points: NDArray[np.float64], noise: NDArray[np.float64]) -> bool:
@@ -860,7 +863,9 @@ def _split_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
     into two clusters (:func:`_fold_sides`) farther apart than ``min_angle`` [rad] (no one
     link may turn so far), few of them in between (a surface that turns steadily, a can's
     side or a sphere, fills the middle), and at least one cluster lies on a plane within
-    the noise (:func:`_planar_face`: a face, not a bowl's two curved sides). Each side's
+    the noise (:func:`_planar_face` over the normals outside the middle: a face, not a
+    bowl's two curved sides), and the fold is concave (a convex object's faces meet at
+    convex folds only, and their border votes would join them again). Each side's
     connected pieces of at least ``min_piece`` points become patches (the largest keeps the
     patch's id, so ids stay 0 .. P-1 for the ones below P); smaller pieces return to the
     piece of the same patch they touch most, else the largest. Whether the pieces are one
@@ -878,7 +883,7 @@ def _split_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
     split = np.zeros(n_p, dtype=np.bool_)
     for pid in np.flatnonzero(np.diff(starts) >= 2 * min_piece):
         idx = order[starts[pid]:starts[pid + 1]]
-        s, angle, middle = _fold_sides(normals[idx])
+        s, angle, middle, core = _fold_sides(normals[idx])
         if angle <= min_angle or middle > FOLD_MIDDLE_SHARE:
             continue
         if min(int(s.sum()), int((~s).sum())) < min_piece:
@@ -889,8 +894,8 @@ def _split_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
         if float((q[s].mean(axis=0) - q[~s].mean(axis=0))
                  @ (nr[s].mean(axis=0) - nr[~s].mean(axis=0))) >= 0.0:
             continue
-        if not (_planar_face(points[idx[s]], noise[idx[s]])
-                or _planar_face(points[idx[~s]], noise[idx[~s]])):
+        if not (_planar_face(points[idx[s & core]], noise[idx[s & core]])
+                or _planar_face(points[idx[~s & core]], noise[idx[~s & core]])):
             continue
         side[idx] = s
         split[pid] = True
