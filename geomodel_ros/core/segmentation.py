@@ -864,7 +864,9 @@ def _split_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
     link may turn so far), few of them in between (a surface that turns steadily, a can's
     side or a sphere, fills the middle), and at least one cluster lies on a plane within
     the noise (:func:`_planar_face` over the normals outside the middle: a face, not a
-    bowl's two curved sides), and the fold is concave (a convex object's faces meet at
+    bowl's two curved sides) while the whole patch does not (the fold stands out of the
+    noise: at a far range's noise a small patch is a plane whatever its normals), and the
+    fold is concave (a convex object's faces meet at
     convex folds only, and their border votes would join them again). Each side's
     connected pieces of at least ``min_piece`` points become patches (the largest keeps the
     patch's id, so ids stay 0 .. P-1 for the ones below P); smaller pieces return to the
@@ -894,7 +896,10 @@ def _split_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
         if float((q[s].mean(axis=0) - q[~s].mean(axis=0))
                  @ (nr[s].mean(axis=0) - nr[~s].mean(axis=0))) >= 0.0:
             continue
-        if not (_planar_face(points[idx[s & core]], noise[idx[s & core]])
+        # A face on one side at least, and the fold seen above the noise: the patch as a
+        # whole is no plane within it.
+        if _planar_face(points[idx[core]], noise[idx[core]]) or not (
+                _planar_face(points[idx[s & core]], noise[idx[s & core]])
                 or _planar_face(points[idx[~s & core]], noise[idx[~s & core]])):
             continue
         side[idx] = s
