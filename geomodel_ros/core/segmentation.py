@@ -891,8 +891,8 @@ def _split_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
         if min(int(s.sum()), int((~s).sum())) < min_piece:
             continue
         q, nr = points[idx], normals[idx]
-        # A convex object's faces meet at convex folds only: the normals turn towards
-        # the way from one side's centroid to the other's at a concave one.
+        # A convex object's faces meet at convex folds only; at a concave one the normals
+        # turn against the way from one side's centroid to the other's.
         if float((q[s].mean(axis=0) - q[~s].mean(axis=0))
                  @ (nr[s].mean(axis=0) - nr[~s].mean(axis=0))) >= 0.0:
             continue
