@@ -180,6 +180,18 @@ SUPPORT_AROUND_MAX_CELLS = 16
 #: twice as large until it fits.
 AROUND_MAX_CELLS = 1 << 22
 
+#: Share of a patch's normals, among those between its two normal clusters' means, that
+#: lie in the middle half between them: a surface that turns steadily (a can's side, a
+#: sphere) puts half of them there, two faces met at a fold only the strip that rounds the
+#: fold; a patch at most half as full there as a steady turn is two faces
+#: (:func:`_split_folds`).
+FOLD_MIDDLE_SHARE = 0.25
+#: Normal-refinement passes of the two clusters of a patch's normals (2-means from the
+#: split along their widest spread; it settles within a few).
+FOLD_ITERATIONS = 5
+#: Norm below which two unit normal means count as one direction (no great circle).
+_FOLD_TINY = 1e-12
+
 
 class DepthNoise(Protocol):
     """Depth noise of a sensor as a function of range (e.g. a frame's noise estimate)."""
@@ -779,6 +791,9 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
         patches, stepped = _split_levels(points, normals, nbrs, sqdist, patches, max_edge,
                                          noise_w, floor, params.min_face_points,
                                          params.face_angle_threshold)
+    if noise is not None:  # two faces grown into one patch across a fold in small turns
+        patches = _split_folds(points, normals, nbrs, sqdist, patches, max_edge, noise_w,
+                               params.min_face_points, params.face_angle_threshold)
     n_p = int(patches.max()) + 1
     # Points smooth only by the noise test sit where the noise or an edge raised their
     # variation: next to a patch border their normals are refitted from their own patch.
@@ -805,6 +820,153 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     return obj[patches].astype(np.int64), patches, \
         lambda which: _concave_patches(points, normals, nbrs, sqdist, patches, n_p, max_edge,
                                        which)
+
+
+def _fold_sides(normals: NDArray[np.float64]
+                ) -> tuple[NDArray[np.bool_], float, float, NDArray[np.bool_]]:
+    """Split a patch's unit normals (N, 3) into two clusters.
+
+    Returns side (N,) bool, angle, middle and core (N,) bool. The clusters start from the
+    split along the normals' widest spread and are refined as spherical 2-means
+    (:data:`FOLD_ITERATIONS`). ``angle`` [rad] is that between the two means; along the
+    great circle through them, ``middle`` is the share of the normals between the means
+    that lie in the middle half (:data:`FOLD_MIDDLE_SHARE`), and ``core`` marks the normals
+    outside that half (those of the faces, not of the strip that rounds a fold).
+    """
+    mu = normals.mean(axis=0)
+    d = normals - mu
+    _, vec = np.linalg.eigh(d.T @ d)
+    side = d @ vec[:, 2] > 0.0
+    c = np.zeros((2, 3))
+    for _ in range(FOLD_ITERATIONS):
+        if side.all() or not side.any():
+            return side, 0.0, 1.0, side
+        c[0] = normals[~side].sum(axis=0)
+        c[1] = normals[side].sum(axis=0)
+        c /= np.linalg.norm(c, axis=1, keepdims=True)
+        side = normals @ c[1] > normals @ c[0]
+    cos = float(np.clip(c[0] @ c[1], -1.0, 1.0))
+    angle = math.acos(cos)
+    e1 = c[1] - cos * c[0]
+    norm = float(np.linalg.norm(e1))
+    if norm < _FOLD_TINY or side.all() or not side.any():
+        return side, angle, 1.0, side
+    t = np.arctan2(normals @ (e1 / norm), normals @ c[0]) / angle
+    between = np.count_nonzero((t >= 0.0) & (t <= 1.0))
+    mid = (t > 0.25) & (t < 0.75)
+    return side, angle, np.count_nonzero(mid) / max(between, 1), ~mid
+
+
+def _planar_face(points: NDArray[np.float64], noise: NDArray[np.float64]) -> bool:
+    """Tell whether points (N, 3) lie on their best plane within their noise (N,) [m].
+
+    The bound is that of :func:`_planar_within_noise` for one neighbourhood of N points:
+    the mean square off the plane of N points with independent noise and no shape is
+    (N - 3) / N of their mean variance, :data:`PLANAR_NOISE_SIGMAS` standard deviations
+    above that the most the noise gives. The noise is the frame's whole noise (the part
+    neighbours share too: over a face it shows as well).
+    """
+    n = len(points)
+    if n < 4:
+        return False
+    dof = n - 3
+    d = points - points.mean(axis=0)
+    eig = np.linalg.eigvalsh(d.T @ d)
+    bound = (dof + PLANAR_NOISE_SIGMAS * math.sqrt(2.0 * dof)) / n
+    return float(eig[0]) / n <= bound * float(np.mean(np.square(noise)))
+
+
+def _split_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
+                 nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
+                 patches: NDArray[np.int64], max_edge: float, noise: NDArray[np.float64],
+                 min_piece: int, min_angle: float) -> NDArray[np.int64]:
+    """Split patches that are two faces met at a fold crossed in small normal turns.
+
+    A patch grows over links whose normals turn by less than the face angle, so two
+    faces that meet at a fold which the normal estimate rounds over a few neighbourhoods
+    (two touching boxes under Kinect noise) grow into one. Such a patch's normals fall
+    into two clusters (:func:`_fold_sides`) farther apart than ``min_angle`` [rad] (no one
+    link may turn so far), few of them in between (a surface that turns steadily, a can's
+    side or a sphere, fills the middle), and at least one cluster lies on a plane within
+    the noise (:func:`_planar_face` over the normals outside the middle: a face, not a
+    bowl's two curved sides) while the whole patch does not (the fold stands out of the
+    noise: at a far range's noise a small patch is a plane whatever its normals), and the
+    fold is concave (a convex object's faces meet at
+    convex folds only, and their border votes would join them again). Each side's
+    connected pieces of at least ``min_piece`` points become patches (the largest keeps the
+    patch's id, so ids stay 0 .. P-1 for the ones below P); smaller pieces return to the
+    piece of the same patch they touch most, else the largest. Whether the pieces are one
+    object is left to the border votes, as for any two patches.
+
+    Returns
+    -------
+    (M,) int64 array
+        Patch ids, the new pieces numbered from the old count on.
+    """
+    n_p = int(patches.max()) + 1
+    order = np.argsort(patches, kind="stable")
+    starts = np.searchsorted(patches[order], np.arange(n_p + 1))
+    side = np.zeros(len(points), dtype=np.bool_)
+    split = np.zeros(n_p, dtype=np.bool_)
+    for pid in np.flatnonzero(np.diff(starts) >= 2 * min_piece):
+        idx = order[starts[pid]:starts[pid + 1]]
+        s, angle, middle, core = _fold_sides(normals[idx])
+        if angle <= min_angle or middle > FOLD_MIDDLE_SHARE:
+            continue
+        if min(int(s.sum()), int((~s).sum())) < min_piece:
+            continue
+        q, nr = points[idx], normals[idx]
+        # A convex object's faces meet at convex folds only; at a concave one the normals
+        # turn against the way from one side's centroid to the other's.
+        if float((q[s].mean(axis=0) - q[~s].mean(axis=0))
+                 @ (nr[s].mean(axis=0) - nr[~s].mean(axis=0))) >= 0.0:
+            continue
+        # A face on one side at least, and the fold seen above the noise: the patch as a
+        # whole is no plane within it.
+        if _planar_face(points[idx[core]], noise[idx[core]]) or not (
+                _planar_face(points[idx[s & core]], noise[idx[s & core]])
+                or _planar_face(points[idx[~s & core]], noise[idx[~s & core]])):
+            continue
+        side[idx] = s
+        split[pid] = True
+    if not split.any():
+        return patches
+    m = len(points)
+    inside = split[patches]
+    keep = inside[:, None] & (patches[nbrs] == patches[:, None]) \
+        & (side[nbrs] == side[:, None]) & (nbrs != np.arange(m)[:, None]) \
+        & (sqdist <= max_edge * max_edge)
+    _, comp = link_components(nbrs, keep)
+    comp = np.where(inside, comp, -1).astype(np.int64)
+    size = np.bincount(comp[inside], minlength=int(comp.max()) + 1)
+    small = inside & (size[np.maximum(comp, 0)] < min_piece)
+    # Small pieces join the big piece of their patch their points link to most.
+    for _ in range(FOLD_ITERATIONS):
+        if not small.any():
+            break
+        nb = nbrs[small]
+        cand = np.where((~small[nb]) & (patches[nb] == patches[small][:, None])
+                        & (nb >= 0), comp[nb], -1)
+        best = cand.max(axis=1)
+        fill = best >= 0
+        rows = np.flatnonzero(small)[fill]
+        comp[rows] = best[fill]
+        small[rows] = False
+    out = patches.copy()
+    big = inside & ~small
+    # The largest piece of a patch keeps its id; the others are numbered on.
+    piece_patch = np.full(len(size), -1, dtype=np.int64)
+    piece_patch[comp[big]] = patches[big]
+    pieces = np.flatnonzero(piece_patch >= 0)
+    rank = np.lexsort((-size[pieces], piece_patch[pieces]))
+    pieces = pieces[rank]
+    first = np.r_[True, piece_patch[pieces][1:] != piece_patch[pieces][:-1]]
+    new_id = np.full(len(size), -1, dtype=np.int64)
+    new_id[pieces[first]] = piece_patch[pieces[first]]
+    new_id[pieces[~first]] = n_p + np.arange(int((~first).sum()))
+    out[big] = new_id[comp[big]]
+    # Leftover small points keep the patch's id (its largest piece).
+    return out
 
 
 def _planar_within_noise(off_plane: NDArray[np.float64], noise: NDArray[np.float64],
