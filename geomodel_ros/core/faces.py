@@ -768,7 +768,8 @@ def face_plane(points: NDArray[np.float64], normals: NDArray[np.float64], thresh
 
 
 def split_plane_unions(cloud: WorkingCloud, faces: FaceSet, threshold: float,
-                       perpendicular_tolerance: float, min_face_points: int) -> FaceSet:
+                       perpendicular_tolerance: float, min_face_points: int,
+                       planes: dict[int, tuple[PlaneModel, float]] | None = None) -> FaceSet:
     """Take apart faces that are two or three perpendicular planes grown together.
 
     On real sensor data the normals turn gradually across a box's edge (depth noise,
@@ -778,6 +779,11 @@ def split_plane_unions(cloud: WorkingCloud, faces: FaceSet, threshold: float,
     three mutually perpendicular planes (within ``perpendicular_tolerance`` [rad] of
     90 degrees) hold most of its points, each becomes a face of its own and the rest of
     its points (the rounded edge) join the nearest one.
+
+    ``planes``, when given, receives face id -> :func:`face_plane` of every face whose
+    plane was fitted here and that is left whole (its working points, in ascending
+    order, are those of the face of that id in the result), for callers that need the
+    same plane again.
     """
     labels = faces.labels.copy()
     top = faces.count
@@ -787,12 +793,17 @@ def split_plane_unions(cloud: WorkingCloud, faces: FaceSet, threshold: float,
         if len(w) < MIN_UNION_PLANES * min_face_points:
             continue
         pts = cloud.points[w]
-        if face_plane(pts, cloud.normals[w], threshold)[1] <= threshold * FLAT_SPREAD_SHARE:
+        fitted = face_plane(pts, cloud.normals[w], threshold)
+        if planes is not None:
+            planes[f] = fitted
+        if fitted[1] <= threshold * FLAT_SPREAD_SHARE:
             continue  # the spread that makes a face planar whatever its CF
         parts = _plane_parts(pts, cloud.normals[w], threshold, perpendicular_tolerance,
                              min_face_points)
         if parts is None:
             continue
+        if planes is not None:
+            del planes[f]
         local = np.full(len(w), -1, dtype=np.int64)
         for i, part in enumerate(parts):
             local[part] = i

@@ -18,8 +18,8 @@ from scipy.spatial import ConvexHull, QhullError
 
 from geomodel_ros.core.fastmath import row_norms
 
-__all__ = ["ray_to_plane", "ray_scale_to_plane", "ray_offset_to_plane", "ray_to_cylinder",
-           "hull_candidates",
+__all__ = ["ray_to_plane", "ray_scale_to_plane", "ray_offset_to_plane", "ray_offset_from",
+           "ray_to_cylinder", "hull_candidates",
            "min_area_rectangle", "orthonormalize_axes", "interval", "edge_gap"]
 
 #: A ray that meets a plane at a cosine below this (more obliquely than about 78 deg)
@@ -80,7 +80,12 @@ def ray_offset_to_plane(points: NDArray[np.float64], normal: NDArray[np.float64]
     more obliquely than ``arccos(min_cos)`` (ill-conditioned: judged as on the plane), inf
     where it never meets it.
     """
-    height, dist = points @ normal, row_norms(points)
+    return ray_offset_from(points @ normal, row_norms(points), d, min_cos)
+
+
+def ray_offset_from(height: NDArray[np.float64], dist: NDArray[np.float64], d: float,
+                    min_cos: float = MIN_RAY_COS) -> NDArray[np.float64]:
+    """Return :func:`ray_offset_to_plane` from the points' ``height`` n . x and range |x| (n,)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         s = -d / height
     off = np.where(np.isfinite(s) & (s > 0), np.abs(s - 1.0) * dist, np.inf)

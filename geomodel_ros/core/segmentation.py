@@ -48,7 +48,7 @@ from geomodel_ros.core.joins import (contained_floors, join_contained_parts, joi
                                      join_terraces, merge_patches)
 from geomodel_ros.core.organized import GridCloud, grid_cloud
 from geomodel_ros.core.params import ModelingParams
-from geomodel_ros.core.ransac import fit_plane_svd
+from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd
 from geomodel_ros.core.support import (REFIT_MAX_POINTS, SUPPORT_LINK_VOXELS,
                                       support_plane_equation, support_planes)
 
@@ -368,12 +368,11 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
         comp = join_occluded_parts(wp, wn, comp, comp_ok, params)
     comp = join_terraces(wp, comp, comp_ok, step, params)
     if params.seg_join_contained and supports:
-        comp = join_contained_parts(wp, wn, comp, comp_ok,
-                                    fit_plane_svd(take_rows(wp, supports[0])), noise,
-                                    patches)
+        first = fit_plane_svd(take_rows(wp, supports[0]))
+        comp = join_contained_parts(wp, wn, comp, comp_ok, first, noise, patches)
         if links is not None:
             taken = _return_floors(wp, wn, comp, comp_ok, wlabel, supports, params, links,
-                                   noise)
+                                   noise, first)
             if floors is not None:
                 floors[taken] = True
     wlabel[comp_ok] = len(supports) + _size_ranks(comp[comp_ok], counts[comp_ok])
@@ -384,7 +383,8 @@ def _return_floors(wp: NDArray[np.float64], wn: NDArray[np.float64], comp: NDArr
                    comp_ok: NDArray[np.bool_], wlabel: NDArray[np.int64],
                    supports: list[NDArray[np.int64]], params: ModelingParams,
                    links: tuple[NDArray[np.int64], NDArray[np.float64]],
-                   noise: DepthNoise | None) -> NDArray[np.int64]:
+                   noise: DepthNoise | None, first: PlaneModel | None = None
+                   ) -> NDArray[np.int64]:
     """Give the floors of open containers that the supports took back to the containers.
 
     In place, and return their working points: the points that
@@ -393,15 +393,16 @@ def _return_floors(wp: NDArray[np.float64], wn: NDArray[np.float64], comp: NDArr
     ``comp_ok``). An object stands on a support when its lowest working point
     lies within the support's band plus one voxel (a working point is the centroid of its
     voxel's points). Supports are visited in order, the objects as the earlier ones left
-    them.
+    them. ``first``: the least-squares plane of the first support's working points when
+    already fitted (they are the same points here: the first support is visited first).
     """
     in_support = wlabel >= 0
     stand = params.seg_plane_threshold + params.seg_voxel_size
     link = SUPPORT_LINK_VOXELS * params.seg_voxel_size
     every = []
     for sid, sel in enumerate(supports):
-        taken, owner = contained_floors(wp, wn, comp, comp_ok, sel,
-                                        fit_plane_svd(take_rows(wp, sel)), in_support,
+        plane = first if sid == 0 and first is not None else fit_plane_svd(take_rows(wp, sel))
+        taken, owner = contained_floors(wp, wn, comp, comp_ok, sel, plane, in_support,
                                         *links, link, stand, noise)
         if len(taken):
             comp[taken], comp_ok[taken] = owner, True

@@ -11,7 +11,8 @@ from geomodel_ros.core import obb
 from geomodel_ros.core.fastmath import take_rows
 from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane
 from geomodel_ros.core.fitting.curved import CurvedFit
-from geomodel_ros.core.fitting.measure import arc_span, nearest_surface, steep_arc_span
+from geomodel_ros.core.fitting.measure import (arc_span, nearest_surface, scatter_incidence,
+                                               steep_arc_span)
 from geomodel_ros.core.fitting.plane import RAY_SHIFT_FACTOR
 from geomodel_ros.core.fitting.result import FitTask, Rejected
 from geomodel_ros.core.fitting.verify import (OUTLIER_FACTOR, check_arc, check_axis,
@@ -121,9 +122,11 @@ def verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | N
     # With the measured noise, only the points seen steeply enough count for the arc
     # (:func:`~.measure.steep_arc_span`); ``fixed`` keeps every point's arc.
     steep = cloud.params.noise_model == "auto"
-    arc = steep_arc_span(side_points, origin, model.axis, model.distance) if steep else \
+    # The arc and the scatter test judge the same sample's incidences: computed once.
+    cos = scatter_incidence(model.distance, side_points) if steep else None
+    arc = steep_arc_span(side_points, origin, model.axis, model.distance, cos) if steep else \
         arc_span(side_points, origin, model.axis)
     bad = check_arc(arc, cloud.params, kind, steep) or \
-        check_noise_scatter(side_points, model.distance, cloud.params, kind) or \
+        check_noise_scatter(side_points, model.distance, cloud.params, kind, cos) or \
         check_profile_bow(side_points, model, cloud, kind)
     return bad if bad else (caps, nearest, side_points)

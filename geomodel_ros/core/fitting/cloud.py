@@ -18,6 +18,7 @@ from geomodel_ros.core.fitting.slow_bend import SlowBend, SlowBendNull, bends_be
 from geomodel_ros.core.model_graph import FaceInfo
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary
+from geomodel_ros.core.ransac import PlaneModel
 from geomodel_ros.core.surface_type import FaceBend, FaceFeature, face_bend, face_feature
 from geomodel_ros.core.view import SceneView
 
@@ -290,11 +291,14 @@ def bends_beyond_noise(points: NDArray[np.float64], mass: NDArray[np.float64],
 
 def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.int64],
                    params: ModelingParams, correlation: float = 1.0,
-                   slow_null: SlowBendNull | None = None) -> ObjectFace:
+                   slow_null: SlowBendNull | None = None,
+                   fitted: tuple[PlaneModel, float] | None = None) -> ObjectFace:
     """Surface type, normal and plane of the face with working points ``widx``.
 
     ``correlation``: the frame's ratio of slow to local noise, ``slow_null`` the bends of
-    its slow errors (see :func:`_bent`).
+    its slow errors (see :func:`_bent`). ``fitted``: the face's
+    :func:`~geomodel_ros.core.faces.face_plane` when already known (the same points and
+    normals, in the same order, with ``ransac_threshold``).
     """
     # The face's working points (M, 3) [m], their unit normals (M, 3) and counts (M,),
     # gathered once (none of the calls below writes to them).
@@ -304,7 +308,8 @@ def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.i
     # (the full-resolution covariance at a fraction of the cost).
     feat = face_feature(points, params.cf_weights, params.cf_threshold,
                         params.cf_radius_fraction, counts)
-    plane, plane_rmse = face_plane(points, normals, params.ransac_threshold)
+    plane, plane_rmse = face_plane(points, normals, params.ransac_threshold) \
+        if fitted is None else fitted
     planar = _checked_planar(feat.planar, plane_rmse, params.ransac_threshold,
                              lambda: _bent(points, counts, plane.normal,
                                            feat, params, correlation, slow_null))
@@ -341,17 +346,21 @@ def build_faces(points: NDArray[np.float64], params: ModelingParams,
     """
     wc = build_working_cloud(points, params.voxel_size, params.normal_neighbors, face_labels,
                              params.max_working_points)
+    planes: dict[int, tuple[PlaneModel, float]] = {}
     if face_labels is not None:
         fs = faces_from_labels(wc, face_labels)
     else:
         fs = split_faces(wc, params.face_angle_threshold, params.edge_variation_threshold,
                          params.min_face_points)
         fs = split_plane_unions(wc, fs, params.ransac_threshold, params.angle_tolerance,
-                                params.min_face_points)
+                                params.min_face_points, planes)
     order, bounds = _grouped(fs.labels[wc.point_to_working], fs.count)
     worder, wbounds = _grouped(fs.labels, fs.count)
+    # A face's plane fitted while looking for plane unions is fitted to the same working
+    # points (ascending) and normals here: it is taken instead of fitted again.
     faces = [_describe_face(wc, worder[wbounds[f]:wbounds[f + 1]],
-                            order[bounds[f]:bounds[f + 1]], params, correlation, slow_null)
+                            order[bounds[f]:bounds[f + 1]], params, correlation, slow_null,
+                            planes.get(f))
              for f in range(fs.count)]
     return wc, faces, fs.adjacency
 
@@ -384,8 +393,10 @@ def build_flat_face(points: NDArray[np.float64], params: ModelingParams,
         return None
     normal = toward_sensor(plane.normal, centroid(wc.points))
     wc.normals = np.tile(normal, (len(wc.points), 1))
+    # face_plane returned the least-squares plane on its first test (the spread is within
+    # FLAT_SPREAD_SHARE), which does not read the normals: the face's plane is that one.
     face = _describe_face(wc, np.arange(len(wc.points)), np.arange(len(points)), params,
-                          correlation, slow_null)
+                          correlation, slow_null, (plane, spread))
     if not face.info.planar:
         return None   # a curved face's tests read the point normals and neighbours
     return wc, [face], np.zeros((1, 1), dtype=bool)

@@ -6,7 +6,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core import obb
-from geomodel_ros.core.fastmath import take_rows
+from geomodel_ros.core.fastmath import row_norms, take_rows
 from geomodel_ros.core.fitting.cloud import ObjectCloud
 from geomodel_ros.core.fitting.completion import complete_box
 from geomodel_ros.core.fitting.measure import nearest_surface, rms, without_strays
@@ -70,9 +70,12 @@ def _projections(cloud: ObjectCloud, planes: list[PlaneModel], nearest: NDArray[
         sel = nearest == fi
         if params.reproject_along_rays:
             pts = take_rows(cloud.points, sel)
-            q[sel] = obb.ray_to_plane(pts, model.normal, model.d, RAY_SHIFT_FACTOR * thr)
+            # The points' heights over the plane and ranges serve the move and the offset.
+            height, dist = pts @ model.normal, row_norms(pts)
+            q[sel] = pts * obb.ray_scale_to_plane(height, dist, model.d,
+                                                  RAY_SHIFT_FACTOR * thr)[:, None]
             idx = np.flatnonzero(sel)
-            off = obb.ray_offset_to_plane(pts, model.normal, model.d) > RAY_DEPTH_FACTOR * thr
+            off = obb.ray_offset_from(height, dist, model.d) > RAY_DEPTH_FACTOR * thr
             if np.mean(off) <= MAX_RAY_OUTLIER_SHARE:
                 used[idx[off]] = False
                 sel[idx[off]] = False

@@ -13,7 +13,7 @@ from geomodel_ros.core.noise import MIN_INCIDENCE_COS
 
 __all__ = ["STATS_SAMPLE", "every_kth", "bulk_extent", "bulk_reach", "arc_span", "steep_arc_span",
            "without_strays", "nearest_surface", "rms", "ray_incidence",
-           "noise_scatter_ratio", "MAD_TO_SIGMA", "SCATTER_SAMPLE"]
+           "noise_scatter_ratio", "scatter_incidence", "MAD_TO_SIGMA", "SCATTER_SAMPLE"]
 
 #: Percentile statistics over an object's points (bulk reach, strays, support test,
 #: degeneracy) use every k-th point, k chosen so that about this many remain: a robust
@@ -174,7 +174,8 @@ def ray_incidence(distance: Callable[[NDArray[np.float64]], NDArray[np.float64]]
 
 def steep_arc_span(points: NDArray[np.float64], origin: NDArray[np.float64],
                    axis: NDArray[np.float64],
-                   distance: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> float:
+                   distance: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+                   incidence: NDArray[np.float64] | None = None) -> float:
     """Angle [rad] around an axis spanned by the ``points`` seen steeply enough to judge.
 
     :func:`arc_span` of those of ``points`` (N, 3) [m] (about SCATTER_SAMPLE of them, as
@@ -189,14 +190,27 @@ def steep_arc_span(points: NDArray[np.float64], origin: NDArray[np.float64],
     (towards its silhouette) the inlier band along them is long, and points of another
     surface lie in it -- a torus's lower outer wall within a wide cylinder's band through
     its two tubes, which widens the arc its points span from 42 to 59 deg. The scatter
-    test leaves the same points out (:func:`noise_scatter_ratio`).
+    test leaves the same points out (:func:`noise_scatter_ratio`). ``incidence``: the
+    :func:`ray_incidence` of those points when already known (:func:`scatter_incidence`).
     """
     sub = every_kth(points, SCATTER_SAMPLE)
-    return arc_span(sub[ray_incidence(distance, sub) >= MIN_INCIDENCE_COS], origin, axis)
+    cos = ray_incidence(distance, sub) if incidence is None else incidence
+    return arc_span(sub[cos >= MIN_INCIDENCE_COS], origin, axis)
+
+
+def scatter_incidence(distance: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+                      points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:func:`ray_incidence` of the sample of ``points`` (n, 3) [m] the scatter tests use.
+
+    The same sample (about SCATTER_SAMPLE of them) for :func:`steep_arc_span` and
+    :func:`noise_scatter_ratio`, which take it instead of computing it again.
+    """
+    return ray_incidence(distance, every_kth(points, SCATTER_SAMPLE))
 
 
 def noise_scatter_ratio(distance: Callable[[NDArray[np.float64]], NDArray[np.float64]],
-                        points: NDArray[np.float64], sigma: float) -> float:
+                        points: NDArray[np.float64], sigma: float,
+                        incidence: NDArray[np.float64] | None = None) -> float:
     """Robust scatter of ``points`` about a fitted surface along the rays, over ``sigma``.
 
     Depth noise of sigma along the rays moves a point off the surface by sigma times its
@@ -213,13 +227,15 @@ def noise_scatter_ratio(distance: Callable[[NDArray[np.float64]], NDArray[np.flo
     distance : callable, the surface's signed distance (n, 3) -> (n,) [m]
     points : (n, 3) float64 array [m], the points on the surface (about SCATTER_SAMPLE used)
     sigma : float [m], depth noise along the rays at the object's range (> 0)
+    incidence : (m,) float64 array, optional
+        :func:`scatter_incidence` of ``distance`` and ``points`` when already known.
 
     Returns
     -------
     float (0 when no point is seen steeply enough)
     """
     sub = every_kth(points, SCATTER_SAMPLE)
-    cos = ray_incidence(distance, sub)
+    cos = ray_incidence(distance, sub) if incidence is None else incidence
     steep = cos >= MIN_INCIDENCE_COS
     if not steep.any():
         return 0.0

@@ -197,17 +197,19 @@ def check_bulk_reach(radius: float, reach: float,
 
 def check_noise_scatter(points: NDArray[np.float64],
                         distance: Callable[[NDArray[np.float64]], NDArray[np.float64]],
-                        params: ModelingParams,
-                        kind: PrimitiveType) -> Rejected | None:
+                        params: ModelingParams, kind: PrimitiveType,
+                        incidence: NDArray[np.float64] | None = None) -> Rejected | None:
     """Reject a round model or a plane whose ``points`` (n, 3) [m] scatter beyond the noise.
 
     Only with ``noise_model = auto``, where ``noise_amplitude`` is the depth noise sigma
     measured at the object's range (or its floor, the given value, for a noise-free
-    cloud); ``distance`` is the model's signed distance function.
+    cloud); ``distance`` is the model's signed distance function. ``incidence``: the
+    points' :func:`~.measure.scatter_incidence` when already known.
     """
     if params.noise_model != "auto" or params.noise_amplitude <= 0:
         return None
-    ratio = noise_scatter_ratio(distance, points, params.noise_amplitude / K_AMPLITUDE)
+    ratio = noise_scatter_ratio(distance, points, params.noise_amplitude / K_AMPLITUDE,
+                                incidence)
     if ratio > NOISE_SCATTER_BOUND:
         return Rejected(kind, f"{kind} rejected: its points scatter {ratio:.1f} times the "
                               "measured noise about it", misfit=True)
