@@ -877,32 +877,12 @@ def _planar_face(points: NDArray[np.float64], noise: NDArray[np.float64]) -> boo
     return float(eig[0]) / n <= bound * float(np.mean(np.square(noise)))
 
 
-def _split_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
-                 nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
-                 patches: NDArray[np.int64], max_edge: float, noise: NDArray[np.float64],
-                 min_piece: int, min_angle: float) -> NDArray[np.int64]:
-    """Split patches that are two faces met at a fold crossed in small normal turns.
+def _fold_candidates(points: NDArray[np.float64], normals: NDArray[np.float64],
+                     patches: NDArray[np.int64], noise: NDArray[np.float64], min_piece: int,
+                     min_angle: float) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Find the patches :func:`_split_folds` splits and the side of each of their points.
 
-    A patch grows over links whose normals turn by less than the face angle, so two
-    faces that meet at a fold which the normal estimate rounds over a few neighbourhoods
-    (two touching boxes under Kinect noise) grow into one. Such a patch's normals fall
-    into two clusters (:func:`_fold_sides`) farther apart than ``min_angle`` [rad] (no one
-    link may turn so far), few of them in between (a surface that turns steadily, a can's
-    side or a sphere, fills the middle), and at least one cluster lies on a plane within
-    the noise (:func:`_planar_face` over the normals outside the middle: a face, not a
-    bowl's two curved sides) while the whole patch does not (the fold stands out of the
-    noise: at a far range's noise a small patch is a plane whatever its normals), and the
-    fold is concave (a convex object's faces meet at
-    convex folds only, and their border votes would join them again). Each side's
-    connected pieces of at least ``min_piece`` points become patches (the largest keeps the
-    patch's id, so ids stay 0 .. P-1 for the ones below P); smaller pieces return to the
-    piece of the same patch they touch most, else the largest. Whether the pieces are one
-    object is left to the border votes, as for any two patches.
-
-    Returns
-    -------
-    (M,) int64 array
-        Patch ids, the new pieces numbered from the old count on.
+    Returns side (M,) bool (meaningful inside the split patches) and split (P,) bool.
     """
     n_p = int(patches.max()) + 1
     order = np.argsort(patches, kind="stable")
@@ -930,6 +910,38 @@ def _split_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
             continue
         side[idx] = s
         split[pid] = True
+    return side, split
+
+
+def _split_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
+                 nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
+                 patches: NDArray[np.int64], max_edge: float, noise: NDArray[np.float64],
+                 min_piece: int, min_angle: float) -> NDArray[np.int64]:
+    """Split patches that are two faces met at a fold crossed in small normal turns.
+
+    A patch grows over links whose normals turn by less than the face angle, so two
+    faces that meet at a fold which the normal estimate rounds over a few neighbourhoods
+    (two touching boxes under Kinect noise) grow into one. Such a patch's normals fall
+    into two clusters (:func:`_fold_sides`) farther apart than ``min_angle`` [rad] (no one
+    link may turn so far), few of them in between (a surface that turns steadily, a can's
+    side or a sphere, fills the middle), and at least one cluster lies on a plane within
+    the noise (:func:`_planar_face` over the normals outside the middle: a face, not a
+    bowl's two curved sides) while the whole patch does not (the fold stands out of the
+    noise: at a far range's noise a small patch is a plane whatever its normals), and the
+    fold is concave (a convex object's faces meet at
+    convex folds only, and their border votes would join them again). Each side's
+    connected pieces of at least ``min_piece`` points become patches (the largest keeps the
+    patch's id, so ids stay 0 .. P-1 for the ones below P); smaller pieces return to the
+    piece of the same patch they touch most, else the largest. Whether the pieces are one
+    object is left to the border votes, as for any two patches.
+
+    Returns
+    -------
+    (M,) int64 array
+        Patch ids, the new pieces numbered from the old count on.
+    """
+    side, split = _fold_candidates(points, normals, patches, noise, min_piece, min_angle)
+    n_p = len(split)
     if not split.any():
         return patches
     m = len(points)
