@@ -43,9 +43,10 @@ from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, knn_among, link_components,
                                         robust_sigma, row_norms, rows_finite, take_rows)
-from geomodel_ros.core.noise import K_SUPPORT, NoiseEstimate, disparity_step, resolve_params
-from geomodel_ros.core.joins import (CONTAINED_MIN_POINTS, contained_floors, join_contained_parts, join_occluded_parts,
-                                     join_terraces, merge_patches)
+from geomodel_ros.core.noise import K_SUPPORT, MAD_TO_SIGMA, NoiseEstimate, disparity_step, resolve_params
+from geomodel_ros.core.joins import (CONTAINED_MIN_POINTS, contained_floors,
+                                     join_contained_parts, join_occluded_parts, join_terraces,
+                                     merge_patches)
 from geomodel_ros.core.organized import GridCloud, grid_cloud
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd
@@ -814,7 +815,8 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     if creased is not None:  # a surface seen from inside is no face of a convex object
         seen_inside = _concave_patches(points, normals, nbrs, sqdist, patches, n_p, max_edge,
                                        floor=np.finfo(np.float32).eps
-                                       * float(np.max(row_norms(points)))) \
+                                       * float(np.max(row_norms(points))),
+                                       sigmas=BORDER_CREASE_SIGMAS) \
             & (np.bincount(patches, minlength=n_p) >= CONTAINED_MIN_POINTS)
         creased |= seen_inside[a] | seen_inside[b]
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
@@ -1377,8 +1379,8 @@ def _rim_points(points: NDArray[np.float64], normals: NDArray[np.float64],
 def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
                      nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
                      patches: NDArray[np.int64], n_p: int, max_edge: float,
-                     which: NDArray[np.int64] | None = None, floor: float = 0.0
-                     ) -> NDArray[np.bool_]:
+                     which: NDArray[np.int64] | None = None, floor: float = 0.0,
+                     sigmas: float = 0.0) -> NDArray[np.bool_]:
     """Tell which patches are concave as seen from the sensor (a container's inner wall).
 
     The fold of a link inside a patch (:func:`_link_folds`) is about l^2 / (2 r) on a
@@ -1427,7 +1429,15 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
     present = np.bincount(own, minlength=n_p) > 0
     ids = np.flatnonzero(present)
     # The rank of each link's patch among those present (np.unique's inverse, no sort).
-    concave[ids] = _group_median((np.cumsum(present) - 1)[own], fold, len(ids)) < -floor
+    rank = (np.cumsum(present) - 1)[own]
+    median = _group_median(rank, fold, len(ids))
+    margin = np.full(len(ids), floor)
+    if sigmas > 0.0:
+        # The error of a median of the folds, one independent fold per point of the patch.
+        spread = MAD_TO_SIGMA * _group_median(rank, np.abs(fold - median[rank]), len(ids))
+        size = np.bincount(patches[np.unique(i[inside])], minlength=n_p)[ids]
+        margin += sigmas * MEDIAN_STANDARD_ERROR * spread / np.sqrt(np.maximum(size, 1))
+    concave[ids] = median < -margin
     return concave
 
 
