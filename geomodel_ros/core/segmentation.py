@@ -43,7 +43,8 @@ from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, knn_among, link_components,
                                         robust_sigma, row_norms, rows_finite, take_rows)
-from geomodel_ros.core.noise import K_SUPPORT, MAD_TO_SIGMA, NoiseEstimate, disparity_step, resolve_params
+from geomodel_ros.core.noise import (K_SUPPORT, MAD_TO_SIGMA, NoiseEstimate, disparity_step,
+                                     resolve_params)
 from geomodel_ros.core.joins import (CONTAINED_MIN_POINTS, contained_floors,
                                      join_contained_parts, join_occluded_parts, join_terraces,
                                      merge_patches)
