@@ -15,8 +15,7 @@ import numpy as np
 import pytest
 
 from geomodel_ros.core.params import ModelingParams
-from geomodel_ros.core.faces import estimate_normals
-from geomodel_ros.core.segmentation import BORDER_CREASE_SIGMAS, _concave_patches, segment_scene
+from geomodel_ros.core.segmentation import segment_scene
 from geomodel_ros.tools.evaluation import segmentation_scores
 from geomodel_ros.tools.synth.clutter import (KINECT_NOISE, camera_pose, clutter_layout,
                                               make_box, make_can, make_container,
@@ -79,30 +78,3 @@ def test_bowls_of_the_clutter_generator_stay_apart_from_what_touches_their_rim(
     scores = _scores([items[first - 1], items[second - 1]], pose, noisy)
     assert all(iou >= 0.8 and not under for iou, under in scores.values()), scores
 
-
-def _patch(depth_of, noise: float, seed: int = 0):
-    # A 12 x 12 cm patch about 0.8 m in front of the sensor on a 4 mm grid, depths from
-    # ``depth_of`` (x, y), normals towards the sensor.
-    rng = np.random.default_rng(seed)
-    x, y = np.meshgrid(np.arange(-0.06, 0.06, 0.004), np.arange(-0.06, 0.06, 0.004))
-    pts = np.column_stack([x.ravel(), y.ravel(), depth_of(x.ravel(), y.ravel())])
-    pts[:, 2] += rng.normal(0.0, noise, len(pts))
-    normals, _, nbrs, sqdist = estimate_normals(pts, 16, return_sqdist=True)
-    return pts, normals, nbrs, sqdist
-
-
-def _seen_inside(pts, normals, nbrs, sqdist):
-    return _concave_patches(pts, normals, nbrs, sqdist, np.zeros(len(pts), dtype=np.int64), 1,
-                            0.01, floor=np.finfo(np.float32).eps, sigmas=BORDER_CREASE_SIGMAS)[0]
-
-
-@pytest.mark.parametrize("noise", [0.0, 0.001, 0.003])
-def test_a_plane_is_not_seen_from_inside_and_a_bowl_is(noise):
-    # A bowl of radius 0.1 m seen from above: its surface curves towards the sensor
-    # (depth r - sqrt(r^2 - x^2 - y^2) nearer at the rim); a plane has no curvature, its
-    # median fold is 0 within its error whatever the noise.
-    plane = _patch(lambda x, y: 0.8 + 0.3 * x - 0.2 * y, noise)  # tilted
-    bowl = _patch(lambda x, y: 0.8 + np.sqrt(0.1 ** 2 - x ** 2 - y ** 2) - 0.1, noise)
-    assert not _seen_inside(*plane)
-    if noise <= 0.001:  # 3 mm on 4 mm links hides a 0.1 m curvature in one patch this small
-        assert _seen_inside(*bowl)

@@ -42,12 +42,10 @@ from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, face_labels
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, knn_among, link_components,
-                                        robust_sigma, row_norms, rows_finite, take_rows)
-from geomodel_ros.core.noise import (K_SUPPORT, MAD_TO_SIGMA, NoiseEstimate, disparity_step,
-                                     resolve_params)
-from geomodel_ros.core.joins import (CONTAINED_MIN_POINTS, contained_floors,
-                                     join_contained_parts, join_occluded_parts, join_terraces,
-                                     merge_patches)
+                                        robust_sigma, rows_finite, take_rows)
+from geomodel_ros.core.noise import K_SUPPORT, NoiseEstimate, disparity_step, resolve_params
+from geomodel_ros.core.joins import (contained_floors, join_contained_parts, join_occluded_parts,
+                                     join_terraces, merge_patches)
 from geomodel_ros.core.organized import GridCloud, grid_cloud
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd
@@ -763,16 +761,7 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
     grouped into objects from their border votes (:func:`_border_votes`,
     :func:`geomodel_ros.core.joins.merge_patches`). With the frame's noise known, a border
     seen mostly as one patch's outline in front of the other (:func:`_occluding_borders`)
-    is a crease whatever its votes, and so is every border of a patch seen from inside
-    (:func:`_concave_patches` beyond the error of its median fold, :data:`BORDER_CREASE_SIGMAS`
-    standard errors, and at least ``CONTAINED_MIN_POINTS`` points): a container's inside
-    is no face of a convex solid, and where its rim touches another object the inside bends
-    away from that object like the far side of a ridge, so the links across their border
-    vote convex (noise-free clutter seed 46: a bowl's inside against the front face of a
-    box its rim touches, 24 of 43 links convex, median fold +1.4 mm; a lying can in front
-    of a bowl's near rim, seed 48, 29 of 53). The container join assigns such a patch to
-    its container's outer wall (:func:`geomodel_ros.core.joins.join_contained_parts`); a
-    flared bowl seen from above shows little else, its inside is the object.
+    is a crease whatever its votes.
     """
     m = len(points)
     # ``own`` also holds the neighbourhoods' squared distances from their planes.
@@ -822,13 +811,6 @@ def _convex_objects(points: NDArray[np.float64], counts: NDArray[np.int64],
                                       noise_w / getattr(noise, "scale", 1.0), quantum)
     if stepped and creased is not None:  # a split patch's two levels meet at a step
         creased |= np.isin(a * n_p + b, [min(x, y) * n_p + max(x, y) for x, y in stepped])
-    if creased is not None:  # a surface seen from inside is no face of a convex object
-        seen_inside = _concave_patches(points, normals, nbrs, sqdist, patches, n_p, max_edge,
-                                       floor=np.finfo(np.float32).eps
-                                       * float(np.max(row_norms(points))),
-                                       sigmas=BORDER_CREASE_SIGMAS) \
-            & (np.bincount(patches, minlength=n_p) >= CONTAINED_MIN_POINTS)
-        creased |= seen_inside[a] | seen_inside[b]
     obj = merge_patches(n_p, a, b, votes, yes, sizes=np.bincount(patches, minlength=n_p),
                         exact=None if noise is None else
                         np.bincount(patches[step > floor], minlength=n_p) == 0,
@@ -1389,8 +1371,7 @@ def _rim_points(points: NDArray[np.float64], normals: NDArray[np.float64],
 def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
                      nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
                      patches: NDArray[np.int64], n_p: int, max_edge: float,
-                     which: NDArray[np.int64] | None = None, floor: float = 0.0,
-                     sigmas: float = 0.0) -> NDArray[np.bool_]:
+                     which: NDArray[np.int64] | None = None) -> NDArray[np.bool_]:
     """Tell which patches are concave as seen from the sensor (a container's inner wall).
 
     The fold of a link inside a patch (:func:`_link_folds`) is about l^2 / (2 r) on a
@@ -1419,14 +1400,6 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
         Longest link [m].
     which : (Q,) int64 array, optional
         The patches to judge (default all); the others are not concave.
-    floor : float
-        Smallest median fold [m] taken for concave (default 0: the sign alone); e.g. the
-        precision of the coordinates, below which a plane's folds are rounding.
-    sigmas : float
-        With > 0 a patch is concave only where its median fold lies below minus this many
-        standard errors of it (:data:`MEDIAN_STANDARD_ERROR` times the robust sigma of its
-        folds over the square root of its points: the folds of one point's links share
-        its normal). Default 0: the sign alone.
 
     Returns
     -------
@@ -1447,15 +1420,7 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
     present = np.bincount(own, minlength=n_p) > 0
     ids = np.flatnonzero(present)
     # The rank of each link's patch among those present (np.unique's inverse, no sort).
-    rank = (np.cumsum(present) - 1)[own]
-    median = _group_median(rank, fold, len(ids))
-    margin = np.full(len(ids), floor)
-    if sigmas > 0.0:
-        # The error of a median of the folds, one independent fold per point of the patch.
-        spread = MAD_TO_SIGMA * _group_median(rank, np.abs(fold - median[rank]), len(ids))
-        size = np.bincount(patches[np.unique(i[inside])], minlength=n_p)[ids]
-        margin += sigmas * MEDIAN_STANDARD_ERROR * spread / np.sqrt(np.maximum(size, 1))
-    concave[ids] = median < -margin
+    concave[ids] = _group_median((np.cumsum(present) - 1)[own], fold, len(ids)) < 0.0
     return concave
 
 
