@@ -29,9 +29,22 @@ def _wall(rng, radius, deg, h, n, inward=False):
     return pts, (-radial if inward else radial)
 
 
-def _face(rng, x, z, n):
-    # A vertical face in the plane y = -0.02 facing the sensor, dense enough to be linked.
-    pts = np.column_stack([rng.uniform(*x, n), np.full(n, -0.02), rng.uniform(*z, n)])
+def _bowl(rng, n, low=0.03):
+    # A flared bowl's inside, its back half (azimuths 20-160 deg): radius ``low`` at 10 mm
+    # above the desk to R at its rim H; normals inwards and up.
+    ang = np.radians(rng.uniform(20.0, 160.0, n))
+    z = rng.uniform(0.01, H, n)
+    k = (R - low) / (H - 0.01)
+    radial = np.column_stack([np.cos(ang), np.sin(ang), np.zeros(n)])
+    pts = (low + k * (z - 0.01))[:, None] * radial
+    pts[:, 2] = z
+    normals = -radial + np.array([0.0, 0.0, k])
+    return pts, normals / np.linalg.norm(normals, axis=1)[:, None]
+
+
+def _face(rng, x, z, n, y=-0.02):
+    # A vertical face in the plane y = ``y`` facing the sensor, dense enough to be linked.
+    pts = np.column_stack([rng.uniform(*x, n), np.full(n, y), rng.uniform(*z, n)])
     return pts, np.tile([0.0, -1.0, 0.0], (n, 1))
 
 
@@ -53,19 +66,30 @@ def _run(parts, segs, concave_flags):
     return [set(out[s:e].tolist()) for s, e in zip(bounds[:-1], bounds[1:])]
 
 
-def test_a_box_face_beside_a_bowls_inside_parts_from_it():
+def _box_at_the_rim(rng):
+    # A box's front face (plane y = 0.03) ending at the rim of the bowl's inside at
+    # azimuth 143 deg (x = -0.04), 84 mm tall: it touches the inside only near the rim.
+    return _face(rng, (-0.15, -0.042), (0.0, 0.084), 2000, y=0.03)
+
+
+def test_a_box_face_at_a_bowls_rim_parts_from_its_inside():
     rng = np.random.default_rng(0)
-    inside = _wall(rng, R, (20.0, 160.0), (0.01, H), 800, inward=True)
-    box = _face(rng, (-0.15, -R - WALL), (0.0, 0.084), 1500)
-    got = _run([inside, box], [3, 3], [True, False])
+    got = _run([_bowl(rng, 1500), _box_at_the_rim(rng)], [3, 3], [True, False])
     assert len(got[0]) == 1 and len(got[1]) == 1 and got[0] != got[1], got
 
 
-def test_without_the_patches_nothing_parts():
+def test_a_surface_continuing_the_inside_below_its_rim_stays():
+    # The same face, but touching the inside along its lower half only (a fold of one
+    # surface, not a contact over a rim): it stays.
     rng = np.random.default_rng(0)
-    inside = _wall(rng, R, (20.0, 160.0), (0.01, H), 800, inward=True)
-    box = _face(rng, (-0.15, -R - WALL), (0.0, 0.084), 1500)
-    got = _run([inside, box], [3, 3], [False, False])  # the inside not seen concave
+    face = _face(rng, (-0.15, -0.028), (0.0, 0.03), 1500, y=0.02)
+    got = _run([_bowl(rng, 1500), face], [3, 3], [True, False])
+    assert got == [{3}, {3}], got
+
+
+def test_without_a_concave_patch_nothing_parts():
+    rng = np.random.default_rng(0)
+    got = _run([_bowl(rng, 1500), _box_at_the_rim(rng)], [3, 3], [False, False])
     assert got[0] == got[1] == {3}, got
 
 

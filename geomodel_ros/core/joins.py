@@ -841,11 +841,12 @@ def _part_at_rims(comp: NDArray[np.int64], valid: NDArray[np.bool_],
     are linked among themselves (neighbours within ``link`` [m]); each group of them that
     lies outside the inside's wall (:data:`CONTAINED_MIN_INSIDE_SHARE` of it beyond
     :data:`CONTAINED_RADIUS_MARGIN` times its radius at their heights plus the range
-    error, :func:`_noise_reach`), holds no such outer wall and reaches down to the
-    support (its lowest point at most ``stand`` [m] above it: an object of its own stands
-    there, while a handle hangs on its container, PCL mug scene) leaves it as a segment
-    of its own. Patches of :data:`CONTAINED_MIN_POINTS` or more points that share their
-    segment are tested, largest first; ``labels``, ``concave``, ``xy``, ``up`` as in
+    error, :func:`_noise_reach`), touches the inside over its rim (:func:`_over_rim`),
+    holds no such outer wall and reaches down to the support (its lowest point at most
+    ``stand`` [m] above it: an object of its own stands there, while a handle hangs on
+    its container, PCL mug scene) leaves it as a segment of its own. Patches of
+    :data:`CONTAINED_MIN_POINTS` or more points that share their segment are tested,
+    largest first; ``labels``, ``concave``, ``xy``, ``up`` as in
     :func:`_move_concave_inside`, ``n_xy`` (M, 2) the normals in the support plane's
     coordinates, ``normal`` (3,) the support's, ``noise`` the frame's. Returns the new
     segment ids (``comp`` is not changed in place).
@@ -888,11 +889,30 @@ def _part_at_rims(comp: NDArray[np.int64], valid: NDArray[np.bool_],
             if len(part) < CONTAINED_MIN_POINTS or \
                     beyond[group == g].mean() < CONTAINED_MIN_INSIDE_SHARE:
                 continue
-            if up[part].min() > stand or _holds_inside(part, labels, xy, n_xy, up, rows, reach):
+            if up[part].min() > stand or not _over_rim(points, up, rows, part, link) or \
+                    _holds_inside(part, labels, xy, n_xy, up, rows, reach):
                 continue
             out[part] = fresh
             fresh += 1
     return out
+
+
+def _over_rim(points: NDArray[np.float64], up: NDArray[np.float64], inside: NDArray[np.int64],
+              part: NDArray[np.int64], link: float) -> bool:
+    """Whether ``part`` touches the ``inside`` rows of a container over its rim.
+
+    An object outside a container meets its inside only across the rim, the upper end of
+    its wall: the inside's points within ``link`` [m] of the part lie, in the median, at
+    least as high above the support (``up`` (M,) [m]) as the inside's own points do.
+    Measured on the partings of the clutter benchmark (a box's face, a can, a lying can
+    against a bowl's or a cup's rim; seeds 12-57, noise-free and kinect-real): the points
+    touched lie at the 0.81-0.98 quantile of the inside's heights, in the median; on the
+    PCL office frame a folded cloth seen concave (radius 16 cm) touched the rest of the
+    cloth along its lower edge, at the 0.36 quantile: one surface, not over a rim.
+    """
+    near, _ = cKDTree(points[part]).query(points[inside], distance_upper_bound=link)
+    touched = inside[np.isfinite(near)]
+    return bool(len(touched)) and np.median(up[touched]) >= np.median(up[inside])
 
 
 def _pair_components(n: int, pairs: NDArray[np.int64]) -> NDArray[np.int64]:
