@@ -843,10 +843,11 @@ def _part_at_rims(comp: NDArray[np.int64], valid: NDArray[np.bool_],
     :data:`CONTAINED_RADIUS_MARGIN` times its radius at their heights plus the range
     error, :func:`_noise_reach`, plus a link: the container's own outer wall, linked to
     the inside across the rim, lies within a link of it; kinect-real clutter seed 20 cup
-    5, whose outer wall is no round wall under that noise), touches the inside over its rim (:func:`_over_rim`),
-    holds no such outer wall and reaches down to the support (its lowest point at most
-    ``stand`` [m] above it: an object of its own stands there, while a handle hangs on
-    its container, PCL mug scene) leaves it as a segment of its own. Patches of
+    5, whose outer wall is no round wall under that noise), touches the inside over its
+    rim (:func:`_over_rim`), holds no such outer wall and reaches down to the support
+    (its lowest point at most ``stand`` [m] above it: an object of its own stands there,
+    while a handle hangs on its container, PCL mug scene) leaves it as a segment of its
+    own. Patches of
     :data:`CONTAINED_MIN_POINTS` or more points that share their segment are tested,
     largest first; ``labels``, ``concave``, ``xy``, ``up`` as in
     :func:`_move_concave_inside`, ``n_xy`` (M, 2) the normals in the support plane's
