@@ -3,10 +3,12 @@
 Seen from above, a flared bowl shows only its inside (its outer wall faces down), a
 surface seen concave from the sensor. Where its rim touches another object's face, the
 inside bends away from that face like the far side of a ridge, so the links across their
-border vote convex; a surface seen from inside is no face of a convex solid, so that
-border must not join them (clutter seed 46: a bowl of top radius 101 mm against a box
-84 mm tall, joined before). The geometry is hand-built from the shapes' definitions; the
-negative cases (a cup's walls, a box's faces, a can's side and top) are in test_clutter.
+border vote convex and the border votes join them (clutter seed 46: a bowl of top radius
+101 mm against a box 84 mm tall). Two solids do not interpenetrate: the container join
+parts from the inside what lies outside its wall and touches it over its rim
+(:func:`geomodel_ros.core.joins._part_at_rims`). Rendered geometry, ground truth from the
+generator; the negative cases (a cup's walls, a box's faces, a can's side and top) are in
+test_clutter and test_container_rims.
 """
 
 from __future__ import annotations
