@@ -414,11 +414,12 @@ _SMOOTH_CONTACT = pytest.mark.xfail(strict=True, reason="one patch across the co
                                     "(see _SMOOTH_CONTACT)")
 
 
-@_SMOOTH_CONTACT
-@pytest.mark.parametrize("rng", REAL_NOISE_SEEDS)
+@pytest.mark.parametrize("rng", [pytest.param(0, marks=_SMOOTH_CONTACT), 2])
 def test_a_can_beside_a_cup_under_real_noise_stays_apart(rng):
     # The can (r 28 mm) touches the cup's rim circle (r 46 mm); both round fronts face the
-    # camera and meet at a tangential concave contact.
+    # camera and meet at a tangential concave contact. On noise seed 2 they are apart since
+    # the container join parts from a container's inside what touches its rim from outside
+    # (:func:`geomodel_ros.core.joins._part_at_rims`); on seed 0 they are still one segment.
     cup = _at(make_container(0.036, 0.046, 0.065), 0.0, 0.0)
     can = _at(make_can(0.028, 0.091), 0.046 + 0.028, 0.0)
     assert not footprints_overlap(cup.footprint, can.footprint)

@@ -369,7 +369,9 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
     comp = join_terraces(wp, comp, comp_ok, step, params)
     if params.seg_join_contained and supports:
         first = fit_plane_svd(take_rows(wp, supports[0]))
-        comp = join_contained_parts(wp, wn, comp, comp_ok, first, noise, patches)
+        comp = join_contained_parts(wp, wn, comp, comp_ok, first, noise, patches,
+                                    (params.seg_max_edge_factor * params.seg_voxel_size,
+                                     params.seg_plane_threshold + params.seg_voxel_size))
         if links is not None:
             taken = _return_floors(wp, wn, comp, comp_ok, wlabel, supports, params, links,
                                    noise, first)
