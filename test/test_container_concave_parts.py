@@ -19,6 +19,8 @@ import pytest
 from geomodel_ros.core.joins import CONTAINED_MIN_POINTS, join_contained_parts
 from geomodel_ros.core.ransac import PlaneModel
 
+from container_helpers import concave_oracle, labels_of_parts, stacked_parts
+
 DESK = PlaneModel(np.array([0.0, 0.0, 1.0]), 0.0)
 #: A straight cup: radius 40 mm, rim 90 mm above the desk, walls 3 mm thick.
 CUP_R, CUP_H, WALL = 0.040, 0.090, 0.003
@@ -51,25 +53,12 @@ def _run(parts, segs, concave_flags, asked=None):
     Return the labels of each part's points with and without the patches; the patch ids
     the concavity test was asked about go to ``asked``.
     """
-    points = np.vstack([p for p, _ in parts])
-    normals = np.vstack([q for _, q in parts])
-    comp = np.repeat(segs, [len(p) for p, _ in parts])
-    labels = np.repeat(np.arange(len(parts)), [len(p) for p, _ in parts])
-    flags = np.asarray(concave_flags, dtype=bool)
-
-    def concave(which):
-        if asked is not None:
-            asked.extend(which.tolist())
-        out = np.zeros(len(parts), dtype=bool)
-        out[which] = flags[which]
-        return out
-
+    points, normals, comp, labels, bounds = stacked_parts(parts, segs)
     valid = np.ones(len(comp), dtype=bool)
-    out = join_contained_parts(points, normals, comp, valid, DESK, None, (labels, concave))
+    out = join_contained_parts(points, normals, comp, valid, DESK, None,
+                               (labels, concave_oracle(concave_flags, asked)))
     bare = join_contained_parts(points, normals, comp, valid, DESK)
-    bounds = np.cumsum([0] + [len(p) for p, _ in parts])
-    return ([set(out[s:e].tolist()) for s, e in zip(bounds[:-1], bounds[1:])],
-            [set(bare[s:e].tolist()) for s, e in zip(bounds[:-1], bounds[1:])])
+    return labels_of_parts(out, bounds), labels_of_parts(bare, bounds)
 
 
 def test_an_inner_wall_joined_to_a_can_behind_goes_to_its_cup():

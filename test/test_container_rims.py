@@ -15,6 +15,8 @@ import numpy as np
 from geomodel_ros.core.joins import join_contained_parts
 from geomodel_ros.core.ransac import PlaneModel
 
+from container_helpers import concave_oracle, labels_of_parts, stacked_parts
+
 DESK = PlaneModel(np.array([0.0, 0.0, 1.0]), 0.0)
 R, H, WALL = 0.050, 0.055, 0.004
 #: Longest link [m], height [m] within which a segment stands on the desk.
@@ -49,21 +51,10 @@ def _face(rng, x, z, n, y=-0.02):
 
 
 def _run(parts, segs, concave_flags):
-    points = np.vstack([p for p, _ in parts])
-    normals = np.vstack([q for _, q in parts])
-    comp = np.repeat(segs, [len(p) for p, _ in parts])
-    labels = np.repeat(np.arange(len(parts)), [len(p) for p, _ in parts])
-    flags = np.asarray(concave_flags, dtype=bool)
-
-    def concave(which):
-        out = np.zeros(len(parts), dtype=bool)
-        out[which] = flags[which]
-        return out
-
+    points, normals, comp, labels, bounds = stacked_parts(parts, segs)
     out = join_contained_parts(points, normals, comp, np.ones(len(comp), dtype=bool), DESK,
-                               None, (labels, concave), (LINK, STAND))
-    bounds = np.cumsum([0] + [len(p) for p, _ in parts])
-    return [set(out[s:e].tolist()) for s, e in zip(bounds[:-1], bounds[1:])]
+                               None, (labels, concave_oracle(concave_flags)), (LINK, STAND))
+    return labels_of_parts(out, bounds)
 
 
 def _box_at_the_rim(rng):
