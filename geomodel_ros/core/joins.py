@@ -881,25 +881,42 @@ def _part_at_rims(comp: NDArray[np.int64], valid: NDArray[np.bool_],
         rest = np.flatnonzero(valid & (out == seg) & (labels != ids[q]))
         if len(rest) < CONTAINED_MIN_POINTS:
             continue
-        # The container's own outer wall is linked to its inside across the rim: it lies
-        # within a link beyond the inside's wall.
-        beyond = (np.linalg.norm(xy[rest] - wall.center, axis=1)
-                  > CONTAINED_RADIUS_MARGIN * wall.radius_at(up[rest]) + reach + link)
-        if not beyond.any():
-            continue
-        pairs = cKDTree(points[rest]).query_pairs(link, output_type="ndarray")
-        group = _pair_components(len(rest), pairs)
-        for g in np.unique(group).tolist():
-            part = rest[group == g]
-            if len(part) < CONTAINED_MIN_POINTS or \
-                    beyond[group == g].mean() < CONTAINED_MIN_INSIDE_SHARE:
-                continue
-            if up[part].min() > stand or not _over_rim(points, up, rows, part, link) or \
-                    _holds_inside(part, labels, xy, n_xy, up, rows, reach):
-                continue
+        for part in _parts_beyond_rim(points, xy, n_xy, up, labels, rows, rest, wall, reach,
+                                      link, stand):
             out[part] = fresh
             fresh += 1
     return out
+
+
+def _parts_beyond_rim(points: NDArray[np.float64], xy: NDArray[np.float64],
+                      n_xy: NDArray[np.float64], up: NDArray[np.float64],
+                      labels: NDArray[np.int64], inside: NDArray[np.int64],
+                      rest: NDArray[np.int64], wall: _Wall, reach: float, link: float,
+                      stand: float) -> list[NDArray[np.int64]]:
+    """Return the linked groups of ``rest`` that leave the container (:func:`_part_at_rims`).
+
+    ``inside`` are the rows of the container's inside, ``wall`` its round footprint and
+    ``reach`` its range-error allowance [m]; the other arguments as there.
+    """
+    # The container's own outer wall is linked to its inside across the rim: it lies
+    # within a link beyond the inside's wall.
+    beyond = (np.linalg.norm(xy[rest] - wall.center, axis=1)
+              > CONTAINED_RADIUS_MARGIN * wall.radius_at(up[rest]) + reach + link)
+    if not beyond.any():
+        return []
+    pairs = cKDTree(points[rest]).query_pairs(link, output_type="ndarray")
+    group = _pair_components(len(rest), pairs)
+    parts = []
+    for g in np.unique(group).tolist():
+        part = rest[group == g]
+        if len(part) < CONTAINED_MIN_POINTS or \
+                beyond[group == g].mean() < CONTAINED_MIN_INSIDE_SHARE:
+            continue
+        if up[part].min() > stand or not _over_rim(points, up, inside, part, link) or \
+                _holds_inside(part, labels, xy, n_xy, up, inside, reach):
+            continue
+        parts.append(part)
+    return parts
 
 
 def _over_rim(points: NDArray[np.float64], up: NDArray[np.float64], inside: NDArray[np.int64],
