@@ -1424,25 +1424,27 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
         np.flatnonzero(np.isin(patches, which))
     i = np.repeat(rows, k)
     j = nbrs[rows].ravel()
-    inside = np.flatnonzero((patches[i] == patches[j]) & (i != j)
+    own = np.repeat(patches[rows], k)
+    inside = np.flatnonzero((own == patches[j]) & (i != j)
                             & (sqdist[rows].ravel() <= max_edge * max_edge))
     concave = np.zeros(n_p, dtype=bool)
     if not len(inside):
         return concave
     fold = _link_folds(points, normals, i[inside], j[inside])
-    own = patches[i[inside]]
+    own = own[inside]
     present = np.bincount(own, minlength=n_p) > 0
     ids = np.flatnonzero(present)
     # The rank of each link's patch among those present (np.unique's inverse, no sort).
-    concave[ids] = _group_median((np.cumsum(present) - 1)[own], fold, len(ids)) < 0.0
+    concave[ids] = _group_median_negative((np.cumsum(present) - 1)[own], fold, len(ids))
     return concave
 
 
 def _link_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
                 i: NDArray[np.int64], j: NDArray[np.int64]) -> NDArray[np.float64]:
-    """Fold [m] of the links i -> j: (below_i + below_j) / 2 (:func:`_step_free`)."""
-    below_i, below_j, _ = _step_free(points, normals, i, j, np.zeros(len(points)))
-    return 0.5 * (below_i + below_j)
+    """Fold [m] of the links i -> j: (below_i + below_j) / 2 (:func:`_step_free`'s)."""
+    d = take_rows(points, i) - take_rows(points, j)
+    return 0.5 * (np.einsum("ij,ij->i", take_rows(normals, i), d)
+                  - np.einsum("ij,ij->i", take_rows(normals, j), d))
 
 
 def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
@@ -1461,6 +1463,29 @@ def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
     counts = np.bincount(group, minlength=n)
     start = np.cumsum(counts) - counts
     return 0.5 * (v[start + (counts - 1) // 2] + v[start + counts // 2])
+
+
+def _group_median_negative(group: NDArray[np.int64], values: NDArray[np.float64], n: int
+                           ) -> NDArray[np.bool_]:
+    """Tell, as ``_group_median(group, values, n) < 0``, which groups' medians are negative.
+
+    Arguments as in :func:`_group_median`. Only the sign is asked, so the values need no
+    sort: a group's two middle values (the same one for an odd count) are both negative
+    where more of its values than the upper one's rank are, and neither is where no more
+    than the lower one's rank are; their mean then has their sign. Only a group of an even
+    count with exactly half of its values negative needs the two values themselves
+    (:func:`_group_median` on that group's values alone).
+    """
+    counts = np.bincount(group, minlength=n)
+    negative = np.bincount(group[values < 0.0], minlength=n)
+    out = negative > counts // 2
+    tie = np.flatnonzero((counts % 2 == 0) & (negative == counts // 2) & (counts > 0))
+    if len(tie):
+        rank = np.full(n, -1, dtype=np.int64)
+        rank[tie] = np.arange(len(tie))
+        at = np.flatnonzero(rank[group] >= 0)
+        out[tie] = _group_median(rank[group[at]], values[at], len(tie)) < 0.0
+    return out
 
 
 def _creased_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
