@@ -869,21 +869,27 @@ def _part_at_rims(comp: NDArray[np.int64], valid: NDArray[np.bool_],
              if bent[ids[q]]]
     out = comp.copy()
     fresh = int(comp.max()) + 1
+    # Each segment's rows; a parted group leaves its segment for a new one of its own.
+    members = segment_members(comp, valid & (comp >= 0)) if inner else {}
     for q in inner:
         rows = order[starts[q]:ends[q]]
-        seg = out[rows[0]]
+        seg = int(out[rows[0]])
         if np.any(out[rows] != seg):
+            continue
+        rest = members[seg]
+        rest = rest[(out[rest] == seg) & (labels[rest] != ids[q])]
+        # Only a group that reaches down to the support leaves (:func:`_parts_beyond_rim`):
+        # where nothing else in the segment does, the wall need not be fitted.
+        if len(rest) < CONTAINED_MIN_POINTS or up[rest].min() > stand:
             continue
         wall = _round_footprint(xy[rows], n_xy[rows], up[rows])
         if wall is None:
             continue
         reach = _noise_reach(points[rows], normal, noise)
-        rest = np.flatnonzero(valid & (out == seg) & (labels != ids[q]))
-        if len(rest) < CONTAINED_MIN_POINTS:
-            continue
         for part in _parts_beyond_rim(points, xy, n_xy, up, labels, rows, rest, wall, reach,
                                       link, stand):
             out[part] = fresh
+            members[fresh] = part
             fresh += 1
     return out
 
