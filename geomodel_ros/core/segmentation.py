@@ -1797,11 +1797,12 @@ def _split_levels(points: NDArray[np.float64], normals: NDArray[np.float64],
     order = np.argsort(patches, kind="stable")
     start = np.cumsum(sizes) - sizes
     within = sqdist <= max_edge * max_edge
+    local = np.full(m, -1, dtype=np.int64)  # -1 outside the patch at hand (reset after it)
     out = patches.copy()
     stepped: list[tuple[int, int]] = []
     for pid in candidates.tolist():
         idx = order[start[pid]:start[pid] + sizes[pid]]
-        level = _level_split(points[idx], normals[idx], nbrs[idx], within[idx], idx, m,
+        level = _level_split(points[idx], normals[idx], nbrs[idx], within[idx], idx, local,
                              noise_w[idx], floor, min_points, angle)
         if level is not None:
             out[idx[level]] = n_p + len(stepped)
@@ -1810,14 +1811,15 @@ def _split_levels(points: NDArray[np.float64], normals: NDArray[np.float64],
 
 
 def _level_split(p: NDArray[np.float64], nr: NDArray[np.float64], nb: NDArray[np.int64],
-                 within: NDArray[np.bool_], idx: NDArray[np.int64], m: int,
+                 within: NDArray[np.bool_], idx: NDArray[np.int64], local: NDArray[np.int64],
                  noise: NDArray[np.float64], floor: float, min_points: int, angle: float
                  ) -> NDArray[np.bool_] | None:
     """Return the upper level (bool per point) of one patch's two levels, or None.
 
     ``p``, ``nr`` (L, 3): the patch's points [m] and normals; ``nb``, ``within`` (L, k):
     their neighbour lists (indices into the M working points) and which links are short
-    enough; ``idx`` (L,): the points' working indices; ``noise`` (L,) [m]. See
+    enough; ``idx`` (L,): the points' working indices; ``local`` (M,): -1 everywhere (used
+    for the patch's local indices and left as it was); ``noise`` (L,) [m]. See
     :func:`_split_levels`.
     """
     mean = nr.sum(axis=0)
@@ -1827,9 +1829,9 @@ def _level_split(p: NDArray[np.float64], nr: NDArray[np.float64], nb: NDArray[np
     u, v = perpendicular_basis(mean)
     q = p - p.mean(axis=0)
     xyz = np.column_stack([q @ u, q @ v, q @ mean])
-    local = np.full(m, -1, dtype=np.int64)
     local[idx] = np.arange(len(idx))
     ln = local[nb]
+    local[idx] = -1
     ok = (ln >= 0) & within & (ln != np.arange(len(idx))[:, None])
     half = np.arange(len(idx)) % 2 == 0  # the levels are found from this half alone
     found = _two_levels(xyz, ln, ok, half)
@@ -1866,20 +1868,25 @@ def _two_levels(xyz: NDArray[np.float64], ln: NDArray[np.int64], ok: NDArray[np.
     offsets is fitted to ``half`` alone. None when one level is empty.
     """
     x, y, z = xyz.T
-    from_half = ok & half[np.maximum(ln, 0)]
+    safe = np.maximum(ln, 0)
+    from_half = ok & half[safe]
     count = np.maximum(from_half.sum(axis=1), 1)
 
     def around(val: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.where(from_half, val[np.maximum(ln, 0)], 0.0).sum(axis=1) / count
+        return np.where(from_half, val[safe], 0.0).sum(axis=1) / count
 
     q1, q3 = np.percentile(z, [25, 75])
     upper = around(z) > 0.5 * (q1 + q3)
     flat = z
+    # The design matrix of the plane with two offsets on ``half``: x, y, lower, upper.
+    design = np.zeros((int(half.sum()), 4))
+    design[:, 0], design[:, 1], z_half = x[half], y[half], z[half]
     for _ in range(LEVEL_ITERATIONS):
-        if upper[half].all() or not upper[half].any():
+        on_top = upper[half]
+        if on_top.all() or not on_top.any():
             return None
-        design = np.column_stack([x, y, ~upper, upper]).astype(np.float64)
-        coef = np.linalg.lstsq(design[half], z[half], rcond=None)[0]
+        design[:, 2], design[:, 3] = ~on_top, on_top
+        coef = np.linalg.lstsq(design, z_half, rcond=None)[0]
         flat = z - coef[0] * x - coef[1] * y
         heights = around(flat)
         new = np.abs(heights - coef[3]) < np.abs(heights - coef[2])
