@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core import faces
+from geomodel_ros.core import faces, segmentation
 from geomodel_ros.core.faces import (estimate_normals, neighborhood_moments, pca_normals,
                                      smallest_eigenpairs_sym)
 from geomodel_ros.core.fastmath import knn
@@ -290,6 +290,20 @@ def test_image_seam_is_the_full_search_tested_pair_by_pair(seed):
     np.testing.assert_array_equal(far, np.where(np.linalg.norm(pts[i], axis=1)
                                                 > np.linalg.norm(pts[j], axis=1), i, j))
     np.testing.assert_array_equal(patches[far], 1)   # the wall is behind
+
+
+def test_image_seam_is_the_same_on_one_thread_or_all(monkeypatch):
+    rng = np.random.default_rng(4)
+    u, v = np.meshgrid(np.arange(-50, 50) * 0.004, np.arange(-50, 50) * 0.004)
+    pts = np.column_stack([u.ravel(), v.ravel(), 1.0 + 0.1 * (u.ravel() > 0.0)])
+    pts += rng.normal(0.0, 0.0004, pts.shape)
+    patches = (pts[:, 0] > 0.0).astype(np.int64)
+    rows = np.arange(len(pts))
+    assert len(rows) >= segmentation.THREADED_QUERIES     # searched on all threads
+    threaded = _image_seam(pts, rows, patches, 0.004)
+    monkeypatch.setattr(segmentation, "THREADED_QUERIES", len(rows) + 1)
+    for got, want in zip(_image_seam(pts, rows, patches, 0.004), threaded):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_image_seam_without_pairs_in_reach_is_empty():

@@ -36,9 +36,9 @@ from numpy.typing import NDArray
 from geomodel_ros.core.errors import InputError, as_points
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, face_labels,
-                                     neighborhood_moments, pca_normals, smallest_eigenpairs_sym,
-                                     voxelize)
+from geomodel_ros.core.faces import (THREADED_QUERIES, WorkingCloud, estimate_normals,
+                                     face_labels, neighborhood_moments, pca_normals,
+                                     smallest_eigenpairs_sym, voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, knn_among, link_components,
@@ -1354,7 +1354,8 @@ def _image_seam(points: NDArray[np.float64], rows: NDArray[np.int64],
     k = min(SEAM_NEIGHBORS, len(rows))
     radius = SEAM_RADIUS_SPACINGS * spacing
     widest = radius / max(float(ranges[rows].min()), tiny) * (1.0 + SEAM_BOUND_MARGIN)
-    angle, nb = cKDTree(dirs).query(dirs, k=k, distance_upper_bound=widest)
+    angle, nb = cKDTree(dirs).query(dirs, k=k, distance_upper_bound=widest,
+                                    workers=-1 if len(rows) >= THREADED_QUERIES else 1)
     found = nb.ravel() < len(rows)  # beyond the bound: index len(rows), angle inf
     i = np.repeat(rows, k)[found]
     j = rows[nb.ravel()[found]]
