@@ -2,22 +2,24 @@
 
 Each step below was made cheaper (a neighbourhood's plane computed once and reused, voxel
 keys sorted by two radix passes, a nearest-face search on one thread for few queries,
-group medians from one sort, an image-neighbour search that stops where no pair can be
-kept); these tests check the results against hand-worked values and against the plain
-definitions, written out here independently of the code.
+group medians from one sort, the sign of a group median from counts, an image-neighbour
+search that stops where no pair can be kept); these tests check the results against
+hand-worked values and against the plain definitions, written out here independently of
+the code.
 """
 
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core import faces
+from geomodel_ros.core import faces, segmentation
 from geomodel_ros.core.faces import (estimate_normals, neighborhood_moments, pca_normals,
                                      smallest_eigenpairs_sym)
 from geomodel_ros.core.fastmath import knn
 from geomodel_ros.core.segmentation import (SEAM_NEIGHBORS, SEAM_RADIUS_SPACINGS,
-                                            _concave_patches, _group_median, _image_seam,
-                                            _link_folds, _patch_normals, _rest_neighbourhood)
+                                            _concave_patches, _group_median,
+                                            _group_median_negative, _image_seam, _link_folds,
+                                            _patch_normals, _rest_neighbourhood, _step_free)
 
 
 def _wavy_sheet(rng, n=1500, noise=0.0005):
@@ -191,6 +193,43 @@ def test_group_median_is_numpys_median_per_group(n):
         [2.0, 4.5])
 
 
+@pytest.mark.parametrize("kind", ["normal", "integers", "tiny", "nan", "signs"])
+def test_group_median_sign_from_counts_is_the_sign_of_the_median(kind):
+    rng = np.random.default_rng(12)
+    for _ in range(200):
+        n = int(rng.integers(1, 40))
+        size = int(rng.integers(n, 300))
+        group = np.concatenate([np.arange(n), rng.integers(0, n, size - n)])
+        if kind == "normal":
+            values = rng.normal(size=size)
+        elif kind == "integers":    # exact zeros, and groups with half of them negative
+            values = rng.integers(-2, 3, size).astype(float)
+        elif kind == "tiny":        # signed zeros and the smallest subnormals
+            values = rng.choice([-1e-9, -5e-324, -0.0, 0.0, 5e-324, 1e-9], size)
+        elif kind == "nan":
+            values = np.where(rng.random(size) < 0.1, np.nan, rng.normal(size=size))
+        else:
+            values = rng.choice([-1.0, 0.0, 1.0], size) * rng.random(size) * 1e-5
+        np.testing.assert_array_equal(_group_median_negative(group, values, n),
+                                      _group_median(group, values, n) < 0.0)
+    # Hand-worked: {-3, 1} has median -1, {-1, 3} 1, {-2, 0, 5} 0 and {-1, -1, 4} -1.
+    np.testing.assert_array_equal(
+        _group_median_negative(np.array([0, 0, 1, 1, 2, 2, 2, 3, 3, 3]),
+                               np.array([-3.0, 1.0, -1.0, 3.0, -2.0, 0.0, 5.0, -1.0, -1.0, 4.0]),
+                               4),
+        [True, False, False, True])
+
+
+def test_link_folds_are_the_mean_depth_below_the_two_tangent_planes():
+    rng = np.random.default_rng(13)
+    pts = rng.normal(size=(500, 3))
+    normals = rng.normal(size=(500, 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    i, j = rng.integers(0, 500, 4000), rng.integers(0, 500, 4000)
+    below_i, below_j, _ = _step_free(pts, normals, i, j, np.zeros(500))
+    np.testing.assert_array_equal(_link_folds(pts, normals, i, j), 0.5 * (below_i + below_j))
+
+
 def test_concave_patches_are_those_whose_median_fold_is_negative():
     rng = np.random.default_rng(11)
     # A bowl (concave as seen from the sensor above it) beside a dome (convex), and a
@@ -251,6 +290,20 @@ def test_image_seam_is_the_full_search_tested_pair_by_pair(seed):
     np.testing.assert_array_equal(far, np.where(np.linalg.norm(pts[i], axis=1)
                                                 > np.linalg.norm(pts[j], axis=1), i, j))
     np.testing.assert_array_equal(patches[far], 1)   # the wall is behind
+
+
+def test_image_seam_is_the_same_on_one_thread_or_all(monkeypatch):
+    rng = np.random.default_rng(4)
+    u, v = np.meshgrid(np.arange(-50, 50) * 0.004, np.arange(-50, 50) * 0.004)
+    pts = np.column_stack([u.ravel(), v.ravel(), 1.0 + 0.1 * (u.ravel() > 0.0)])
+    pts += rng.normal(0.0, 0.0004, pts.shape)
+    patches = (pts[:, 0] > 0.0).astype(np.int64)
+    rows = np.arange(len(pts))
+    assert len(rows) >= segmentation.THREADED_QUERIES     # searched on all threads
+    threaded = _image_seam(pts, rows, patches, 0.004)
+    monkeypatch.setattr(segmentation, "THREADED_QUERIES", len(rows) + 1)
+    for got, want in zip(_image_seam(pts, rows, patches, 0.004), threaded):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_image_seam_without_pairs_in_reach_is_empty():

@@ -859,9 +859,20 @@ def _part_at_rims(comp: NDArray[np.int64], valid: NDArray[np.bool_],
         return comp
     order, ids, starts, ends = group_by_label(on, labels[on])
     size = ends - starts
-    seg_size = np.bincount(comp[on], minlength=int(comp.max()) + 1)
-    shared = np.flatnonzero((size >= CONTAINED_MIN_POINTS)
-                            & (seg_size[comp[order[starts]]] > size))
+    top = int(comp.max()) + 1
+    seg = comp[order[starts]]
+    seg_size = np.bincount(comp[on], minlength=top)
+    # The rest of a patch's segment holds enough points, some of them down at the support
+    # (the tests of the loop below before any parting, which only takes points away): only
+    # then is the patch asked whether it is concave.
+    member = valid & (comp >= 0)
+    low = member & (up <= stand)
+    low_before = np.concatenate([[0], np.cumsum(low[order])])
+    shared = np.flatnonzero((size >= CONTAINED_MIN_POINTS) & (seg_size[seg] > size)
+                            & (np.bincount(comp[member], minlength=top)[seg] - size
+                               >= CONTAINED_MIN_POINTS)
+                            & (np.bincount(comp[low], minlength=top)[seg]
+                               > low_before[ends] - low_before[starts]))
     if not len(shared):
         return comp
     bent = concave(ids[shared])
@@ -869,21 +880,27 @@ def _part_at_rims(comp: NDArray[np.int64], valid: NDArray[np.bool_],
              if bent[ids[q]]]
     out = comp.copy()
     fresh = int(comp.max()) + 1
+    # Each segment's rows; a parted group leaves its segment for a new one of its own.
+    members = segment_members(comp, valid & (comp >= 0)) if inner else {}
     for q in inner:
         rows = order[starts[q]:ends[q]]
-        seg = out[rows[0]]
-        if np.any(out[rows] != seg):
+        at = int(out[rows[0]])
+        if np.any(out[rows] != at):
+            continue
+        rest = members[at]
+        rest = rest[(out[rest] == at) & (labels[rest] != ids[q])]
+        # Only a group that reaches down to the support leaves (:func:`_parts_beyond_rim`):
+        # where nothing else in the segment does, the wall need not be fitted.
+        if len(rest) < CONTAINED_MIN_POINTS or up[rest].min() > stand:
             continue
         wall = _round_footprint(xy[rows], n_xy[rows], up[rows])
         if wall is None:
             continue
         reach = _noise_reach(points[rows], normal, noise)
-        rest = np.flatnonzero(valid & (out == seg) & (labels != ids[q]))
-        if len(rest) < CONTAINED_MIN_POINTS:
-            continue
         for part in _parts_beyond_rim(points, xy, n_xy, up, labels, rows, rest, wall, reach,
                                       link, stand):
             out[part] = fresh
+            members[fresh] = part
             fresh += 1
     return out
 

@@ -36,9 +36,9 @@ from numpy.typing import NDArray
 from geomodel_ros.core.errors import InputError, as_points
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from geomodel_ros.core.faces import (WorkingCloud, estimate_normals, face_labels,
-                                     neighborhood_moments, pca_normals, smallest_eigenpairs_sym,
-                                     voxelize)
+from geomodel_ros.core.faces import (THREADED_QUERIES, WorkingCloud, estimate_normals,
+                                     face_labels, neighborhood_moments, pca_normals,
+                                     smallest_eigenpairs_sym, voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, knn_among, link_components,
@@ -1354,7 +1354,8 @@ def _image_seam(points: NDArray[np.float64], rows: NDArray[np.int64],
     k = min(SEAM_NEIGHBORS, len(rows))
     radius = SEAM_RADIUS_SPACINGS * spacing
     widest = radius / max(float(ranges[rows].min()), tiny) * (1.0 + SEAM_BOUND_MARGIN)
-    angle, nb = cKDTree(dirs).query(dirs, k=k, distance_upper_bound=widest)
+    angle, nb = cKDTree(dirs).query(dirs, k=k, distance_upper_bound=widest,
+                                    workers=-1 if len(rows) >= THREADED_QUERIES else 1)
     found = nb.ravel() < len(rows)  # beyond the bound: index len(rows), angle inf
     i = np.repeat(rows, k)[found]
     j = rows[nb.ravel()[found]]
@@ -1424,25 +1425,27 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
         np.flatnonzero(np.isin(patches, which))
     i = np.repeat(rows, k)
     j = nbrs[rows].ravel()
-    inside = np.flatnonzero((patches[i] == patches[j]) & (i != j)
+    own = np.repeat(patches[rows], k)
+    inside = np.flatnonzero((own == patches[j]) & (i != j)
                             & (sqdist[rows].ravel() <= max_edge * max_edge))
     concave = np.zeros(n_p, dtype=bool)
     if not len(inside):
         return concave
     fold = _link_folds(points, normals, i[inside], j[inside])
-    own = patches[i[inside]]
+    own = own[inside]
     present = np.bincount(own, minlength=n_p) > 0
     ids = np.flatnonzero(present)
     # The rank of each link's patch among those present (np.unique's inverse, no sort).
-    concave[ids] = _group_median((np.cumsum(present) - 1)[own], fold, len(ids)) < 0.0
+    concave[ids] = _group_median_negative((np.cumsum(present) - 1)[own], fold, len(ids))
     return concave
 
 
 def _link_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
                 i: NDArray[np.int64], j: NDArray[np.int64]) -> NDArray[np.float64]:
-    """Fold [m] of the links i -> j: (below_i + below_j) / 2 (:func:`_step_free`)."""
-    below_i, below_j, _ = _step_free(points, normals, i, j, np.zeros(len(points)))
-    return 0.5 * (below_i + below_j)
+    """Fold [m] of the links i -> j: (below_i + below_j) / 2 (:func:`_step_free`'s)."""
+    d = take_rows(points, i) - take_rows(points, j)
+    return 0.5 * (np.einsum("ij,ij->i", take_rows(normals, i), d)
+                  - np.einsum("ij,ij->i", take_rows(normals, j), d))
 
 
 def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
@@ -1461,6 +1464,29 @@ def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
     counts = np.bincount(group, minlength=n)
     start = np.cumsum(counts) - counts
     return 0.5 * (v[start + (counts - 1) // 2] + v[start + counts // 2])
+
+
+def _group_median_negative(group: NDArray[np.int64], values: NDArray[np.float64], n: int
+                           ) -> NDArray[np.bool_]:
+    """Tell, as ``_group_median(group, values, n) < 0``, which groups' medians are negative.
+
+    Arguments as in :func:`_group_median`. Only the sign is asked, so the values need no
+    sort: a group's two middle values (the same one for an odd count) are both negative
+    where more of its values than the upper one's rank are, and neither is where no more
+    than the lower one's rank are; their mean then has their sign. Only a group of an even
+    count with exactly half of its values negative needs the two values themselves
+    (:func:`_group_median` on that group's values alone).
+    """
+    counts = np.bincount(group, minlength=n)
+    negative = np.bincount(group[values < 0.0], minlength=n)
+    out = negative > counts // 2
+    tie = np.flatnonzero((counts % 2 == 0) & (negative == counts // 2) & (counts > 0))
+    if len(tie):
+        rank = np.full(n, -1, dtype=np.int64)
+        rank[tie] = np.arange(len(tie))
+        at = np.flatnonzero(rank[group] >= 0)
+        out[tie] = _group_median(rank[group[at]], values[at], len(tie)) < 0.0
+    return out
 
 
 def _creased_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
@@ -1772,11 +1798,12 @@ def _split_levels(points: NDArray[np.float64], normals: NDArray[np.float64],
     order = np.argsort(patches, kind="stable")
     start = np.cumsum(sizes) - sizes
     within = sqdist <= max_edge * max_edge
+    local = np.full(m, -1, dtype=np.int64)  # -1 outside the patch at hand (reset after it)
     out = patches.copy()
     stepped: list[tuple[int, int]] = []
     for pid in candidates.tolist():
         idx = order[start[pid]:start[pid] + sizes[pid]]
-        level = _level_split(points[idx], normals[idx], nbrs[idx], within[idx], idx, m,
+        level = _level_split(points[idx], normals[idx], nbrs[idx], within[idx], idx, local,
                              noise_w[idx], floor, min_points, angle)
         if level is not None:
             out[idx[level]] = n_p + len(stepped)
@@ -1785,14 +1812,15 @@ def _split_levels(points: NDArray[np.float64], normals: NDArray[np.float64],
 
 
 def _level_split(p: NDArray[np.float64], nr: NDArray[np.float64], nb: NDArray[np.int64],
-                 within: NDArray[np.bool_], idx: NDArray[np.int64], m: int,
+                 within: NDArray[np.bool_], idx: NDArray[np.int64], local: NDArray[np.int64],
                  noise: NDArray[np.float64], floor: float, min_points: int, angle: float
                  ) -> NDArray[np.bool_] | None:
     """Return the upper level (bool per point) of one patch's two levels, or None.
 
     ``p``, ``nr`` (L, 3): the patch's points [m] and normals; ``nb``, ``within`` (L, k):
     their neighbour lists (indices into the M working points) and which links are short
-    enough; ``idx`` (L,): the points' working indices; ``noise`` (L,) [m]. See
+    enough; ``idx`` (L,): the points' working indices; ``local`` (M,): -1 everywhere (used
+    for the patch's local indices and left as it was); ``noise`` (L,) [m]. See
     :func:`_split_levels`.
     """
     mean = nr.sum(axis=0)
@@ -1802,9 +1830,9 @@ def _level_split(p: NDArray[np.float64], nr: NDArray[np.float64], nb: NDArray[np
     u, v = perpendicular_basis(mean)
     q = p - p.mean(axis=0)
     xyz = np.column_stack([q @ u, q @ v, q @ mean])
-    local = np.full(m, -1, dtype=np.int64)
     local[idx] = np.arange(len(idx))
     ln = local[nb]
+    local[idx] = -1
     ok = (ln >= 0) & within & (ln != np.arange(len(idx))[:, None])
     half = np.arange(len(idx)) % 2 == 0  # the levels are found from this half alone
     found = _two_levels(xyz, ln, ok, half)
@@ -1841,20 +1869,25 @@ def _two_levels(xyz: NDArray[np.float64], ln: NDArray[np.int64], ok: NDArray[np.
     offsets is fitted to ``half`` alone. None when one level is empty.
     """
     x, y, z = xyz.T
-    from_half = ok & half[np.maximum(ln, 0)]
+    safe = np.maximum(ln, 0)
+    from_half = ok & half[safe]
     count = np.maximum(from_half.sum(axis=1), 1)
 
     def around(val: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.where(from_half, val[np.maximum(ln, 0)], 0.0).sum(axis=1) / count
+        return np.where(from_half, val[safe], 0.0).sum(axis=1) / count
 
     q1, q3 = np.percentile(z, [25, 75])
     upper = around(z) > 0.5 * (q1 + q3)
     flat = z
+    # The design matrix of the plane with two offsets on ``half``: x, y, lower, upper.
+    design = np.zeros((int(half.sum()), 4))
+    design[:, 0], design[:, 1], z_half = x[half], y[half], z[half]
     for _ in range(LEVEL_ITERATIONS):
-        if upper[half].all() or not upper[half].any():
+        on_top = upper[half]
+        if on_top.all() or not on_top.any():
             return None
-        design = np.column_stack([x, y, ~upper, upper]).astype(np.float64)
-        coef = np.linalg.lstsq(design[half], z[half], rcond=None)[0]
+        design[:, 2], design[:, 3] = ~on_top, on_top
+        coef = np.linalg.lstsq(design, z_half, rcond=None)[0]
         flat = z - coef[0] * x - coef[1] * y
         heights = around(flat)
         new = np.abs(heights - coef[3]) < np.abs(heights - coef[2])
