@@ -185,3 +185,32 @@ def test_workers_is_read_only(context):
         assert node._processes is None  # noqa: SLF001 - one worker models in-process
     finally:
         node.destroy_node()
+
+
+class SlowFirstFails(SlowFirst):
+    """Stand-in core: the first frame takes ``delay`` s longer and then fails."""
+
+    def __call__(self, points, params, *, organized_shape=None):
+        with self.lock:
+            first = self.calls == 0
+        out = super().__call__(points, params, organized_shape=organized_shape)
+        if first:
+            raise RuntimeError("injected core failure")
+        return out
+
+
+def test_a_frame_failing_after_a_later_one_was_modeled_does_not_hold_it(context, capfd):
+    core = SlowFirstFails(delay=1.0)
+    h = Harness(context, core, {"workers": 2})
+    try:
+        h.publish_and_wait_received(scene_cloud("tiny_box", sec=1))
+        h.publish_and_wait_received(scene_cloud("tiny_box", sec=2))
+        got = h.objects.wait(1)
+        assert got.header.stamp.sec == 2
+        wait_until(lambda: h.node.stats().failed == 1, "the first frame's failure to count")
+        wait_until(lambda: h.node.stats().processed == 1, "the second frame to be processed")
+        assert core.finished == [2, 1]
+        assert len(h.objects) == 1
+        assert "injected core failure" in capfd.readouterr().err
+    finally:
+        h.close()
