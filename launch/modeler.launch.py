@@ -23,6 +23,9 @@ The launch arguments:
   ``depth/camera_info``), used with ``input:=depth``.
 * ``qos_reliability``: ``auto`` (default: reliable when every publisher is reliable, else
   best effort), ``best_effort`` or ``reliable``.
+* ``workers``: frames modeled at once, each in its own worker process (default 1: in the
+  node's process); on a computer with several cores, up to about one per core raises the
+  processed rate.
 * ``use_large_data_profile``: ``true`` sets ``FASTRTPS_DEFAULT_PROFILES_FILE`` to the
   installed ``config/fastdds_large_data.xml`` (shared memory only, 64 MiB segments) for
   every process this file starts (the node and RViz); it carries clouds of several MB even
@@ -55,6 +58,7 @@ def generate_launch_description():
     depth_image_topic = LaunchConfiguration("depth_image_topic")
     camera_info_topic = LaunchConfiguration("camera_info_topic")
     qos_reliability = LaunchConfiguration("qos_reliability")
+    workers = LaunchConfiguration("workers")
     use_large_data_profile = LaunchConfiguration("use_large_data_profile")
     rviz = LaunchConfiguration("rviz")
 
@@ -82,6 +86,9 @@ def generate_launch_description():
             description="Input reliability: auto (follow the publishers), best_effort or "
                         "reliable."),
         DeclareLaunchArgument(
+            "workers", default_value="1",
+            description="Frames modeled at once, each in its own worker process."),
+        DeclareLaunchArgument(
             "use_large_data_profile", default_value="false",
             description="Use config/fastdds_large_data.xml (shared memory, large clouds)."),
         DeclareLaunchArgument(
@@ -97,7 +104,7 @@ def generate_launch_description():
             name="modeler",
             namespace=namespace,
             parameters=[params_file, {"qos_reliability": qos_reliability,
-                                      "input": input_kind}],
+                                      "input": input_kind, "workers": workers}],
             remappings=[("points", points_topic), ("depth/image_raw", depth_image_topic),
                         ("depth/camera_info", camera_info_topic)],
             output="screen",

@@ -59,12 +59,17 @@ Every output carries the input's header (``frame_id`` and ``stamp``).  Outputs a
 published reliable, keep last ``qos_depth`` (compatible with reliable and best-effort
 subscribers such as RViz and planners).
 
-The node is a thin wire: :func:`geomodel_ros.ros.processing.process_cloud` (adapter -> core
-:func:`geomodel_ros.core.modeling.model_scene`, or the ``model_scene`` passed in -> adapters,
+The node is a thin wire: :func:`geomodel_ros.ros.processing.process_cloud`'s two halves
+(:func:`~geomodel_ros.ros.processing.model_frame`: adapter -> core
+:func:`geomodel_ros.core.modeling.model_scene`, or the ``model_scene`` passed in;
+:func:`~geomodel_ros.ros.processing.finish_frame`: tracking -> adapters;
 shared with the offline bag tool ``geomodel bag``) -> publish; every message is built and
-read through :mod:`msg_adapters`.  Modeling runs in a worker thread fed by a one-slot
-mailbox: a frame that arrives while another waits replaces it (newest frame wins) and is
-counted as dropped.  A malformed message or a frame
+read through :mod:`msg_adapters`.  Modeling runs in worker threads fed by a one-slot
+mailbox: a frame that arrives while every worker is busy and another frame waits replaces
+the waiting one (newest frame wins) and is counted as dropped.  With ``workers`` > 1 that
+many frames are modeled at once, each in its own process
+(:class:`geomodel_ros.ros.frame_workers.ProcessModeler`); their objects are tracked and
+published one frame at a time in the order the frames arrived.  A malformed message or a frame
 the core fails on is logged (throttled) and skipped; the node keeps running.
 
 Parameters: every entry of :data:`geomodel_ros.core.params.PARAMETERS` (changeable at run time,
@@ -91,9 +96,11 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 
+from geomodel_ros.ros.frame_workers import MAX_WORKERS, ProcessModeler
 from geomodel_ros.ros.input_qos import RELIABILITY_MODES, AdaptiveSubscription
-from geomodel_ros.ros.processing import (FrameResult, ModelingError, ObjectTracking,
-                                         PointCloud2Error, SceneModeler, process_cloud)
+from geomodel_ros.ros.processing import (FrameResult, ModeledFrame, ModelingError,
+                                         ObjectTracking, PointCloud2Error, SceneModeler,
+                                         finish_frame, model_frame)
 
 from geomodel_ros.core.fastmath import retain_freed_memory
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError, ParamSpec
@@ -155,6 +162,10 @@ NODE_PARAMETERS: tuple[_NodeParam, ...] = (
                "'points') or depth (sensor_msgs/Image on 'depth/image_raw' with "
                "sensor_msgs/CameraInfo on 'depth/camera_info'); read at start.",
                read_only=True, constraints="one of: " + ", ".join(INPUTS)),
+    _NodeParam("workers", 1, "Frames modeled at once, each in its own worker process (1: in "
+               "the node's process). More workers raise the processed rate on a multi-core "
+               "computer (up to about one per core), not the speed of one frame; each holds "
+               "its own memory. Read at start.", read_only=True, low=1, high=MAX_WORKERS),
     _NodeParam("publish_segments", True, "Publish ~/segments (input points labelled by object)."),
     _NodeParam("publish_reconstruction", True,
                "Publish ~/reconstruction (surface samples of the modeled objects)."),
@@ -196,6 +207,7 @@ class NodeOptions:
     qos_depth: int
     qos_reliability: str
     input: str
+    workers: int
     publish_segments: bool
     publish_reconstruction: bool
     diagnostics: bool
@@ -230,7 +242,7 @@ class FrameStats:
     last_timing : dict[str, float]
         Stage times of the last processed frame [s] (``convert_s``, ``model_s``,
         ``markers_s``, ``objects_s``, ``segments_s``, ``reconstruction_s``, ``publish_s``,
-        ``total_s``).
+        ``turn_s`` (waiting for an earlier frame's outputs, ``workers`` > 1), ``total_s``).
     """
 
     received: int = 0
@@ -244,12 +256,17 @@ class FrameStats:
 
 
 class _Mailbox:
-    """One slot: ``put`` replaces an item not yet taken; ``take`` blocks until one arrives."""
+    """One slot: ``put`` replaces an item not yet taken; ``take`` blocks until one arrives.
+
+    Every item taken gets the next ticket (0, 1, 2, ...): the order in which the frames
+    are finished (:class:`_Turns`).
+    """
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
         self._item: Any = None
         self._closed = False
+        self._tickets = 0
 
     def put(self, item: Any) -> Any:
         """Store ``item``; return the item it replaced (never taken), or None."""
@@ -259,15 +276,52 @@ class _Mailbox:
             self._cond.notify()
             return replaced
 
-    def take(self) -> Any:
-        """Return the next item, or None once the mailbox is closed."""
+    def take(self) -> tuple[Any, int] | None:
+        """Return the next item and its ticket, or None once the mailbox is closed."""
         with self._cond:
             while self._item is None and not self._closed:
                 self._cond.wait()
             if self._closed:
                 return None
             item, self._item = self._item, None
-            return item
+            self._tickets += 1
+            return item, self._tickets - 1
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
+class _Turns:
+    """Lets the holders of tickets 0, 1, 2, ... through one at a time, in ticket order.
+
+    Frames modeled at once (``workers`` > 1) may finish in any order; tracking and
+    publishing take turns so that the outputs keep the order of the inputs. A ticket whose
+    frame failed before its turn is :meth:`done` without waiting and is skipped.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._next = 0  # the ticket whose turn it is
+        self._done: set[int] = set()
+        self._closed = False
+
+    def wait(self, ticket: int) -> bool:
+        """Block until it is ``ticket``'s turn; False if closed meanwhile."""
+        with self._cond:
+            while self._next != ticket and not self._closed:
+                self._cond.wait()
+            return not self._closed
+
+    def done(self, ticket: int) -> None:
+        """End ``ticket``'s turn (or give it up before it came)."""
+        with self._cond:
+            self._done.add(ticket)
+            while self._next in self._done:
+                self._done.remove(self._next)
+                self._next += 1
+            self._cond.notify_all()
 
     def close(self) -> None:
         with self._cond:
@@ -360,10 +414,16 @@ class ModelerNode(Node):
         self._detect_lock = threading.Lock()
         self._detect_pending: list[_DetectRequest] = []
         self._mailbox = _Mailbox()
+        self._turns = _Turns()
         self._closing = False
-        self._worker = threading.Thread(target=self._run, name=f"{node_name}-worker",
-                                        daemon=True)
-        self._worker.start()
+        self._processes: ProcessModeler | None = None
+        if self._options.workers > 1 and model_scene is core_model_scene:
+            self._processes = self._start_processes(self._options.workers)
+            self._model_scene = self._processes or core_model_scene
+        self._workers = [threading.Thread(target=self._run, name=f"{node_name}-worker-{k}",
+                                          daemon=True) for k in range(self._options.workers)]
+        for worker in self._workers:
+            worker.start()
         self._camera_info: CameraInfo | None = None
         self._create_inputs()
         self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
@@ -533,6 +593,19 @@ class ModelerNode(Node):
     # input
     # ---------------------------------------------------------------------------------
 
+    def _start_processes(self, workers: int) -> ProcessModeler | None:
+        """Start ``workers`` modeling processes; None (logged) if they cannot start."""
+        processes = ProcessModeler(workers)
+        try:
+            processes.start()
+        except Exception as exc:  # noqa: BLE001 - the node still models, in its process
+            processes.close()
+            self.get_logger().error(
+                f"could not start {workers} modeling processes ({type(exc).__name__}: {exc});"
+                " modeling in the node's own process")
+            return None
+        return processes
+
     def _on_camera_info(self, msg: CameraInfo) -> None:
         self._camera_info = msg  # the latest one; read by the next image
 
@@ -579,13 +652,13 @@ class ModelerNode(Node):
 
     def _run(self) -> None:
         while True:
-            item = self._mailbox.take()
-            if item is None:
+            taken = self._mailbox.take()
+            if taken is None:
                 return
-            msg, to_scene, received_at, requests = item
+            (msg, to_scene, received_at, requests), ticket = taken
             outcome = (False, f"frame {_stamp(msg)} failed (see the node's log)")
             try:
-                outcome = self._process(msg, to_scene, received_at)
+                outcome = self._process(msg, to_scene, received_at, ticket)
             except Exception as exc:  # noqa: BLE001 - the worker must outlive any frame
                 if self._closing:
                     return
@@ -594,6 +667,7 @@ class ModelerNode(Node):
                     f"frame {_stamp(msg)} modeled but its outputs could not be published: "
                     f"{type(exc).__name__}: {exc}", throttle_duration_sec=WARN_THROTTLE_S)
             finally:
+                self._turns.done(ticket)
                 for request in requests:
                     request.finish(*outcome)
 
@@ -601,15 +675,11 @@ class ModelerNode(Node):
         with self._stats_lock:
             self._stats.failed += 1
 
-    def _model(self, msg: PointCloud2 | Image, to_scene) -> FrameResult | None:
-        """Run the frame through :func:`process_cloud`; None (logged) if it failed."""
-        options = self._options
+    def _model(self, msg: PointCloud2 | Image, to_scene, params: ModelingParams
+               ) -> ModeledFrame | None:
+        """Read and model the frame (:func:`model_frame`); None (logged) if it failed."""
         try:
-            return process_cloud(msg, self._params, segments=options.publish_segments,
-                                 reconstruction=options.publish_reconstruction,
-                                 model_scene=self._model_scene,
-                                 tracking=self._current_tracking(options.tracking),
-                                 to_scene=to_scene, on_objects=self._publish_objects)
+            return model_frame(msg, params, model_scene=self._model_scene, to_scene=to_scene)
         except (PointCloud2Error, DepthImageError) as exc:
             self._count_failure()
             frame_id, _ = header_of(msg)
@@ -646,13 +716,27 @@ class ModelerNode(Node):
         self._tracking.tracker.config = self._tracker_config
         return self._tracking
 
-    def _process(self, msg: PointCloud2 | Image, to_scene, received_at: float
+    def _process(self, msg: PointCloud2 | Image, to_scene, received_at: float, ticket: int
                  ) -> tuple[bool, str]:
-        """Model and publish one frame; return (success, summary) for ``~/detect``."""
+        """Model and publish one frame; return (success, summary) for ``~/detect``.
+
+        The modeling runs at once with other workers' frames; tracking and publishing wait
+        for ``ticket``'s turn.
+        """
         t0 = time.perf_counter()
-        frame = self._model(msg, to_scene)
-        if frame is None:
+        params = self._params
+        modeled = self._model(msg, to_scene, params)
+        if modeled is None:
             return False, f"frame {_stamp(msg)} was malformed or failed (see the node's log)"
+        t_wait = time.perf_counter()
+        if not self._turns.wait(ticket):
+            return False, f"frame {_stamp(msg)} abandoned: the node is shutting down"
+        t_turn = time.perf_counter()
+        options = self._options
+        frame = finish_frame(modeled, params, segments=options.publish_segments,
+                             reconstruction=options.publish_reconstruction,
+                             tracking=self._current_tracking(options.tracking),
+                             on_objects=self._publish_objects)
         t5 = time.perf_counter()
         timing = {k: v for k, v in frame.timing.items() if not k.startswith("core_")}
         core_timing = {k: v for k, v in frame.timing.items() if k.startswith("core_")}
@@ -665,6 +749,7 @@ class ModelerNode(Node):
             self._pub_reconstruction.publish(frame.reconstruction)
         t6 = time.perf_counter()
         timing["publish_s"] = t6 - t5
+        timing["turn_s"] = t_turn - t_wait
         timing["total_s"] = t6 - t0
         latency = time.monotonic() - received_at
         with self._stats_lock:
@@ -772,8 +857,13 @@ class ModelerNode(Node):
         """Stop the worker (waiting for a frame in progress) and destroy the node."""
         self._closing = True
         self._mailbox.close()
-        if self._worker.is_alive() and self._worker is not threading.current_thread():
-            self._worker.join(WORKER_JOIN_TIMEOUT_S)
+        deadline = time.monotonic() + WORKER_JOIN_TIMEOUT_S
+        for worker in self._workers:
+            if worker.is_alive() and worker is not threading.current_thread():
+                worker.join(max(0.0, deadline - time.monotonic()))
+        self._turns.close()
+        if self._processes is not None:
+            self._processes.close()
         super().destroy_node()
 
 

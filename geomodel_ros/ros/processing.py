@@ -38,8 +38,8 @@ from msg_adapters.markers import (primitives_to_markers, reconstruction_cloud, s
 from msg_adapters.objects import PrimitiveArray, primitives_to_objects
 from msg_adapters.pointcloud2 import PointCloud2Error, ScenePoints, cloud_to_scene
 
-__all__ = ["FrameResult", "ModelingError", "ObjectTracking", "PointCloud2Error", "SceneModeler",
-           "process_cloud"]
+__all__ = ["FrameResult", "ModeledFrame", "ModelingError", "ObjectTracking", "PointCloud2Error",
+           "SceneModeler", "finish_frame", "model_frame", "process_cloud"]
 
 
 class SceneModeler(Protocol):
@@ -211,6 +211,55 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     Exception
         Whatever ``to_scene`` raises for a malformed message (e.g. ``DepthImageError``).
     """
+    return finish_frame(model_frame(msg, params, model_scene=model_scene, to_scene=to_scene),
+                        params, segments=segments, reconstruction=reconstruction, tracking=tracking,
+                        on_objects=on_objects)
+
+
+@dataclass(frozen=True)
+class ModeledFrame:
+    """A frame read and modeled by :func:`model_frame`, before tracking and messages.
+
+    Attributes
+    ----------
+    points : (N, 3) float array
+        Every row of the input, NaN rows included [m].
+    organized : (H, W) or None
+        Image shape of an organized input.
+    header : std_msgs.msg.Header
+        The input's header (frame and stamp of every output).
+    labels : (N,) int64 array
+        Object id per row (-1 = none).
+    result : ModelingResult
+        The core's objects and stage times.
+    valid_points : int
+        Rows with finite x, y and z.
+    timing : dict[str, float]
+        ``convert_s``, ``model_s`` and the core's stages as ``core_<name>`` [s].
+    """
+
+    points: np.ndarray
+    organized: tuple[int, int] | None
+    header: Any
+    labels: np.ndarray
+    result: ModelingResult
+    valid_points: int
+    timing: dict[str, float]
+
+
+def model_frame(msg: Any, params: ModelingParams, *,
+                model_scene: SceneModeler = core_model_scene,
+                to_scene: Callable[[Any], ScenePoints] = cloud_to_scene) -> ModeledFrame:
+    """Read ``msg`` and model its scene: the first half of :func:`process_cloud`.
+
+    Frames modeled concurrently (the node's ``workers``) are finished one at a time, in
+    the order they arrived, by :func:`finish_frame`, which holds the per-stream state.
+
+    Raises
+    ------
+    PointCloud2Error, ModelingError
+        As :func:`process_cloud`.
+    """
     timing: dict[str, float] = {}
     lap = _Laps(timing)
     # Every row, NaNs included: labels stay aligned with the input's points (and pixels,
@@ -219,9 +268,25 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     n_valid = _count_finite(points)
     lap("convert_s")
     labels, result = _model_or_nothing(points, organized, n_valid, params, model_scene)
-    timing.update({f"core_{k}": float(v) for k, v in result.timing.items()})
-    objects = list(result.objects)
     lap("model_s")
+    timing.update({f"core_{k}": float(v) for k, v in result.timing.items()})
+    return ModeledFrame(points, organized, header, labels.astype(np.int64, copy=False), result,
+                        n_valid, timing)
+
+
+def finish_frame(frame: ModeledFrame, params: ModelingParams, *, segments: bool = True,
+                 reconstruction: bool = True, tracking: ObjectTracking | None = None,
+                 on_objects: Callable[[MarkerArray, PrimitiveArray], None] | None = None
+                 ) -> FrameResult:
+    """Track a :class:`ModeledFrame`'s objects and build its messages.
+
+    The second half of :func:`process_cloud` (same arguments; ``params`` are those the
+    frame was modeled with).
+    """
+    timing = dict(frame.timing)
+    lap = _Laps(timing)
+    result, header = frame.result, frame.header
+    objects = list(result.objects)
     deleted: tuple[int, ...] = ()
     if tracking is None:
         shown, markers = objects, primitives_to_markers(objects, header)
@@ -233,16 +298,16 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     if on_objects is not None:
         on_objects(markers, objects_msg)
         lap("first_out_s")
-    segments_msg = segments_cloud(points, labels, header, organized_shape=organized) \
-        if segments else None
+    segments_msg = segments_cloud(frame.points, frame.labels, header,
+                                  organized_shape=frame.organized) if segments else None
     lap("segments_s")
-    recon_msg = reconstruction_cloud(*reconstruct(objects, params.reconstruction_spacing),
-                                     header) if reconstruction else None
+    recon_msg = reconstruction_cloud(*reconstruct(objects, params.reconstruction_spacing), header) \
+        if reconstruction else None
     lap("reconstruction_s")
     return FrameResult(markers=markers, segments=segments_msg, reconstruction=recon_msg,
-                       result=result, labels=labels.astype(np.int64, copy=False),
-                       valid_points=n_valid, timing=timing, objects=objects_msg,
-                       tracked=list(shown), deleted_ids=deleted,
+                       result=result, labels=frame.labels, valid_points=frame.valid_points,
+                       timing=timing, objects=objects_msg, tracked=list(shown),
+                       deleted_ids=deleted,
                        diagnostics=noise_values(result.noise, result.fragments))
 
 

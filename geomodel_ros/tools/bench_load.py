@@ -22,7 +22,8 @@ It subscribes to every output (like RViz) and reports:
 * latency from the input's stamp (wall clock at publish) to the MarkerArray's arrival:
   median, p95, max [ms], and p95 over the single-frame processing time (the node's
   per-frame work on the same clouds, measured in this process before the load starts);
-* the node process's RSS (``/proc/<pid>/status`` VmRSS, sampled at 1 Hz) after warm-up
+* the node process's RSS (``/proc/<pid>/status`` VmRSS, sampled at 1 Hz; with ``--workers``
+  N > 1 summed over its worker processes) after warm-up
   and at the end (medians of one-minute windows), its growth, and the maximum of each
   half of the run [MiB];
 * crashes (the node process exiting during the run) and malformed outputs (a marker with
@@ -118,7 +119,17 @@ def _single_frame_s(clouds: list[PointCloud2], params_file: str | None, repeats:
 
 
 def _rss_mib(pid: int) -> float:
-    """VmRSS of process ``pid`` [MiB] (NaN once it is gone)."""
+    """VmRSS of process ``pid`` and of all its descendants [MiB] (NaN once it is gone).
+
+    The node's worker processes (``workers`` > 1) and their fork server are its
+    descendants; pages they share are counted once per process (an upper bound).
+    """
+    own = _own_rss_mib(pid)
+    return own + sum(_rss_mib(child) for child in _children(pid)) if own == own else own
+
+
+def _own_rss_mib(pid: int) -> float:
+    """VmRSS of process ``pid`` alone [MiB] (NaN once it is gone)."""
     try:
         with open(f"/proc/{pid}/status") as f:
             for line in f:
@@ -127,6 +138,18 @@ def _rss_mib(pid: int) -> float:
     except OSError:
         pass
     return math.nan
+
+
+def _children(pid: int) -> list[int]:
+    """Process ids of ``pid``'s children (of every thread), [] once it is gone."""
+    out: list[int] = []
+    try:
+        for task in os.listdir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{task}/children") as f:
+                out += [int(c) for c in f.read().split()]
+    except OSError:
+        pass
+    return out
 
 
 class _Recorder:
@@ -209,6 +232,8 @@ def _start_node(args: argparse.Namespace, params: str | None
            "-p", f"qos_reliability:={'reliable' if args.reliable else 'best_effort'}"]
     if params:
         cmd += ["--params-file", params]
+    if args.workers is not None:
+        cmd += ["-p", f"workers:={args.workers}"]
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONPATH=os.pathsep.join(filter(None, [str(REPO),
                                                         os.environ.get("PYTHONPATH")])))
@@ -302,6 +327,7 @@ def run(args: argparse.Namespace) -> dict:
           f"{rate:g} Hz for {args.minutes:g} min; node log {log_name}", flush=True)
     load, exit_status, rec = _run_under_load(args, proc, log_name, clouds, rate)
     report: dict = {"cloud": args.cloud, "rate_hz": rate, "minutes": args.minutes,
+                    "workers": args.workers or 1,
                     "points": valid, "command": cmd, "single_frame_ms": 1000.0 * single_s}
     with rec.lock:
         diag = dict(rec.diagnostics)
@@ -383,7 +409,8 @@ def _thirds(lat_ms: np.ndarray) -> list[float]:
 
 def _print(r: dict) -> None:
     lat, rss = r["latency_ms"], r["rss_mib"]
-    print(f"\n{r['cloud']} at {r['rate_hz']:g} Hz for {r['duration_s']:.0f} s "
+    print(f"\n{r['cloud']} at {r['rate_hz']:g} Hz for {r['duration_s']:.0f} s, "
+          f"{r.get('workers', 1)} worker(s) "
           f"({r['points']} valid points per frame)")
     print(f"  frames: published {r['published']}, received {r['received']} (lost in transport "
           f"{r['lost_in_transport']}), processed {r['processed']}, dropped {r['dropped']}, "
@@ -417,6 +444,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="seconds before the reference RSS is taken")
     parser.add_argument("--kinect-scenes", type=int, default=8,
                         help="osd_learn scenes cycled through (kinect)")
+    parser.add_argument("--workers", type=int,
+                        help="the node's workers parameter (frames modeled at once; default: "
+                             "the node's default, 1)")
     parser.add_argument("--json", help="write the report here")
     args = parser.parse_args(argv)
     if args.minutes <= 0 or (args.rate is not None and args.rate <= 0):
