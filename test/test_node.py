@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -30,6 +31,7 @@ from geomodel_msgs.msg import PrimitiveArray
 
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.primitives import ModelingResult, Primitive
+from geomodel_ros.ros import node as node_module
 from geomodel_ros.ros.node import NODE_PARAMETERS, ModelerNode
 from geomodel_ros.ros.processing import ObjectTracking, process_cloud
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError
@@ -99,7 +101,8 @@ class Harness:
     """The node under test + a peer node publishing clouds and collecting outputs."""
 
     def __init__(self, context: Context, core: CoreProbe,
-                 overrides: dict | None = None, threads: int = 1) -> None:
+                 overrides: dict | None = None, threads: int = 1,
+                 own_executor: bool = False) -> None:
         values = {"qos_reliability": "reliable", "qos_depth": 5, **(overrides or {})}
         self.node = ModelerNode(
             context=context, model_scene=core,
@@ -112,13 +115,20 @@ class Harness:
         self.segments = Collector(self.peer, PointCloud2, "/modeler/segments")
         self.recon = Collector(self.peer, PointCloud2, "/modeler/reconstruction")
         self.objects = Collector(self.peer, PrimitiveArray, "/modeler/objects")
-        # ~/detect blocks until its frame is done: it needs a second executor thread.
+        # threads=1 is the node's own executor (``main``): ~/detect must not block it.
         self.executor = SingleThreadedExecutor(context=context) if threads == 1 else \
             MultiThreadedExecutor(num_threads=threads, context=context)
-        self.executor.add_node(self.node)
+        # own_executor: the node alone in a single-threaded executor, as in ``main`` (the
+        # peer's traffic then does not wake the node's executor).
+        self.node_executor = SingleThreadedExecutor(context=context) if own_executor \
+            else self.executor
+        self.node_executor.add_node(self.node)
         self.executor.add_node(self.peer)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
+        self.threads = [threading.Thread(target=e.spin, daemon=True)
+                        for e in {id(self.executor): self.executor,
+                                  id(self.node_executor): self.node_executor}.values()]
+        for thread in self.threads:
+            thread.start()
         wait_until(lambda: self.pub.get_subscription_count() >= 1
                    and all(c.sub.get_publisher_count() >= 1
                            for c in (self.markers, self.segments, self.recon, self.objects)),
@@ -131,7 +141,10 @@ class Harness:
 
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=10.0)
-        self.thread.join(10.0)
+        if self.node_executor is not self.executor:
+            self.node_executor.shutdown(timeout_sec=10.0)
+        for thread in self.threads:
+            thread.join(10.0)
         self.node.destroy_node()
         self.peer.destroy_node()
 
@@ -140,8 +153,8 @@ class Harness:
 def make_harness(context, core):
     made: list[Harness] = []
 
-    def make(threads: int = 1, **overrides) -> Harness:
-        h = Harness(context, core, overrides, threads)
+    def make(threads: int = 1, own_executor: bool = False, **overrides) -> Harness:
+        h = Harness(context, core, overrides, threads, own_executor)
         made.append(h)
         return h
 
@@ -551,8 +564,11 @@ def test_tracking_parameters_are_declared_and_validated(make_harness):
 
 
 # --------------------------------------------------------------------------- on demand
-def test_detect_processes_exactly_one_frame_when_not_continuous(make_harness, core):
-    h = make_harness(threads=3, continuous=False)
+@pytest.mark.parametrize("threads", [1, 3])
+def test_detect_processes_exactly_one_frame_when_not_continuous(make_harness, core, threads):
+    # With one executor thread (the node's own), the frame published while the call waits
+    # must still be received: a blocking ~/detect callback would deadlock here.
+    h = make_harness(threads=threads, continuous=False)
     for sec in (1, 2):
         h.publish_and_wait_received(_noisy_cloud("tiny_box", sec, sec))
     assert h.node.stats().ignored == 2 and core.calls == []
@@ -573,14 +589,56 @@ def test_detect_processes_exactly_one_frame_when_not_continuous(make_harness, co
     assert [m.header.stamp.sec for m in h.objects.msgs] == [3]
 
 
-def test_detect_times_out_without_a_frame(make_harness):
-    h = make_harness(threads=3, continuous=False, detect_timeout=0.2)
+@pytest.mark.parametrize("threads", [1, 3])
+def test_detect_times_out_without_a_frame(make_harness, threads):
+    h = make_harness(threads=threads, continuous=False, detect_timeout=0.2)
     client = h.peer.create_client(Trigger, "/modeler/detect")
     assert client.wait_for_service(timeout_sec=TIMEOUT)
     future = client.call_async(Trigger.Request())
     wait_until(future.done, "the detect answer")
     assert not future.result().success and "detect_timeout" in future.result().message
     assert h.node._detect_pending == []
+
+
+def test_waiting_detect_is_resumed_per_wake_up_not_spun(make_harness, monkeypatch):
+    # The waiting call is resumed once per executor wake-up: with no input for 1.5 s that
+    # is the 1 Hz diagnostics timer and its own timeout timer, a handful of times; an
+    # executor that polled it in a loop would resume it thousands of times.
+    resumed = []
+
+    class CountingWake:
+        def __await__(self):
+            resumed.append(time.monotonic())
+            yield
+
+    monkeypatch.setattr(node_module, "_NextWake", CountingWake)
+    h = make_harness(threads=1, continuous=False, detect_timeout=1.5)
+    client = h.peer.create_client(Trigger, "/modeler/detect")
+    assert client.wait_for_service(timeout_sec=TIMEOUT)
+    called_at = time.monotonic()
+    future = client.call_async(Trigger.Request())
+    wait_until(future.done, "the detect answer")
+    assert time.monotonic() - called_at >= 1.5  # it did wait for its timeout
+    assert not future.result().success and "detect_timeout" in future.result().message
+    assert 1 <= len(resumed) <= 20, len(resumed)
+
+
+def test_detect_answer_wakes_a_waiting_call_at_once(make_harness, core):
+    # The worker's outcome wakes the node's executor: the answer does not wait for its next
+    # wake-up (the 1 Hz timer cancelled, the timeout an hour: nothing else would wake it).
+    h = make_harness(own_executor=True, continuous=False, detect_timeout=3600.0)
+    h.node._diag_timer.cancel()
+    client = h.peer.create_client(Trigger, "/modeler/detect")
+    assert client.wait_for_service(timeout_sec=TIMEOUT)
+    future = client.call_async(Trigger.Request())
+    wait_until(lambda: h.node._detect_pending, "the request to reach the node")
+    core.gate.clear()  # the frame stays in the core until the executor is idle again
+    h.publish_and_wait_received(_noisy_cloud("tiny_box", 7, 7))
+    assert core.entered.acquire(timeout=TIMEOUT)
+    time.sleep(0.3)  # the executor has resumed the call once (not done) and waits again
+    core.gate.set()
+    wait_until(future.done, "the detect answer")
+    assert future.result().success and "7.000000000" in future.result().message
 
 
 # --------------------------------------------------------------------------- diagnostics

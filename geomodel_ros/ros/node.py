@@ -83,13 +83,13 @@ import threading
 import time
 import traceback
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Callable
 
 import rclpy
-from rclpy.exceptions import ParameterException
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.exceptions import InvalidHandle, ParameterException
 from rclpy.executors import ExternalShutdownException
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -125,8 +125,6 @@ WORKER_JOIN_TIMEOUT_S = 5.0
 #: History depth of ``~/objects`` (reliable): a planner that is briefly slow still gets the
 #: last few frames' objects.
 OBJECTS_QOS_DEPTH = 10
-#: Threads of ``main``'s executor: callbacks (default group) + a blocking ``~/detect``.
-EXECUTOR_THREADS = 2
 #: Shortest window of the processing rate in /diagnostics [s] (the report period).
 RATE_WINDOW_MIN_S = 1.0
 #: Longest window of the processing rate [s] (``expected_rate_min`` near 0).
@@ -330,16 +328,34 @@ class _Turns:
 
 
 class _DetectRequest:
-    """One ``~/detect`` call waiting for its frame's outcome."""
+    """One ``~/detect`` call waiting for its frame's outcome.
 
-    def __init__(self) -> None:
+    ``wake`` is called (from the worker thread) when the outcome is known, so that the
+    executor resumes the waiting service callback at once.
+    """
+
+    def __init__(self, wake: Callable[[], None]) -> None:
         self.done = threading.Event()
         self.success = False
         self.message = ""
+        self._wake = wake
 
     def finish(self, success: bool, message: str) -> None:
         self.success, self.message = success, message
         self.done.set()
+        self._wake()
+
+
+class _NextWake:
+    """Awaitable that suspends a coroutine callback until the executor's next wake-up.
+
+    rclpy's executors resume a suspended coroutine once per wake-up (a message, a timer,
+    :meth:`~rclpy.executors.Executor.wake`) before waiting again, so a callback that awaits
+    this between checks neither blocks the executor nor spins it.
+    """
+
+    def __await__(self):
+        yield
 
 
 def _summary(frame: FrameResult, stamp: str) -> str:
@@ -427,9 +443,10 @@ class ModelerNode(Node):
         self._camera_info: CameraInfo | None = None
         self._create_inputs()
         self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
-        self._detect_service = self.create_service(
-            Trigger, "~/detect", self._on_detect,
-            callback_group=MutuallyExclusiveCallbackGroup())
+        # Its own (reentrant) group: a waiting call must not hold the default group, which
+        # the input subscription and the timers share.
+        self._detect_service = self.create_service(Trigger, "~/detect", self._on_detect,
+                                                   callback_group=ReentrantCallbackGroup())
         self.get_logger().info(
             f"modeling {'depth images' if self._options.input == 'depth' else 'clouds'} from "
             f"{', '.join(repr(s.topic_name) for s in self._inputs)} "
@@ -770,23 +787,47 @@ class ModelerNode(Node):
     # on-demand detection
     # ---------------------------------------------------------------------------------
 
-    def _on_detect(self, request: Trigger.Request, response: Trigger.Response
-                   ) -> Trigger.Response:
-        """Wait for the next frame to be processed; answer with its summary."""
+    async def _on_detect(self, request: Trigger.Request, response: Trigger.Response
+                         ) -> Trigger.Response:
+        """Answer with the summary of the next frame processed (or a timeout).
+
+        A coroutine: the executor goes on receiving frames while the call waits, so the
+        node needs only one executor thread.
+        """
         del request  # Trigger's request is empty
-        pending = _DetectRequest()
+        pending = _DetectRequest(self._wake_executor)
         with self._detect_lock:
             self._detect_pending.append(pending)
         timeout = self._options.detect_timeout
-        if pending.done.wait(timeout):
+        deadline = time.monotonic() + timeout
+        # Wakes the executor at the deadline even when nothing else arrives.
+        timer = self.create_timer(timeout, lambda: None)
+        try:
+            while not pending.done.is_set() and time.monotonic() < deadline:
+                await _NextWake()
+        finally:
+            self.destroy_timer(timer)
+        if pending.done.is_set():
             response.success, response.message = pending.success, pending.message
             return response
         with self._detect_lock:
             if pending in self._detect_pending:
                 self._detect_pending.remove(pending)
+        if pending.done.is_set():  # finished between the last check and the removal
+            response.success, response.message = pending.success, pending.message
+            return response
         response.success = False
         response.message = f"no frame was processed within detect_timeout = {timeout} s"
         return response
+
+    def _wake_executor(self) -> None:
+        """Wake the executor spinning this node (a ``~/detect`` call has its answer)."""
+        executor = self.executor
+        if executor is not None:
+            try:
+                executor.wake()
+            except InvalidHandle:  # shut down meanwhile: no call waits any more
+                pass
 
     # ---------------------------------------------------------------------------------
     # diagnostics
@@ -882,8 +923,10 @@ def main(args: list[str] | None = None) -> int:
     node: ModelerNode | None = None
     try:
         node = ModelerNode()
-        # Two threads: ~/detect blocks until its frame is done while frames keep arriving.
-        rclpy.spin(node, executor=MultiThreadedExecutor(num_threads=EXECUTOR_THREADS))
+        # One thread: callbacks only hand frames over (~/detect waits as a coroutine); a
+        # multi-threaded executor re-scans its wait set several times per message in
+        # Python, which at 30 Hz costs a third of a core and starves the modeling.
+        rclpy.spin(node, executor=SingleThreadedExecutor())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ParameterError, ParameterException) as exc:
