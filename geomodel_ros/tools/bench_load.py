@@ -334,10 +334,14 @@ def _run_under_load(args: argparse.Namespace, proc: subprocess.Popen, log_name: 
     spinner.start()
     try:
         if not _wait(lambda: rec.pub.get_subscription_count() >= 1
+                     and (rec.info_pub is None or rec.info_pub.get_subscription_count() >= 1)
                      and rec.node.count_publishers("/modeler/primitives") >= 1
                      or proc.poll() is not None, 60.0) or proc.poll() is not None:
             raise RuntimeError(f"the node did not come up (exit status {proc.poll()}); "
                                f"see {log_name}")
+        if rec.info_pub is not None:  # a driver's CameraInfo is out before its first image
+            rec.info_pub.publish(clouds[0][1])
+            time.sleep(0.5)
         load = _publish_load(rec, proc, clouds, rate, args)
         _drain(rec, proc)
     finally:
