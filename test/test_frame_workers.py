@@ -19,7 +19,7 @@ from rclpy.parameter import Parameter
 from geomodel_ros.core.errors import InputError
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams
-from geomodel_ros.ros.frame_workers import MAX_WORKERS, ProcessModeler, worker_threads
+from geomodel_ros.ros.frame_workers import MAX_WORKERS, ProcessModeler
 from geomodel_ros.ros.node import ModelerNode
 from geomodel_ros.ros.processing import process_cloud
 from geomodel_ros.tools.synth import render_scene
@@ -92,19 +92,6 @@ def test_a_killed_worker_fails_one_frame_and_the_next_is_modeled(modeler, scene_
     np.testing.assert_array_equal(labels, want_labels)
     _same_objects(got, want)
     assert victim not in _worker_pids(modeler)
-
-
-@pytest.mark.parametrize("workers, cpus, threads", [(1, 2, 2), (2, 2, 1), (1, 8, 8), (3, 8, 2),
-                                                    (16, 4, 1), (2, 1, 1)])
-def test_workers_share_the_cpus_for_their_openmp_threads(workers, cpus, threads):
-    assert worker_threads(workers, cpus) == threads
-
-
-def test_each_worker_runs_its_share_of_openmp_threads(modeler):
-    modeler.start()
-    pool = modeler._current_pool()  # noqa: SLF001 - read the workers' environment
-    seen = {pool.submit(os.getenv, "OMP_NUM_THREADS").result() for _ in range(4)}
-    assert seen == {str(worker_threads(2))}
 
 
 @pytest.mark.parametrize("workers", [0, -1, MAX_WORKERS + 1])

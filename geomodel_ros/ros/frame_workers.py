@@ -21,7 +21,6 @@ naming what happened; the pool is replaced, so the next frame is modeled again.
 from __future__ import annotations
 
 import multiprocessing
-import os
 import threading
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -33,7 +32,7 @@ from geomodel_ros.core.modeling import model_scene as core_model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import ModelingResult
 
-__all__ = ["ProcessModeler", "MAX_WORKERS", "worker_threads"]
+__all__ = ["ProcessModeler", "MAX_WORKERS"]
 
 #: Largest accepted number of worker processes (the node's ``workers`` parameter).
 MAX_WORKERS = 64
@@ -41,30 +40,9 @@ MAX_WORKERS = 64
 PRELOAD = ("numpy", "scipy.spatial", "geomodel_ros.core.modeling")
 
 
-def _start_worker(threads: int) -> None:
-    """Set up a worker process: keep freed memory for the next frame, as the node does.
-
-    ``threads`` is the worker's share of the CPUs for the k-d tree's OpenMP team (read when
-    that library loads, on the worker's first search): workers that each start a team as
-    large as the machine only take turns on the same cores.
-    """
-    os.environ["OMP_NUM_THREADS"] = str(threads)
+def _start_worker() -> None:
+    """Set up a worker process: keep freed memory for the next frame, as the node does."""
     retain_freed_memory()
-
-
-def _started() -> None:
-    """Do nothing (a task that makes the pool start its workers)."""
-
-
-def worker_threads(workers: int, cpus: int | None = None) -> int:
-    """Return the OpenMP threads of each of ``workers`` processes on ``cpus`` CPUs (>= 1).
-
-    ``cpus`` defaults to the CPUs this process may run on.
-    """
-    if cpus is None:
-        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
-            (os.cpu_count() or 1)
-    return max(1, cpus // workers)
 
 
 def _model_in_worker(points: np.ndarray, params: ModelingParams,
@@ -108,7 +86,7 @@ class ProcessModeler:
 
     def start(self) -> None:
         """Start the worker processes now (otherwise the first frame starts them)."""
-        futures = [self._current_pool().submit(_started) for _ in range(self.workers)]
+        futures = [self._current_pool().submit(_start_worker) for _ in range(self.workers)]
         for future in futures:
             future.result()
 
@@ -144,9 +122,8 @@ class ProcessModeler:
             if self._closed:
                 raise RuntimeError("the modeling workers are closed")
             if self._pool is None:
-                self._pool = ProcessPoolExecutor(
-                    self.workers, mp_context=_context(), initializer=_start_worker,
-                    initargs=(worker_threads(self.workers),))
+                self._pool = ProcessPoolExecutor(self.workers, mp_context=_context(),
+                                                 initializer=_start_worker)
             return self._pool
 
     def _replace(self, broken: ProcessPoolExecutor) -> None:
