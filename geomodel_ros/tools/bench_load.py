@@ -340,8 +340,9 @@ def _run_under_load(args: argparse.Namespace, proc: subprocess.Popen, log_name: 
             raise RuntimeError(f"the node did not come up (exit status {proc.poll()}); "
                                f"see {log_name}")
         if rec.info_pub is not None:  # a driver's CameraInfo is out before its first image
-            rec.info_pub.publish(clouds[0][1])
-            time.sleep(0.5)
+            for _ in range(10):  # best effort, and the node's reader may match a bit later
+                rec.info_pub.publish(clouds[0][1])
+                time.sleep(0.1)
         load = _publish_load(rec, proc, clouds, rate, args)
         _drain(rec, proc)
     finally:
