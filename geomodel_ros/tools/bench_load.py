@@ -14,6 +14,12 @@ this process publishes clouds to it faster than it can model them, for ``--minut
   from :func:`geomodel_ros.tools.benchmark.data_dir`), cycled, at 30 Hz with
   ``config/kinect.yaml``.
 
+With ``--input depth`` the same frames go out as 16UC1 depth images [mm] with their
+CameraInfo (the osd_learn frames' pinhole model,
+:data:`geomodel_ros.tools.bench_node.OSD_CAMERA`;
+the rendered scene's own), and the node subscribes them (``input: depth``): messages 6x
+smaller than the clouds.
+
 It subscribes to every output (like RViz) and reports:
 
 * frames published / received by the node / processed / dropped (newest frame wins) /
@@ -66,7 +72,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data  # 
 
 from msg_adapters.diagnostics import read_status_values  # noqa: E402
 from msg_adapters.header import NS_PER_S, StampedFrame, make_header, set_stamp  # noqa: E402
-from msg_adapters.interfaces import DiagnosticArray, MarkerArray, PointCloud2  # noqa: E402
+from msg_adapters.depth_image import CameraModel, camera_info, depth_image  # noqa: E402
+from msg_adapters.interfaces import (CameraInfo, DiagnosticArray, Image, MarkerArray,  # noqa: E402
+                                     PointCloud2)
 from msg_adapters.markers import marker_array_frame, marker_array_problem  # noqa: E402
 from msg_adapters.pointcloud2 import cloud_size, cloud_to_xyz, xyz_to_cloud  # noqa: E402
 
@@ -74,26 +82,39 @@ __all__ = ["main"]
 
 FRAME = "camera_optical"
 TOPIC = "/bench_load/points"
+DEPTH_TOPIC = "/bench_load/depth"
+INFO_TOPIC = "/bench_load/camera_info"
 DEFAULT_RATE = {"paper": 15.0, "kinect": 30.0}
 _RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 
-def _clouds(kind: str, count: int) -> list[PointCloud2]:
-    """Input messages (stamps are set at publish time)."""
-    header = make_header(FRAME)
+def _organized(kind: str, count: int) -> tuple[list[np.ndarray], CameraModel]:
+    """Return the frames' (H, W, 3) organized points [m] and their camera."""
     if kind == "paper":
         from geomodel_ros.tools.synth import render_scene
 
-        return [xyz_to_cloud(render_scene("scene3").organized, header)]
+        rendered = render_scene("scene3")
+        return [rendered.organized], CameraModel(**rendered.intrinsics)
     from geomodel_ros.tools.benchmark import data_dir
+    from geomodel_ros.tools.bench_node import OSD_CAMERA
     from geomodel_ros.tools.io import load_osd
 
     folder = data_dir() / "osd_learn"
-    msgs = []
-    for k in range(count):
-        points, _ = load_osd(folder / f"learn{k}.pcd")
-        msgs.append(xyz_to_cloud(points.reshape(480, 640, 3), header))
-    return msgs
+    return [load_osd(folder / f"learn{k}.pcd")[0].reshape(OSD_CAMERA.height, OSD_CAMERA.width, 3)
+            for k in range(count)], OSD_CAMERA
+
+
+def _clouds(kind: str, count: int) -> list[PointCloud2]:
+    """Input clouds (stamps are set at publish time)."""
+    frames, _ = _organized(kind, count)
+    return [xyz_to_cloud(points, make_header(FRAME)) for points in frames]
+
+
+def _depth_messages(kind: str, count: int) -> list[tuple[Image, CameraInfo]]:
+    """Return the same frames as 16UC1 depth images [mm] with their CameraInfo."""
+    frames, camera = _organized(kind, count)
+    return [(depth_image(points[..., 2], make_header(FRAME), encoding="16UC1"),
+             camera_info(camera, make_header(FRAME))) for points in frames]
 
 
 def _single_frame_s(clouds: list[PointCloud2], params_file: str | None, repeats: int = 3
@@ -155,10 +176,15 @@ def _children(pid: int) -> list[int]:
 class _Recorder:
     """Peer node: publishes the clouds, records markers and the node's diagnostics."""
 
-    def __init__(self, context: Context, reliable: bool) -> None:
+    def __init__(self, context: Context, reliable: bool, depth: bool = False) -> None:
         self.node = Node("bench_load", context=context)
         qos_in = _RELIABLE if reliable else qos_profile_sensor_data
-        self.pub = self.node.create_publisher(PointCloud2, TOPIC, qos_in)
+        if depth:  # a camera driver's pair: the image and its CameraInfo, same QoS
+            self.pub = self.node.create_publisher(Image, DEPTH_TOPIC, qos_in)
+            self.info_pub = self.node.create_publisher(CameraInfo, INFO_TOPIC, qos_in)
+        else:
+            self.pub = self.node.create_publisher(PointCloud2, TOPIC, qos_in)
+            self.info_pub = None
         self.lock = threading.Lock()
         self.latencies: list[tuple[float, float]] = []  # (arrival, latency) [s]
         self.malformed: list[str] = []
@@ -228,7 +254,10 @@ class _LoadRun:
 def _start_node(args: argparse.Namespace, params: str | None
                 ) -> tuple[subprocess.Popen, list[str], str]:
     """Start the node process; its handle, command line and log file name."""
-    cmd = [sys.executable, "-m", "geomodel_ros.ros.node", "--ros-args", "-r", f"points:={TOPIC}",
+    inputs = ["-p", "input:=depth", "-r", f"depth/image_raw:={DEPTH_TOPIC}", "-r",
+              f"depth/camera_info:={INFO_TOPIC}"] if args.input == "depth" else \
+        ["-r", f"points:={TOPIC}"]
+    cmd = [sys.executable, "-m", "geomodel_ros.ros.node", "--ros-args", *inputs,
            "-p", f"qos_reliability:={'reliable' if args.reliable else 'best_effort'}"]
     if params:
         cmd += ["--params-file", params]
@@ -243,9 +272,12 @@ def _start_node(args: argparse.Namespace, params: str | None
     return proc, cmd, log.name
 
 
-def _publish_load(rec: _Recorder, proc: subprocess.Popen, clouds: list[PointCloud2],
+def _publish_load(rec: _Recorder, proc: subprocess.Popen, clouds: list,
                   rate: float, args: argparse.Namespace) -> _LoadRun:
-    """Publish the clouds at ``rate`` for ``args.minutes``, sampling the node's RSS at 1 Hz."""
+    """Publish the clouds (or (image, CameraInfo) pairs) at ``rate`` for ``args.minutes``.
+
+    The node's RSS is sampled at 1 Hz.
+    """
     period = 1.0 / rate
     start = time.monotonic()
     end = start + 60.0 * args.minutes
@@ -258,7 +290,12 @@ def _publish_load(rec: _Recorder, proc: subprocess.Popen, clouds: list[PointClou
             break
         msg = clouds[out.published % len(clouds)]
         t = time.time()
-        set_stamp(msg, int(t) * NS_PER_S + int((t % 1.0) * 1e9))
+        stamp = int(t) * NS_PER_S + int((t % 1.0) * 1e9)
+        if rec.info_pub is not None:  # (image, CameraInfo): the CameraInfo first
+            msg, info = msg
+            set_stamp(info, stamp)
+            rec.info_pub.publish(info)
+        set_stamp(msg, stamp)
         rec.pub.publish(msg)
         out.published += 1
         if now >= next_rss:
@@ -286,21 +323,26 @@ def _drain(rec: _Recorder, proc: subprocess.Popen) -> None:
 
 
 def _run_under_load(args: argparse.Namespace, proc: subprocess.Popen, log_name: str,
-                    clouds: list[PointCloud2], rate: float) -> tuple[_LoadRun, int, _Recorder]:
+                    clouds: list, rate: float) -> tuple[_LoadRun, int, _Recorder]:
     """Peer node up, load published, node drained and stopped; its exit status."""
     context = Context()
     rclpy.init(args=[], context=context)
-    rec = _Recorder(context, args.reliable)
+    rec = _Recorder(context, args.reliable, depth=args.input == "depth")
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(rec.node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
     try:
         if not _wait(lambda: rec.pub.get_subscription_count() >= 1
+                     and (rec.info_pub is None or rec.info_pub.get_subscription_count() >= 1)
                      and rec.node.count_publishers("/modeler/primitives") >= 1
                      or proc.poll() is not None, 60.0) or proc.poll() is not None:
             raise RuntimeError(f"the node did not come up (exit status {proc.poll()}); "
                                f"see {log_name}")
+        if rec.info_pub is not None:  # a driver's CameraInfo is out before its first image
+            for _ in range(10):  # best effort, and the node's reader may match a bit later
+                rec.info_pub.publish(clouds[0][1])
+                time.sleep(0.1)
         load = _publish_load(rec, proc, clouds, rate, args)
         _drain(rec, proc)
     finally:
@@ -320,13 +362,19 @@ def run(args: argparse.Namespace) -> dict:
     params = args.params or (str(REPO / "config" / "kinect.yaml")
                              if args.cloud == "kinect" else None)
     single_s = _single_frame_s(clouds, params)
-    proc, cmd, log_name = _start_node(args, params)
     size = cloud_size(clouds[0])
+    if args.input == "depth":
+        clouds = _depth_messages(args.cloud, args.kinect_scenes)
+        nbytes = len(clouds[0][0].data)
+    else:
+        nbytes = size.nbytes
+    proc, cmd, log_name = _start_node(args, params)
     print(f"{args.cloud}: {size.height} x {size.width} ({valid} valid points, "
-          f"{size.nbytes / 1e6:.1f} MB per message, {len(clouds)} distinct) at "
+          f"{args.input} input, {nbytes / 1e6:.2f} MB per message, {len(clouds)} distinct) at "
           f"{rate:g} Hz for {args.minutes:g} min; node log {log_name}", flush=True)
     load, exit_status, rec = _run_under_load(args, proc, log_name, clouds, rate)
-    report: dict = {"cloud": args.cloud, "rate_hz": rate, "minutes": args.minutes,
+    report: dict = {"cloud": args.cloud, "input": args.input, "message_mb": nbytes / 1e6,
+                    "rate_hz": rate, "minutes": args.minutes,
                     "workers": args.workers or 1,
                     "points": valid, "command": cmd, "single_frame_ms": 1000.0 * single_s}
     with rec.lock:
@@ -409,7 +457,8 @@ def _thirds(lat_ms: np.ndarray) -> list[float]:
 
 def _print(r: dict) -> None:
     lat, rss = r["latency_ms"], r["rss_mib"]
-    print(f"\n{r['cloud']} at {r['rate_hz']:g} Hz for {r['duration_s']:.0f} s, "
+    print(f"\n{r['cloud']} ({r.get('input', 'points')} input) at {r['rate_hz']:g} Hz for "
+          f"{r['duration_s']:.0f} s, "
           f"{r.get('workers', 1)} worker(s) "
           f"({r['points']} valid points per frame)")
     print(f"  frames: published {r['published']}, received {r['received']} (lost in transport "
@@ -435,6 +484,9 @@ def main(argv: list[str] | None = None) -> int:
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--cloud", choices=("paper", "kinect"), default="paper")
+    parser.add_argument("--input", choices=("points", "depth"), default="points",
+                        help="send PointCloud2 clouds (default) or 16UC1 depth images with "
+                             "their CameraInfo (the node's input: depth)")
     parser.add_argument("--rate", type=float, help="publish rate [Hz] (paper 15, kinect 30)")
     parser.add_argument("--params", help="params file for the node (kinect: "
                         "config/kinect.yaml by default)")
