@@ -807,13 +807,11 @@ class ModelerNode(Node):
                 await _NextWake()
         finally:
             self.destroy_timer(timer)
-        if pending.done.is_set():
-            response.success, response.message = pending.success, pending.message
-            return response
-        with self._detect_lock:
-            if pending in self._detect_pending:
-                self._detect_pending.remove(pending)
-        if pending.done.is_set():  # finished between the last check and the removal
+        if not pending.done.is_set():
+            with self._detect_lock:
+                if pending in self._detect_pending:
+                    self._detect_pending.remove(pending)
+        if pending.done.is_set():  # (also when it finished just before the removal)
             response.success, response.message = pending.success, pending.message
             return response
         response.success = False

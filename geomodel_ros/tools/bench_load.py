@@ -104,15 +104,9 @@ def _organized(kind: str, count: int) -> tuple[list[np.ndarray], CameraModel]:
             for k in range(count)], OSD_CAMERA
 
 
-def _clouds(kind: str, count: int) -> list[PointCloud2]:
-    """Input clouds (stamps are set at publish time)."""
-    frames, _ = _organized(kind, count)
-    return [xyz_to_cloud(points, make_header(FRAME)) for points in frames]
-
-
-def _depth_messages(kind: str, count: int) -> list[tuple[Image, CameraInfo]]:
-    """Return the same frames as 16UC1 depth images [mm] with their CameraInfo."""
-    frames, camera = _organized(kind, count)
+def _depth_messages(frames: list[np.ndarray], camera: CameraModel
+                    ) -> list[tuple[Image, CameraInfo]]:
+    """Return the frames as 16UC1 depth images [mm] with their CameraInfo."""
     return [(depth_image(points[..., 2], make_header(FRAME), encoding="16UC1"),
              camera_info(camera, make_header(FRAME))) for points in frames]
 
@@ -357,22 +351,20 @@ def _run_under_load(args: argparse.Namespace, proc: subprocess.Popen, log_name: 
 def run(args: argparse.Namespace) -> dict:
     """Run the load and return the report (see the module docstring)."""
     rate = args.rate or DEFAULT_RATE[args.cloud]
-    clouds = _clouds(args.cloud, args.kinect_scenes)
+    frames, camera = _organized(args.cloud, args.kinect_scenes)
+    clouds = [xyz_to_cloud(points, make_header(FRAME)) for points in frames]  # stamps: at publish
     valid = int(np.count_nonzero(np.isfinite(cloud_to_xyz(clouds[0], keep_organized=True)[..., 0])))
     params = args.params or (str(REPO / "config" / "kinect.yaml")
                              if args.cloud == "kinect" else None)
     single_s = _single_frame_s(clouds, params)
     size = cloud_size(clouds[0])
-    if args.input == "depth":
-        clouds = _depth_messages(args.cloud, args.kinect_scenes)
-        nbytes = len(clouds[0][0].data)
-    else:
-        nbytes = size.nbytes
+    messages = _depth_messages(frames, camera) if args.input == "depth" else clouds
+    nbytes = len(messages[0][0].data) if args.input == "depth" else size.nbytes
     proc, cmd, log_name = _start_node(args, params)
     print(f"{args.cloud}: {size.height} x {size.width} ({valid} valid points, "
           f"{args.input} input, {nbytes / 1e6:.2f} MB per message, {len(clouds)} distinct) at "
           f"{rate:g} Hz for {args.minutes:g} min; node log {log_name}", flush=True)
-    load, exit_status, rec = _run_under_load(args, proc, log_name, clouds, rate)
+    load, exit_status, rec = _run_under_load(args, proc, log_name, messages, rate)
     report: dict = {"cloud": args.cloud, "input": args.input, "message_mb": nbytes / 1e6,
                     "rate_hz": rate, "minutes": args.minutes,
                     "workers": args.workers or 1,
