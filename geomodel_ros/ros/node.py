@@ -51,9 +51,9 @@ Topics (names relative to the node, so ``-r`` and namespaces work):
 Service ``~/detect`` (std_srvs/Trigger): processes the next frame that arrives and answers
 with a one-line summary (objects by type, the frame's stamp); ``success`` false when no
 frame was processed within ``detect_timeout``.  With ``continuous`` false the node ignores
-frames (counted as ``ignored``) except those asked for this way.  The service blocks until
-its frame is done, so the node must be spun by a multi-threaded executor (``main`` uses
-one); it runs in its own callback group.
+frames (counted as ``ignored``) except those asked for this way.  The call waits for its
+frame as a coroutine in its own reentrant callback group, so any executor serves it
+(``main`` spins a single-threaded one) and frames keep arriving while it waits.
 
 Every output carries the input's header (``frame_id`` and ``stamp``).  Outputs are
 published reliable, keep last ``qos_depth`` (compatible with reliable and best-effort
