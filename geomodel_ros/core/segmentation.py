@@ -849,9 +849,11 @@ def _fold_sides(normals: NDArray[np.float64]
         c /= np.linalg.norm(c, axis=1, keepdims=True)
         side = normals @ c[1] > normals @ c[0]
     cos = float(np.clip(c[0] @ c[1], -1.0, 1.0))
-    angle = math.acos(cos)
     e1 = c[1] - cos * c[0]
     norm = float(np.linalg.norm(e1))
+    # The angle from its sine and cosine: acos(cos) is 0 for angles below ~1.5e-8 rad,
+    # where the cosine rounds to 1, although the means still span a great circle.
+    angle = math.atan2(norm, cos)
     if norm < _FOLD_TINY or side.all() or not side.any():
         return side, angle, 1.0, side
     t = np.arctan2(normals @ (e1 / norm), normals @ c[0]) / angle
