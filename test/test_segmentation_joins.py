@@ -20,7 +20,8 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from geomodel_ros.core.joins import (GAP_DIRECT_POINTS, DisjointSets, _closest_gap, _gap_candidates,
-                                     _round_footprint, _Segments, merge_patches, segment_members)
+                                     _round_footprint, _Segments, join_occluded_parts,
+                                     merge_patches, segment_members)
 from geomodel_ros.core.params import ModelingParams, load_params_file
 from geomodel_ros.core.segmentation import segment_scene
 from geomodel_ros.tools.synth import SENSOR_NOISE, Box, Cylinder, Sphere, apply_noise
@@ -593,3 +594,45 @@ def test_gap_candidates_keep_every_equally_near_point():
     # Nothing within the largest gap: no candidates.
     got, reached = _gap_candidates(q, tree, 0.02, 0.01)
     assert len(got) == 0 and reached == np.inf
+
+
+def _gap_scene(occluder_label: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two parts of one plane 1 m in front of the sensor, 60 mm apart, and a strip in front.
+
+    Part 0 spans x in [-100, -30] mm, part 1 [30, 100] mm, both y in [-30, 30] mm at z = 1 m
+    (working points 4 mm apart, normals towards the sensor); the strip, 0.1 m nearer, covers
+    the gap's rays. The strip's points get label ``occluder_label``. Returns the points
+    (N, 3) [m] and their labels (N,).
+    """
+    step = 0.004
+    y = np.arange(-0.03, 0.03 + 1e-9, step)
+    parts = [np.arange(-0.1, -0.03 + 1e-9, step), np.arange(0.03, 0.1 + 1e-9, step)]
+    pts, lab = [], []
+    for label, x in enumerate(parts):
+        gx, gy = np.meshgrid(x, y)
+        pts.append(np.column_stack([gx.ravel(), gy.ravel(), np.ones(gx.size)]))
+        lab.append(np.full(gx.size, label))
+    # the strip on the rays of x in [-34, 34] mm at 1 m, seen at 0.9 m
+    gx, gy = np.meshgrid(np.arange(-0.034, 0.034 + 1e-9, step) * 0.9, y * 0.9)
+    pts.append(np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, 0.9)]))
+    lab.append(np.full(gx.size, occluder_label))
+    return np.vstack(pts), np.concatenate(lab)
+
+
+@pytest.mark.parametrize("occluder, joined", [(2, True), (0, False), (1, False)],
+                         ids=["third-object", "part-0-itself", "part-1-itself"])
+def test_occlusion_join_needs_a_third_object_in_front_of_the_gap(occluder, joined):
+    # The same gap, hidden by the same nearer points: a third object there hides the
+    # plane's continuation (one surface seen on both sides of it), but one of the two parts
+    # in front of the gap itself (a container's wall in front of its own floor) bounds the
+    # other surface there: no evidence that it continues.
+    points, comp = _gap_scene(occluder)
+    normals = np.tile([0.0, 0.0, -1.0], (len(points), 1))
+    params = ModelingParams()
+    out = join_occluded_parts(points, normals, comp, np.ones(len(points), dtype=bool), params)
+    left, right = out[comp == 0], out[comp == 1]
+    assert len(np.unique(left)) == 1 and len(np.unique(right)) == 1
+    assert (left[0] == right[0]) == joined
+    # the strip in front is never joined to either part (it lies off their plane)
+    if occluder == 2:
+        assert not np.isin(out[comp == 2], out[comp < 2]).any()

@@ -431,6 +431,7 @@ class _Segments:
     def __init__(self, points: NDArray[np.float64], comp: NDArray[np.int64],
                  valid: NDArray[np.bool_]) -> None:
         self.points = points
+        self.comp = comp
         self.members = segment_members(comp, valid)
         self._trees: dict[int, cKDTree] = {}
         self._cells: dict[int, _Cells] = {}
@@ -516,8 +517,9 @@ def join_occluded_parts(points: NDArray[np.float64], normals: NDArray[np.float64
     Two segments are joined when their closest points are farther apart than a link (they
     do not touch) but closer than ``seg_max_occlusion_gap`` (:func:`_closest_gap`), the
     surface continues across the gap (:func:`_surface_continues`), and the gap is hidden
-    behind a nearer object (:func:`_gap_is_hidden`). Pairs are visited in the order of
-    their segment ids; a pair already in one group is not tested again.
+    behind a nearer third object, neither of the two (:func:`_gap_is_hidden`). Pairs are
+    visited in the order of their segment ids; a pair already in one group is not tested
+    again.
     """
     segs = _Segments(points, comp, valid)
     if len(segs.members) < 2:
@@ -674,8 +676,9 @@ def _gap_is_hidden(segs: _Segments, gap: _Gap, voxel: float) -> bool:
     On the viewing ray (sensor at the origin) of each sample of the gap
     (:data:`OCCLUSION_GAP_SAMPLES`) the nearest measured direction is looked up. A ray with
     a measured point is *seen*; it is hidden when that point is nearer than the sample by
-    more than :data:`OCCLUSION_NEARER_MARGIN_VOXELS`, and open otherwise. The gap is hidden
-    when enough samples are seen and none of them is open.
+    more than :data:`OCCLUSION_NEARER_MARGIN_VOXELS` and belongs to neither of the gap's
+    two segments, and open otherwise. The gap is hidden when enough samples are seen and
+    none of them is open.
     """
     p = segs.points
     samples = p[gap.pa] + OCCLUSION_GAP_SAMPLES[:, None] * (p[gap.pb] - p[gap.pa])
@@ -684,6 +687,9 @@ def _gap_is_hidden(segs: _Segments, gap: _Gap, voxel: float) -> bool:
     dist, hit = _nearest_rays(segs, samples / s_depth[:, None], tol)
     seen = dist <= tol
     nearer = segs.depth[hit] < s_depth - OCCLUSION_NEARER_MARGIN_VOXELS * voxel
+    # Only a third object occludes: a part in front of the gap itself (a container's wall
+    # in front of its own floor) bounds its surface there instead of hiding its continuation.
+    nearer &= (segs.comp[hit] != segs.comp[gap.pa]) & (segs.comp[hit] != segs.comp[gap.pb])
     return bool(np.all(nearer[seen])
                 and seen.sum() >= OCCLUSION_MIN_SEEN_SHARE * len(OCCLUSION_GAP_SAMPLES))
 

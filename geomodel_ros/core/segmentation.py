@@ -364,14 +364,18 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
         wlabel[sel] = sid
     comp, comp_ok, patches = _object_segments(wp, counts, wlabel < 0, params, grid, noise,
                                               quantum, near)
-    if params.seg_max_occlusion_gap > 0:
-        comp = join_occluded_parts(wp, wn, comp, comp_ok, params)
-    comp = join_terraces(wp, comp, comp_ok, step, params)
-    if params.seg_join_contained and supports:
+    # A container's parts (inner and outer wall, a floor inside) are joined first: a
+    # container's own wall in front of its floor is then no occluder of that floor.
+    contained = params.seg_join_contained and bool(supports)
+    if contained:
         first = fit_plane_svd(take_rows(wp, supports[0]))
         comp = join_contained_parts(wp, wn, comp, comp_ok, first, noise, patches,
                                     (params.seg_max_edge_factor * params.seg_voxel_size,
                                      params.seg_plane_threshold + params.seg_voxel_size))
+    if params.seg_max_occlusion_gap > 0:
+        comp = join_occluded_parts(wp, wn, comp, comp_ok, params)
+    comp = join_terraces(wp, comp, comp_ok, step, params)
+    if contained:
         if links is not None:
             taken = _return_floors(wp, wn, comp, comp_ok, wlabel, supports, params, links,
                                    noise, first)
