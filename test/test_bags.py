@@ -14,6 +14,7 @@ import re
 import shutil
 import struct
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -535,6 +536,47 @@ def test_replay_into_the_node_models_the_frames_it_gets_in_order(context, tmp_pa
         spinning.close()
         node.destroy_node()
         peer.destroy_node()
+
+
+class _AckingPublisher:
+    """Stands in for a reliable publisher: logs publishes and acknowledgement waits."""
+
+    ACK_S = 0.3
+
+    def __init__(self) -> None:
+        self.log: list[tuple[str, float]] = []
+        self.sent: list[bytes] = []
+
+    def publish(self, raw) -> None:
+        self.sent.append(bytes(raw))
+        self.log.append(("publish", time.monotonic()))
+
+    def wait_for_all_acked(self, timeout) -> bool:
+        assert timeout.nanoseconds > 0
+        time.sleep(self.ACK_S)  # a reader that matches late acknowledges late
+        self.log.append(("acked", time.monotonic()))
+        return True
+
+
+def test_play_sends_the_second_record_on_schedule_after_the_first_is_acknowledged(tmp_path):
+    # Three records 0.1 s apart. The first goes out, the player waits for its
+    # acknowledgement, and only then the clock starts: the second follows the ack by the
+    # records' spacing (not at once, as it would if the clock had started at the first).
+    bag = tmp_path / "acks"
+    bags.write_synth_bag(bag, ["tiny_box"], frames=3, rate=10.0)
+    reader = bags._open_reader(bag)
+    try:
+        names = bags._select_topics(reader, bag, None, single=False)
+        conns = [c for c in reader.connections if c.topic in names]
+        pub = _AckingPublisher()
+        n = bags._publish_once(reader, bag, conns, {name: pub for name in names}, 1.0,
+                               threading.Event())
+    finally:
+        reader.close()
+    assert n == 3 and len(set(pub.sent)) == 3
+    assert [event for event, _ in pub.log] == ["publish", "acked", "publish", "publish"]
+    t = [when for _, when in pub.log]
+    assert t[2] - t[1] >= 0.1 - 0.01 and t[3] - t[1] >= 0.2 - 0.01
 
 
 def test_play_waits_for_a_subscriber_then_gives_up(context, tmp_path):

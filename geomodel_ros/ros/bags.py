@@ -540,18 +540,30 @@ def _wait_for_subscribers(pubs: Mapping[str, Any], wait_timeout: float,
 
 def _publish_once(reader: Reader, bag: Path, conns: Sequence[Connection],
                   pubs: Mapping[str, Any], rate: float, stop: threading.Event) -> int:
-    """Publish the records once at the recorded rate / ``rate``; records published."""
+    """Publish the records once at the recorded rate / ``rate``; records published.
+
+    The clock starts once the readers have acknowledged the first record (at most
+    :data:`ACK_TIMEOUT_S`; at once for a best-effort publisher): a publisher sees a new
+    reader before that reader has matched it, and a record sent in between reaches the
+    reader only when the writer sends it again, together with the next record. A node
+    that models only the newest of the frames waiting (the modeler) then drops the first.
+    """
+    from rclpy.duration import Duration
+
     published = 0
     t0_bag: int | None = None
     t0_wall = time.monotonic()
     for conn, t_ns, raw in _messages(reader, bag, conns):
-        if t0_bag is None:
-            t0_bag = t_ns
-        delay = t0_wall + (t_ns - t0_bag) / 1e9 / rate - time.monotonic()
-        if delay > 0 and stop.wait(delay):
-            break
+        if t0_bag is not None:
+            delay = t0_wall + (t_ns - t0_bag) / 1e9 / rate - time.monotonic()
+            if delay > 0 and stop.wait(delay):
+                break
         pubs[conn.topic].publish(raw)
         published += 1
+        if t0_bag is None:
+            t0_bag = t_ns
+            pubs[conn.topic].wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
+            t0_wall = time.monotonic()
     return published
 
 
@@ -570,7 +582,8 @@ def play(path: str | os.PathLike[str], *, rate: float = 1.0, loop: bool = False,
         The bag (rosbag2 directory, ``.mcap`` or ``.db3``).
     rate : float
         Speed factor (> 0): record ``i`` is published ``(t_i - t_0) / rate`` seconds after
-        the first (bag times).
+        the readers acknowledged the first (bag times; a best-effort publisher does not
+        wait for acknowledgements).
     loop : bool
         Start over at the end, until ``stop`` is set or Ctrl-C.
     topics : sequence of str, optional
