@@ -19,9 +19,10 @@ import pytest
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core.joins import (GAP_DIRECT_POINTS, DisjointSets, _closest_gap, _gap_candidates,
-                                     _round_footprint, _Segments, join_occluded_parts,
-                                     merge_patches, segment_members)
+from geomodel_ros.core.joins import (GAP_DIRECT_POINTS, DisjointSets, _closest_gap, _Gap,
+                                     _gap_candidates, _one_round_surface, _round_footprint,
+                                     _Segments, join_occluded_parts, merge_patches,
+                                     segment_members)
 from geomodel_ros.core.params import ModelingParams, load_params_file
 from geomodel_ros.core.segmentation import segment_scene
 from geomodel_ros.tools.synth import SENSOR_NOISE, Box, Cylinder, Sphere, apply_noise
@@ -636,3 +637,44 @@ def test_occlusion_join_needs_a_third_object_in_front_of_the_gap(occluder, joine
     # the strip in front is never joined to either part (it lies off their plane)
     if occluder == 2:
         assert not np.isin(out[comp == 2], out[comp < 2]).any()
+
+
+def _can_front(x0: float, y0: float, y1: float, r: float = 0.04) -> np.ndarray:
+    """Points 4 mm apart on the front (facing the sensor) of an upright can 1 m away."""
+    theta = np.arange(-1.3, 1.3 + 1e-9, 0.004 / r)
+    y = np.arange(y0, y1 + 1e-9, 0.004)
+    t, yy = np.meshgrid(theta, y)
+    return np.column_stack([x0 + r * np.sin(t.ravel()), yy.ravel(), 1.0 - r * np.cos(t.ravel())])
+
+
+def _gap_of(parts: list[np.ndarray]) -> tuple[_Segments, _Gap]:
+    points = np.vstack(parts)
+    comp = np.repeat(np.arange(len(parts)), [len(p) for p in parts])
+    segs = _Segments(points, comp, np.ones(len(points), dtype=bool))
+    d = cKDTree(parts[1]).query(parts[0])[0]
+    pa = int(np.argmin(d))
+    pb = len(parts[0]) + int(cKDTree(parts[1]).query(parts[0][pa])[1])
+    u = points[pb] - points[pa]
+    return segs, _Gap(0, 1, pa, pb, float(np.linalg.norm(u)), u / np.linalg.norm(u))
+
+
+@pytest.mark.parametrize("case, one", [
+    ("one-can-above-and-below-a-band", True),
+    ("two-cans-side-by-side", False),
+    ("two-flat-parts", True),
+])
+def test_a_round_part_joins_only_what_is_modeled_with_it_as_one_round_shape(case, one):
+    # The model graph's own models decide: the two visible parts of one can (a band in
+    # front hides its middle) are one cylinder together; two cans are no round shape; two
+    # flat parts are no round parts, so their models ask nothing more.
+    parts = {
+        "one-can-above-and-below-a-band": [_can_front(0.0, -0.06, -0.01),
+                                           _can_front(0.0, 0.01, 0.06)],
+        "two-cans-side-by-side": [_can_front(-0.05, -0.06, 0.06),
+                                  _can_front(0.05, -0.06, 0.06)],
+        "two-flat-parts": [_grid(-0.1, -0.03, 1.0), _grid(0.03, 0.1, 1.0)],
+    }[case]
+    segs, gap = _gap_of(parts)
+    assert _one_round_surface(segs, gap, ModelingParams()) == one
+    if case != "two-flat-parts":  # each part alone is a can
+        assert all(segs.model_types[s] == "cylinder" for s in (0, 1))

@@ -35,6 +35,7 @@ from geomodel_ros.core.fastmath import group_by_label, link_components, row_norm
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.noise import NoiseEstimate
 from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import PrimitiveType
 from geomodel_ros.core.ransac import PlaneModel
 
 __all__ = ["DisjointSets", "merge_patches", "join_occluded_parts", "join_contained_parts",
@@ -117,6 +118,13 @@ RAY_BOX_MARGIN = 1e-9
 #: and sensor shadows are no evidence either way, and a gap mostly unmeasured proves
 #: nothing.
 OCCLUSION_MIN_SEEN_SHARE = 0.6
+
+#: Types whose surface turns everywhere. Parallel normals at the two ends of a gap are
+#: evidence of one surface for flat parts; a round part and another are one surface only
+#: when the model graph models the two together as a round shape
+#: (:func:`_one_round_surface`).
+ROUND_TYPES = frozenset({PrimitiveType.CYLINDER, PrimitiveType.CONE, PrimitiveType.FRUSTUM,
+                         PrimitiveType.SPHERE})
 
 # --- join_contained_parts: the inner and outer walls of an open round container ----------
 #: Segments with fewer working points take no part in the container join (too few to fit
@@ -439,6 +447,8 @@ class _Segments:
         self._rays: NDArray[np.float64] | None = None
         #: Mean normals around gap ends, by (segment, point, radius) (:func:`_mean_normal`).
         self.mean_normals: dict[tuple[int, int, float], NDArray[np.float64]] = {}
+        #: Each segment's modeled type, once asked (:func:`_one_round_surface`).
+        self.model_types: dict[int, PrimitiveType] = {}
 
     @cached_property
     def depth(self) -> NDArray[np.float64]:
@@ -516,10 +526,11 @@ def join_occluded_parts(points: NDArray[np.float64], normals: NDArray[np.float64
     -----
     Two segments are joined when their closest points are farther apart than a link (they
     do not touch) but closer than ``seg_max_occlusion_gap`` (:func:`_closest_gap`), the
-    surface continues across the gap (:func:`_surface_continues`), and the gap is hidden
-    behind a nearer third object, neither of the two (:func:`_gap_is_hidden`). Pairs are
-    visited in the order of their segment ids; a pair already in one group is not tested
-    again.
+    surface continues across the gap (:func:`_surface_continues`), the gap is hidden
+    behind a nearer third object, neither of the two (:func:`_gap_is_hidden`), and, when
+    either segment is modeled as a round shape, the two together are one
+    (:func:`_one_round_surface`). Pairs are visited in the order of their segment ids; a
+    pair already in one group is not tested again.
     """
     segs = _Segments(points, comp, valid)
     if len(segs.members) < 2:
@@ -537,7 +548,8 @@ def join_occluded_parts(points: NDArray[np.float64], normals: NDArray[np.float64
                 continue
             gap = _closest_gap(segs, a, b, params)
             if (gap is not None and _surface_continues(segs, normals, gap, params)
-                    and _gap_is_hidden(segs, gap, params.seg_voxel_size)):
+                    and _gap_is_hidden(segs, gap, params.seg_voxel_size)
+                    and _one_round_surface(segs, gap, params)):
                 sets.union(a, b)
     return sets.relabel(comp, valid)
 
@@ -692,6 +704,34 @@ def _gap_is_hidden(segs: _Segments, gap: _Gap, voxel: float) -> bool:
     nearer &= (segs.comp[hit] != segs.comp[gap.pa]) & (segs.comp[hit] != segs.comp[gap.pb])
     return bool(np.all(nearer[seen])
                 and seen.sum() >= OCCLUSION_MIN_SEEN_SHARE * len(OCCLUSION_GAP_SAMPLES))
+
+
+def _one_round_surface(segs: _Segments, gap: _Gap, params: ModelingParams) -> bool:
+    """Whether the gap's two segments may be one surface by the shapes they are modeled as.
+
+    Equal normals at the two ends are the evidence of one surface continuing behind an
+    occluder when the surface is flat: a plane's or a box face's normals are equal
+    everywhere. A round surface (:data:`ROUND_TYPES`) turns everywhere, so the facing
+    parts of two different round objects (two cans side by side, a sphere beside a can)
+    have equal normals at their closest points as often as one object's parts do. When
+    either segment alone is modeled as a round shape, the two together must be modeled as
+    a round shape too (one can's two visible parts are one cylinder; two cans are none).
+    The models are the modeling's own (:func:`geomodel_ros.core.modeling.model_object`
+    on the working points), asked only for the pairs that passed the other tests.
+    """
+    from geomodel_ros.core.modeling import model_object  # it imports the segmentation
+
+    def model_type(points: NDArray[np.float64]) -> PrimitiveType:
+        rng = np.random.default_rng(params.seed)
+        return model_object(points, 0, params, rng, params.seg_voxel_size).type
+
+    parts = [segs.points[segs.members[s]] for s in (gap.small, gap.big)]
+    for s, pts in zip((gap.small, gap.big), parts):
+        if s not in segs.model_types:
+            segs.model_types[s] = model_type(pts)
+    if not any(segs.model_types[s] in ROUND_TYPES for s in (gap.small, gap.big)):
+        return True
+    return model_type(np.vstack(parts)) in ROUND_TYPES
 
 
 def _nearest_rays(segs: _Segments, dirs: NDArray[np.float64], tol: NDArray[np.float64]
