@@ -121,7 +121,7 @@ OCCLUSION_MIN_SEEN_SHARE = 0.6
 
 #: Types whose surface turns everywhere. Parallel normals at the two ends of a gap are
 #: evidence of one surface for flat parts; a round part and another are one surface only
-#: when the model graph models the two together as a round shape
+#: when the model graph models the two together as the shape of one of them
 #: (:func:`_one_round_surface`).
 ROUND_TYPES = frozenset({PrimitiveType.CYLINDER, PrimitiveType.CONE, PrimitiveType.FRUSTUM,
                          PrimitiveType.SPHERE})
@@ -715,7 +715,9 @@ def _one_round_surface(segs: _Segments, gap: _Gap, params: ModelingParams) -> bo
     parts of two different round objects (two cans side by side, a sphere beside a can)
     have equal normals at their closest points as often as one object's parts do. When
     either segment alone is modeled as a round shape, the two together must be modeled as
-    a round shape too (one can's two visible parts are one cylinder; two cans are none).
+    the shape of one of them (one can's two visible parts are one cylinder; two cans, or a
+    can and a box, are none of their shapes; a piece of a box taken for a frustum and the
+    rest of the box are one cuboid).
     The models are the modeling's own (:func:`geomodel_ros.core.modeling.model_object`
     on the working points), asked only for the pairs that passed the other tests.
     """
@@ -729,9 +731,11 @@ def _one_round_surface(segs: _Segments, gap: _Gap, params: ModelingParams) -> bo
     for s, pts in zip((gap.small, gap.big), parts):
         if s not in segs.model_types:
             segs.model_types[s] = model_type(pts)
-    if not any(segs.model_types[s] in ROUND_TYPES for s in (gap.small, gap.big)):
+    types = {segs.model_types[s] for s in (gap.small, gap.big)}
+    if not types & ROUND_TYPES:
         return True
-    return model_type(np.vstack(parts)) in ROUND_TYPES
+    union = model_type(np.vstack(parts))
+    return union is not PrimitiveType.UNKNOWN and union in types
 
 
 def _nearest_rays(segs: _Segments, dirs: NDArray[np.float64], tol: NDArray[np.float64]
