@@ -651,9 +651,9 @@ def _gap_of(parts: list[np.ndarray]) -> tuple[_Segments, _Gap]:
     points = np.vstack(parts)
     comp = np.repeat(np.arange(len(parts)), [len(p) for p in parts])
     segs = _Segments(points, comp, np.ones(len(points), dtype=bool))
-    d = cKDTree(parts[1]).query(parts[0])[0]
+    d, nearest = cKDTree(parts[1]).query(parts[0])
     pa = int(np.argmin(d))
-    pb = len(parts[0]) + int(cKDTree(parts[1]).query(parts[0][pa])[1])
+    pb = len(parts[0]) + int(nearest[pa])
     u = points[pb] - points[pa]
     return segs, _Gap(0, 1, pa, pb, float(np.linalg.norm(u)), u / np.linalg.norm(u))
 
