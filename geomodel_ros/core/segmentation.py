@@ -49,7 +49,7 @@ from geomodel_ros.core.joins import (contained_floors, join_contained_parts, joi
 from geomodel_ros.core.organized import GridCloud, grid_cloud
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd
-from geomodel_ros.core.support import (REFIT_MAX_POINTS, SUPPORT_LINK_VOXELS,
+from geomodel_ros.core.support import (REFIT_MAX_POINTS, SUPPORT_LINK_VOXELS, continued_supports,
                                       support_plane_equation, support_planes)
 
 __all__ = ["DepthNoise", "Segmentation", "segment_scene", "working_noise"]
@@ -381,6 +381,9 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
                                    noise, first)
             if floors is not None:
                 floors[taken] = True
+    if supports and links is not None:
+        continued_supports(wp, counts, comp, comp_ok, wlabel, supports, links,
+                           SUPPORT_LINK_VOXELS * params.seg_voxel_size, noise, params)
     wlabel[comp_ok] = len(supports) + _size_ranks(comp[comp_ok], counts[comp_ok])
     return wlabel
 

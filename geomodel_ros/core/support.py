@@ -11,12 +11,15 @@ import math
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from geomodel_ros.core.fastmath import link_components, take_rows
+from geomodel_ros.core.noise import K_SUPPORT
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, ransac, refine
 
-__all__ = ["SUPPORT_SCORE_POINTS", "support_planes", "support_plane_equation"]
+__all__ = ["SUPPORT_SCORE_POINTS", "continued_supports", "support_planes",
+           "support_plane_equation"]
 
 #: Support-plane hypotheses are scored on this many random working points (a plane
 #: that holds a share w of them holds about that share of the whole cloud).
@@ -154,3 +157,128 @@ def support_plane_equation(own_pts: NDArray[np.float64], params: ModelingParams
     nrm = model.normal if model.normal @ center < 0 else -model.normal
     d = model.d if nrm @ model.normal > 0 else -model.d
     return nrm, d
+
+
+#: A segment continues a support when at least this share of its points (by input points)
+#: lie within the support's band of the support's plane fitted around it: the band is
+#: K_SUPPORT (4) sigma, which holds 98-99 % of a real table's points
+#: (:data:`geomodel_ros.core.noise.K_SUPPORT`); the rest is the margin for the tails.
+CONTINUATION_MIN_SHARE = 0.95
+#: Rounds of :func:`continued_supports` (a piece that joined brings the next one within
+#: reach); a bent surface is cut into a few pieces at most.
+CONTINUATION_ROUNDS = 3
+
+
+def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
+                       comp: NDArray[np.int64], comp_ok: NDArray[np.bool_],
+                       wlabel: NDArray[np.int64], supports: list[NDArray[np.int64]],
+                       links: tuple[NDArray[np.int64], NDArray[np.float64]], link: float,
+                       noise, params: ModelingParams) -> NDArray[np.int64]:
+    """Give the segments that continue a support surface back to it, in place.
+
+    A support is found as one plane with a band (:func:`support_planes`), but a real
+    surface is flat only locally: a floor seen out to 2 m or a desk at an image corner
+    bends away from the plane by more than the band (a depth camera's distortion grows
+    towards the image border and with range: 7-15 mm in osd_learn's corners and the PCL
+    milk scene's far floor), and the part beyond the band was segmented as an object of
+    its own. A segment is such a part when it is linked to the support (a neighbour link
+    no longer than ``link`` [m]) and lies on the support's plane *fitted around it* by the
+    support's own rule: its points within the band (``seg_plane_threshold``, or K_SUPPORT
+    sigma along that plane's normal at the point's own range where more) for at least
+    :data:`CONTINUATION_MIN_SHARE` of them, and its own plane's normal within
+    ``seg_plane_normal_angle``. A flat object lying on the support is kept apart by its
+    thickness wherever that exceeds the band (as the support's plane keeps it apart); an
+    object standing on it leaves the plane.
+
+    Parameters
+    ----------
+    wp : (M, 3) float64 array
+        Working points [m], sensor at the origin.
+    counts : (M,) int64 array
+        Input points per working point.
+    comp, comp_ok : (M,) arrays
+        Segment of every object point (-1 elsewhere) and the points of the segments kept;
+        a segment that joins a support leaves them (``comp_ok`` set False).
+    wlabel : (M,) int64 array
+        Support of every working point (-1 elsewhere); set for the joined points.
+    supports : list of int64 arrays
+        Working-point indices of each support; the joined points are added.
+    links : (neighbors, sqdist)
+        (M, k) nearest neighbours of every working point and squared distances [m^2].
+    link : float
+        Longest link [m] between a segment and its support.
+    noise : DepthNoise or None
+        The frame's noise (``sigma(z)``); None: the band is ``seg_plane_threshold``.
+    params : ModelingParams
+
+    Returns
+    -------
+    (J,) int64 array
+        The working points that joined a support.
+    """
+    nbrs, sqdist = links
+    taken: list[NDArray[np.int64]] = []
+    cos_max = math.cos(params.seg_plane_normal_angle)
+    trees: dict[int, object] = {}
+    tried: set[tuple[int, int, int]] = set()  # (segment, support, support's size)
+    for _ in range(CONTINUATION_ROUNDS):
+        obj = np.flatnonzero(comp_ok)
+        if not len(obj) or not supports:
+            break
+        nb = take_rows(nbrs, obj)
+        near = take_rows(sqdist, obj) <= link * link
+        sup = np.where(near, wlabel[nb], -1)
+        row, col = np.nonzero(sup >= 0)
+        if not len(row):
+            break
+        pairs = np.unique(np.stack([comp[obj[row]], sup[row, col]], axis=1), axis=0)
+        joined = False
+        for c, s in pairs:
+            key = (int(c), int(s), len(supports[int(s)]))
+            if key in tried:
+                continue
+            tried.add(key)
+            own = np.flatnonzero(comp_ok & (comp == c))
+            if len(own) < PLANE_MIN_POINTS:
+                continue
+            pts = take_rows(wp, own)
+            local = _support_around(wp, supports[int(s)], pts, trees, int(s))
+            if local is None:
+                continue
+            if abs(float(fit_plane_svd(pts).normal @ local.normal)) < cos_max:
+                continue
+            off = np.abs(pts @ local.normal + local.d)
+            band = np.full(len(pts), params.seg_plane_threshold)
+            if noise is not None:
+                rng = np.linalg.norm(pts, axis=1)
+                cos_ray = np.abs(pts @ local.normal) / np.maximum(rng, 1e-12)
+                band = np.maximum(band, K_SUPPORT * noise.sigma(rng) * cos_ray)
+            w = counts[own]
+            if float(w[off <= band].sum()) < CONTINUATION_MIN_SHARE * float(w.sum()):
+                continue
+            comp_ok[own] = False
+            wlabel[own] = s
+            supports[int(s)] = np.concatenate([supports[int(s)], own])
+            trees.pop(int(s), None)
+            taken.append(own)
+            joined = True
+        if not joined:
+            break
+    return np.concatenate(taken) if taken else np.zeros(0, dtype=np.int64)
+
+
+def _support_around(wp: NDArray[np.float64], sel: NDArray[np.int64], pts: NDArray[np.float64],
+                    trees: dict, sid: int) -> PlaneModel | None:
+    """Least-squares plane of the support ``sel``'s working points around ``pts``.
+
+    Around: within the segment's own extent (its bounding box's diagonal) of its centroid,
+    so the plane is that of the support where the segment lies. None with fewer than
+    :data:`PLANE_MIN_POINTS` there.
+    """
+    if sid not in trees:
+        trees[sid] = cKDTree(take_rows(wp, sel))
+    radius = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    idx = trees[sid].query_ball_point(pts.mean(axis=0), r=radius)
+    if len(idx) < PLANE_MIN_POINTS:
+        return None
+    return fit_plane_svd(take_rows(wp, sel[np.asarray(idx, dtype=np.int64)]))
