@@ -460,3 +460,15 @@ def test_noise_model_of_the_benchmark_is_kinect_class():
     # 2 mm at 1 m, growing with the square of the depth.
     assert isinstance(KINECT_NOISE, NoiseModel)
     assert KINECT_NOISE.sigma_at_0_5m * (1.0 / 0.5) ** 2 == pytest.approx(0.002)
+
+
+def test_desk_pieces_counts_segments_mostly_desk():
+    from geomodel_ros.tools.bench_clutter import desk_pieces
+
+    # Segments: 0 support (all desk), 1 an object, 2 a desk piece (3 of 4 desk), 3 half
+    # desk (not mostly), 4 points with no ground truth only (not counted).
+    labels = np.array([0, 0, 0, 1, 1, 2, 2, 2, 2, 3, 3, -1, 4, 4])
+    gt = np.array([0, 0, 0, 5, 5, 0, 0, 0, 6, 0, 7, 0, -1, -1])
+    assert desk_pieces(labels, gt, [0]) == 1
+    assert desk_pieces(labels, gt, []) == 2  # the support counts when not named one
+    assert desk_pieces(np.full(4, -1), np.zeros(4, dtype=int), []) == 0

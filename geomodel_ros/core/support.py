@@ -11,7 +11,6 @@ import math
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from geomodel_ros.core.fastmath import link_components, take_rows
 from geomodel_ros.core.noise import K_SUPPORT
@@ -219,8 +218,8 @@ def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
     nbrs, sqdist = links
     taken: list[NDArray[np.int64]] = []
     cos_max = math.cos(params.seg_plane_normal_angle)
-    trees: dict[int, object] = {}
     tried: set[tuple[int, int, int]] = set()  # (segment, support, support's size)
+    around: dict[int, NDArray[np.float64]] = {}  # a support's working points
     for _ in range(CONTINUATION_ROUNDS):
         obj = np.flatnonzero(comp_ok)
         if not len(obj) or not supports:
@@ -242,7 +241,9 @@ def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
             if len(own) < PLANE_MIN_POINTS:
                 continue
             pts = take_rows(wp, own)
-            local = _support_around(wp, supports[int(s)], pts, trees, int(s))
+            if int(s) not in around:
+                around[int(s)] = take_rows(wp, supports[int(s)])
+            local = _support_around(around[int(s)], pts)
             if local is None:
                 continue
             if abs(float(fit_plane_svd(pts).normal @ local.normal)) < cos_max:
@@ -259,7 +260,7 @@ def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
             comp_ok[own] = False
             wlabel[own] = s
             supports[int(s)] = np.concatenate([supports[int(s)], own])
-            trees.pop(int(s), None)
+            around.pop(int(s), None)
             taken.append(own)
             joined = True
         if not joined:
@@ -267,18 +268,17 @@ def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
     return np.concatenate(taken) if taken else np.zeros(0, dtype=np.int64)
 
 
-def _support_around(wp: NDArray[np.float64], sel: NDArray[np.int64], pts: NDArray[np.float64],
-                    trees: dict, sid: int) -> PlaneModel | None:
-    """Least-squares plane of the support ``sel``'s working points around ``pts``.
+def _support_around(sup: NDArray[np.float64], pts: NDArray[np.float64]) -> PlaneModel | None:
+    """Least-squares plane of the support points ``sup`` (S, 3) [m] around ``pts``.
 
-    Around: within the segment's own extent (its bounding box's diagonal) of its centroid,
-    so the plane is that of the support where the segment lies. None with fewer than
-    :data:`PLANE_MIN_POINTS` there.
+    Around: within the segment's own extent (its bounding box's diagonal) of that box's
+    centre, so the plane is that of the support where the segment lies. None with fewer
+    than :data:`PLANE_MIN_POINTS` there.
     """
-    if sid not in trees:
-        trees[sid] = cKDTree(take_rows(wp, sel))
-    radius = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
-    idx = trees[sid].query_ball_point(pts.mean(axis=0), r=radius)
-    if len(idx) < PLANE_MIN_POINTS:
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    radius = float(np.linalg.norm(hi - lo))
+    q = sup - 0.5 * (lo + hi)
+    near = np.einsum("ij,ij->i", q, q) <= radius * radius
+    if np.count_nonzero(near) < PLANE_MIN_POINTS:
         return None
-    return fit_plane_svd(take_rows(wp, sel[np.asarray(idx, dtype=np.int64)]))
+    return fit_plane_svd(take_rows(sup, near))

@@ -33,7 +33,8 @@ from geomodel_ros.tools.synth.scenes import KINECT_CLASS_NOISE, KINECT_REAL_NOIS
 #: i.i.d. noise and the same with the correlated error and quantisation of real frames.
 OPTIONAL_NOISE = {"kinect-class": KINECT_CLASS_NOISE, "kinect-real": KINECT_REAL_NOISE}
 
-__all__ = ["clutter_rows", "clutter_lines", "main", "MIN_SCORED_POINTS", "GOOD_IOU"]
+__all__ = ["clutter_rows", "clutter_lines", "desk_pieces", "main", "MIN_SCORED_POINTS",
+           "GOOD_IOU"]
 
 #: Objects with fewer visible points are not scored: slivers at the image border or
 #: behind other objects (200 points are about 1 cm^2 at 1 m, close to the segmentation's
@@ -49,8 +50,9 @@ def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: Modelin
 
     ``noisy``: True for the clutter's KINECT_NOISE, False for none, or a NoiseModel.
 
-    Each row holds ``seed``, ``id``, ``kind``, ``points``, ``iou``, ``under``, ``over`` and
-    the scene's ``segmentation_s``.
+    Each row holds ``seed``, ``id``, ``kind``, ``points``, ``iou``, ``under``, ``over``, the
+    scene's ``segmentation_s`` and its ``desk_pieces``: segments reported as objects (not
+    supports) whose points are mostly the desk's (:func:`desk_pieces`).
     """
     rows = []
     for seed in seeds:
@@ -62,11 +64,24 @@ def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: Modelin
         gt = scene.label_image.ravel()
         counts = np.bincount(gt[gt >= 0], minlength=len(scene.kinds))
         ids = [i for i in range(1, len(scene.kinds)) if counts[i] >= MIN_SCORED_POINTS]
+        pieces = desk_pieces(seg.labels, gt, seg.support_ids)
         for s in segmentation_scores(seg.labels, gt, ids):
             rows.append({"seed": seed, "id": s.gt_id, "kind": scene.kinds[s.gt_id],
                          "points": int(counts[s.gt_id]), "iou": s.iou, "under": s.under,
-                         "over": s.over, "segmentation_s": seconds})
+                         "over": s.over, "segmentation_s": seconds, "desk_pieces": pieces})
     return rows
+
+
+def desk_pieces(labels: np.ndarray, gt: np.ndarray, support_ids: Sequence[int]) -> int:
+    """Count the segments, supports left out, whose labelled points are mostly desk (gt 0)."""
+    seen = (labels >= 0) & (gt >= 0)
+    objects = seen & ~np.isin(labels, list(support_ids))
+    if not objects.any():
+        return 0
+    n = int(labels[objects].max()) + 1
+    desk = np.bincount(labels[objects], weights=gt[objects] == 0, minlength=n)
+    total = np.bincount(labels[objects], minlength=n)
+    return int(np.count_nonzero(desk > 0.5 * total))
 
 
 def _figures(rows: list[dict]) -> str:
@@ -88,6 +103,10 @@ def clutter_lines(rows: list[dict], label: str) -> list[str]:
         by_kind[r["kind"]].append(r)
     for kind in sorted(by_kind):
         lines.append(f"  {kind:<10} {_figures(by_kind[kind])}")
+    pieces = {r["seed"]: r.get("desk_pieces", 0) for r in rows}
+    if pieces:
+        lines.append(f"  desk pieces reported as objects: {sum(pieces.values())} in "
+                     f"{sum(v > 0 for v in pieces.values())} of {len(pieces)} scenes")
     times = sorted({(r["seed"], r["segmentation_s"]) for r in rows})
     if times:
         secs = [t for _, t in times]

@@ -76,7 +76,7 @@ def _projections(cloud: ObjectCloud, planes: list[PlaneModel], nearest: NDArray[
                                                   RAY_SHIFT_FACTOR * thr)[:, None]
             idx = np.flatnonzero(sel)
             off = obb.ray_offset_from(height, dist, model.d) > RAY_DEPTH_FACTOR * thr
-            if np.mean(off) <= MAX_RAY_OUTLIER_SHARE:
+            if off.any() and np.mean(off) <= MAX_RAY_OUTLIER_SHARE:  # none off: none to drop
                 used[idx[off]] = False
                 sel[idx[off]] = False
         per_face.append(take_rows(q, sel) @ rot)
