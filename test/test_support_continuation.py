@@ -145,7 +145,7 @@ CORNER_BEND = 20 * MM
 
 
 def _bent_desk(shapes: list) -> tuple[np.ndarray, np.ndarray]:
-    """The desk and ``shapes`` rendered, every ray lengthened by CORNER_BEND * rho^2.
+    """Render the desk and ``shapes``, every ray lengthened by CORNER_BEND * rho^2.
 
     rho is the pixel's distance from the image centre over the desk's farthest; Kinect-class noise
     (:data:`KINECT_NOISE`) on top. Returns the organized cloud and ground truth (desk 0).

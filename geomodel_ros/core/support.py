@@ -163,9 +163,12 @@ def support_plane_equation(own_pts: NDArray[np.float64], params: ModelingParams
 #: K_SUPPORT (4) sigma, which holds 98-99 % of a real table's points
 #: (:data:`geomodel_ros.core.noise.K_SUPPORT`); the rest is the margin for the tails.
 CONTINUATION_MIN_SHARE = 0.95
-#: Rounds of :func:`continued_supports` (a piece that joined brings the next one within
-#: reach); a bent surface is cut into a few pieces at most.
+#: Rounds of :func:`continued_supports`: a piece that joined brings the segments linked to
+#: it within reach in the next round; a bent surface is cut into a few pieces at most.
 CONTINUATION_ROUNDS = 3
+#: The support's plane around a segment is fitted on at most about this many of its
+#: points (evenly strided): its normal is then known to a few hundredths of a degree.
+LOCAL_FIT_POINTS = 2000
 
 
 def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
@@ -218,32 +221,28 @@ def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
     nbrs, sqdist = links
     taken: list[NDArray[np.int64]] = []
     cos_max = math.cos(params.seg_plane_normal_angle)
-    tried: set[tuple[int, int, int]] = set()  # (segment, support, support's size)
     around: dict[int, NDArray[np.float64]] = {}  # a support's working points
+    reach = wlabel >= 0  # the support points a segment must be linked to
     for _ in range(CONTINUATION_ROUNDS):
         obj = np.flatnonzero(comp_ok)
         if not len(obj) or not supports:
             break
         nb = take_rows(nbrs, obj)
-        near = take_rows(sqdist, obj) <= link * link
-        sup = np.where(near, wlabel[nb], -1)
+        sup = np.where((take_rows(sqdist, obj) <= link * link) & reach[nb], wlabel[nb], -1)
         row, col = np.nonzero(sup >= 0)
         if not len(row):
             break
-        pairs = np.unique(np.stack([comp[obj[row]], sup[row, col]], axis=1), axis=0)
-        joined = False
-        for c, s in pairs:
-            key = (int(c), int(s), len(supports[int(s)]))
-            if key in tried:
-                continue
-            tried.add(key)
+        n_s = len(supports)
+        pairs = np.unique(comp[obj[row]] * n_s + sup[row, col])
+        reach[:] = False  # the next round tries the segments linked to what joins now
+        for c, s in zip((pairs // n_s).tolist(), (pairs % n_s).tolist()):
             own = np.flatnonzero(comp_ok & (comp == c))
             if len(own) < PLANE_MIN_POINTS:
                 continue
             pts = take_rows(wp, own)
-            if int(s) not in around:
-                around[int(s)] = take_rows(wp, supports[int(s)])
-            local = _support_around(around[int(s)], pts)
+            if s not in around:
+                around[s] = take_rows(wp, supports[s])
+            local = _support_around(around[s], pts)
             if local is None:
                 continue
             if abs(float(fit_plane_svd(pts).normal @ local.normal)) < cos_max:
@@ -259,11 +258,11 @@ def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
                 continue
             comp_ok[own] = False
             wlabel[own] = s
-            supports[int(s)] = np.concatenate([supports[int(s)], own])
-            around.pop(int(s), None)
+            reach[own] = True
+            supports[s] = np.concatenate([supports[s], own])
+            around.pop(s, None)
             taken.append(own)
-            joined = True
-        if not joined:
+        if not reach.any():
             break
     return np.concatenate(taken) if taken else np.zeros(0, dtype=np.int64)
 
@@ -279,6 +278,7 @@ def _support_around(sup: NDArray[np.float64], pts: NDArray[np.float64]) -> Plane
     radius = float(np.linalg.norm(hi - lo))
     q = sup - 0.5 * (lo + hi)
     near = np.einsum("ij,ij->i", q, q) <= radius * radius
-    if np.count_nonzero(near) < PLANE_MIN_POINTS:
+    idx = np.flatnonzero(near)
+    if len(idx) < PLANE_MIN_POINTS:
         return None
-    return fit_plane_svd(take_rows(sup, near))
+    return fit_plane_svd(take_rows(sup, idx[::max(1, len(idx) // LOCAL_FIT_POINTS)]))
