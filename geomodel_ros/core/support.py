@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fastmath import link_components, take_rows
-from geomodel_ros.core.noise import K_SUPPORT
+from geomodel_ros.core.noise import K_SUPPORT, NoiseEstimate
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, ransac, refine
 
@@ -175,7 +175,8 @@ def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
                        comp: NDArray[np.int64], comp_ok: NDArray[np.bool_],
                        wlabel: NDArray[np.int64], supports: list[NDArray[np.int64]],
                        links: tuple[NDArray[np.int64], NDArray[np.float64]], link: float,
-                       noise, params: ModelingParams) -> NDArray[np.int64]:
+                       noise: NoiseEstimate | None, params: ModelingParams
+                       ) -> NDArray[np.int64]:
     """Give the segments that continue a support surface back to it, in place.
 
     A support is found as one plane with a band (:func:`support_planes`), but a real
@@ -209,8 +210,8 @@ def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
         (M, k) nearest neighbours of every working point and squared distances [m^2].
     link : float
         Longest link [m] between a segment and its support.
-    noise : DepthNoise or None
-        The frame's noise (``sigma(z)``); None: the band is ``seg_plane_threshold``.
+    noise : NoiseEstimate or None
+        The frame's noise (its ``sigma(z)``); None: the band is ``seg_plane_threshold``.
     params : ModelingParams
 
     Returns
