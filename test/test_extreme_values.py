@@ -1,8 +1,9 @@
 """Extreme coordinates and huge clouds: the ``max_range`` gate and ``max_points`` bound.
 
-Points beyond ``max_range`` from the sensor origin and non-finite rows must be dropped like
-invalid points (label -1, rows kept) before any voxel arithmetic, so a scene with garbage
-appended models exactly like the scene without it. A magnitude that still does not fit the
+Points beyond ``max_range`` from the sensor origin, rows at the origin (a driver's "no
+return") and non-finite rows must be dropped like invalid points (label -1, rows kept)
+before any voxel arithmetic, so a scene with garbage appended models exactly like the scene
+without it. A magnitude that still does not fit the
 voxel grids raises :class:`InputError` naming the parameters (never an overflow). Above
 ``max_points`` valid points the scene is averaged on a voxel grid first; every input row
 still gets a label, constant within each voxel.
@@ -18,7 +19,7 @@ import pytest
 
 from geomodel_ros.core.errors import InputError
 from geomodel_ros.core.faces import count_voxels, voxelize
-from geomodel_ros.core.input import DOWNSAMPLE_GROWTH, in_range
+from geomodel_ros.core.input import DOWNSAMPLE_GROWTH, in_range, origin_rows
 from geomodel_ros.core.modeling import model_objects, model_scene
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError
 from geomodel_ros.core.primitives import PrimitiveType
@@ -156,6 +157,45 @@ def test_organized_cloud_keeps_its_shape_with_far_pixels(scene, near_result):
     assert [o.to_dict() for o in result.objects] == near_objects
     np.testing.assert_array_equal(segment_scene(org).labels,
                                   segment_scene(scene.organized).labels)
+
+
+def test_rows_at_the_origin_are_no_returns_like_nan_rows(scene, near_result):
+    # Some drivers write (0, 0, 0) for a pixel without a return: the scene must model
+    # exactly as with NaN there (labels, objects and the frame's noise estimate).
+    org = scene.organized.copy()
+    holes = np.flatnonzero(~scene.valid_mask.ravel())
+    assert len(holes) > 100
+    flat = org.reshape(-1, 3)
+    flat[holes] = 0.0
+    labels, result = model_scene(flat, organized_shape=org.shape[:2])
+    ref_labels, ref = model_scene(scene.organized.reshape(-1, 3),
+                                  organized_shape=org.shape[:2])
+    assert np.all(labels[holes] == -1)
+    np.testing.assert_array_equal(labels, ref_labels)
+    assert [o.to_dict() for o in result.objects] == [o.to_dict() for o in ref.objects]
+    assert result.noise == ref.noise
+    np.testing.assert_array_equal(labels[scene.valid_mask.ravel()], near_result[0])
+
+
+def test_only_exact_origin_rows_are_no_returns():
+    pts = np.array([[0.0, 0.0, 0.0], [-0.0, 0.0, -0.0], [0.0, 0.0, 1e-9], [1e-300, 0.0, 0.0],
+                    [0.0, 0.5, 0.0], [0.1, 0.2, 0.3]])
+    np.testing.assert_array_equal(origin_rows(pts), [0, 1])
+    np.testing.assert_array_equal(in_range(pts, 5.0), [False, False, True, True, True, True])
+    # beyond the range cube, through the squared norms
+    far = np.vstack([pts, [[30.0, 0.0, 0.0]]])
+    np.testing.assert_array_equal(in_range(far, 5.0),
+                                  [False, False, True, True, True, True, False])
+    assert len(origin_rows(np.zeros((0, 3)))) == 0
+
+
+def test_cli_does_not_call_origin_rows_far(tmp_path, capsys):
+    pts = np.random.default_rng(0).uniform(-1.0, 1.0, size=(2000, 3))
+    pts[:500] = 0.0
+    np.save(tmp_path / "cloud.npy", pts)
+    assert main(["model", str(tmp_path / "cloud.npy"), "--json", str(tmp_path / "o.json")]) == 0
+    _, err = capsys.readouterr()
+    assert "farther than max_range" not in err and "Traceback" not in err
 
 
 def test_range_is_inclusive_and_measured_from_the_origin():

@@ -5,7 +5,8 @@ Every entry of the core that voxelizes a scene (:func:`~geomodel_ros.core.modeli
 :func:`~geomodel_ros.core.segmentation.segment_scene`) first drops the points farther than
 ``max_range`` from the sensor origin exactly like invalid (non-finite) points: they get label
 -1 and the rows stay in place, so organized clouds keep their shape. A driver's garbage returns
-(coordinates around 1e9 m) therefore never reach the voxel grids.
+(coordinates around 1e9 m) therefore never reach the voxel grids, and neither do the rows at
+the origin (0, 0, 0) that some drivers write for a pixel without a return.
 
 A scene with more than ``max_points`` valid points is averaged on a voxel grid first
 (:func:`downsample`): the smallest voxel of the sequence ``seg_voxel_size * GROWTH**k`` that
@@ -30,8 +31,8 @@ from geomodel_ros.core.faces import count_voxels, voxelize
 from geomodel_ros.core.fastmath import rows_finite, take_rows
 from geomodel_ros.core.params import PARAMETERS, ModelingParams
 
-__all__ = ["DOWNSAMPLE_GROWTH", "Downsampled", "downsample", "in_range", "without_far_points",
-           "working_params"]
+__all__ = ["DOWNSAMPLE_GROWTH", "Downsampled", "downsample", "in_range", "origin_rows",
+           "without_far_points", "working_params"]
 
 #: Ratio of successive voxel edges tried by :func:`downsample`: the voxel used is at most
 #: this factor coarser than the smallest one that would do, and a 5M-point floor needs
@@ -61,34 +62,51 @@ def _inside_box(points: NDArray[np.float64], max_range: float) -> bool:
     return max(abs(top), abs(bottom)) * math.sqrt(3.0) <= max_range
 
 
+def origin_rows(points: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Return the rows of ``points`` (N, 3) that are exactly (0, 0, 0).
+
+    Some drivers write the origin for a pixel without a return instead of NaN; no
+    measurement is exactly there (a sensor sees nothing at zero range, and a measured point
+    of a cloud in another frame lands on three exact zeros with no real chance), so such
+    a row is invalid like a NaN row. Looked for on the z column first (one strided pass).
+    """
+    idx = np.flatnonzero(points[:, 2] == 0.0) if len(points) else np.zeros(0, dtype=np.int64)
+    return idx[(points[idx, 0] == 0.0) & (points[idx, 1] == 0.0)]
+
+
 def in_range(points: NDArray[np.float64], max_range: float) -> NDArray[np.bool_]:
     """Mark the rows of ``points`` (N, 3) [m] that are finite and within ``max_range`` [m].
 
     A NaN or infinite row has a NaN or infinite squared norm, which fails the comparison;
-    huge finite values overflow to inf in the square (silenced) and fail too.
+    huge finite values overflow to inf in the square (silenced) and fail too. A row at the
+    origin is no return (:func:`origin_rows`) and is not marked either.
     """
     if _inside_box(points, max_range):
-        return rows_finite(points)
-    with np.errstate(over="ignore", invalid="ignore"):
-        sq = np.einsum("ij,ij->i", points, points)
-    return sq <= max_range * max_range
+        ok = rows_finite(points)
+    else:
+        with np.errstate(over="ignore", invalid="ignore"):
+            sq = np.einsum("ij,ij->i", points, points)
+        ok = sq <= max_range * max_range
+    ok[origin_rows(points)] = False
+    return ok
 
 
 def without_far_points(points: NDArray[np.float64], params: ModelingParams
                        ) -> NDArray[np.float64]:
     """``points`` (N, 3) [m] with the finite rows beyond ``params.max_range`` set to NaN.
 
+    Rows at the origin (:func:`origin_rows`: a driver's "no return") are set to NaN too.
     Returns ``points`` itself (no copy) when there is no such row; otherwise a copy, so
     that the caller's array is never modified. Non-finite rows are left as they are (they
     are invalid already).
     """
-    if _inside_box(points, params.max_range):
-        return points
-    with np.errstate(over="ignore", invalid="ignore"):
-        sq = np.einsum("ij,ij->i", points, points)
-    # NaN rows fail the comparison; rows with an inf pass it but are not finite.
-    far = np.flatnonzero(sq > params.max_range * params.max_range)
-    far = far[rows_finite(points[far])]
+    far = origin_rows(points)
+    if not _inside_box(points, params.max_range):
+        with np.errstate(over="ignore", invalid="ignore"):
+            sq = np.einsum("ij,ij->i", points, points)
+        # NaN rows fail the comparison; rows with an inf pass it but are not finite.
+        beyond = np.flatnonzero(sq > params.max_range * params.max_range)
+        far = np.concatenate([far, beyond[rows_finite(points[beyond])]])
     if far.size == 0:
         return points
     out = points.copy()

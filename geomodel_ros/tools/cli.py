@@ -218,7 +218,7 @@ def cmd_play(args: argparse.Namespace, bags) -> int:
 
 def cmd_model(args: argparse.Namespace) -> int:
     from geomodel_ros.core.fastmath import rows_finite
-    from geomodel_ros.core.input import in_range
+    from geomodel_ros.core.input import in_range, origin_rows
     from geomodel_ros.core.modeling import model_objects, model_scene
     from geomodel_ros.core.reconstruction import reconstruct
 
@@ -229,6 +229,7 @@ def cmd_model(args: argparse.Namespace) -> int:
     t_load = time.perf_counter() - t0
     far = int(np.count_nonzero(rows_finite(cloud.points) & ~in_range(cloud.points,
                                                                        params.max_range)))
+    far -= len(origin_rows(cloud.points))  # no returns, not far points
     if far:
         print(f"geomodel: warning: {far} of {len(cloud.points)} points are farther than "
               f"max_range = {params.max_range:g} m from the origin and were ignored",
