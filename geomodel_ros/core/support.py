@@ -221,7 +221,6 @@ def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
     """
     nbrs, sqdist = links
     taken: list[NDArray[np.int64]] = []
-    cos_max = math.cos(params.seg_plane_normal_angle)
     around: dict[int, NDArray[np.float64]] = {}  # a support's working points
     reach = wlabel >= 0  # the support points a segment must be linked to
     for _ in range(CONTINUATION_ROUNDS):
@@ -244,18 +243,7 @@ def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
             if s not in around:
                 around[s] = take_rows(wp, supports[s])
             local = _support_around(around[s], pts)
-            if local is None:
-                continue
-            if abs(float(fit_plane_svd(pts).normal @ local.normal)) < cos_max:
-                continue
-            off = np.abs(pts @ local.normal + local.d)
-            band = np.full(len(pts), params.seg_plane_threshold)
-            if noise is not None:
-                rng = np.linalg.norm(pts, axis=1)
-                cos_ray = np.abs(pts @ local.normal) / np.maximum(rng, 1e-12)
-                band = np.maximum(band, K_SUPPORT * noise.sigma(rng) * cos_ray)
-            w = counts[own]
-            if float(w[off <= band].sum()) < CONTINUATION_MIN_SHARE * float(w.sum()):
+            if local is None or not _on_plane(pts, counts[own], local, noise, params):
                 continue
             comp_ok[own] = False
             wlabel[own] = s
@@ -266,6 +254,27 @@ def continued_supports(wp: NDArray[np.float64], counts: NDArray[np.int64],
         if not reach.any():
             break
     return np.concatenate(taken) if taken else np.zeros(0, dtype=np.int64)
+
+
+def _on_plane(pts: NDArray[np.float64], weights: NDArray[np.int64], plane: PlaneModel,
+              noise: NoiseEstimate | None, params: ModelingParams) -> bool:
+    """Tell whether a segment's points ``pts`` (P, 3) [m] lie on a support's ``plane``.
+
+    On it by the support's rule: the segment's own plane within ``seg_plane_normal_angle``
+    of it, and at least :data:`CONTINUATION_MIN_SHARE` of its input points (``weights``
+    (P,) per working point) within the band: ``seg_plane_threshold``, or K_SUPPORT sigma
+    of ``noise`` at each point's range along the plane's normal where more.
+    """
+    if abs(float(fit_plane_svd(pts).normal @ plane.normal)) < \
+            math.cos(params.seg_plane_normal_angle):
+        return False
+    off = np.abs(pts @ plane.normal + plane.d)
+    band = np.full(len(pts), params.seg_plane_threshold)
+    if noise is not None:
+        rng = np.linalg.norm(pts, axis=1)
+        cos_ray = np.abs(pts @ plane.normal) / np.maximum(rng, 1e-12)
+        band = np.maximum(band, K_SUPPORT * noise.sigma(rng) * cos_ray)
+    return float(weights[off <= band].sum()) >= CONTINUATION_MIN_SHARE * float(weights.sum())
 
 
 def _support_around(sup: NDArray[np.float64], pts: NDArray[np.float64]) -> PlaneModel | None:
