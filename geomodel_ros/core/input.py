@@ -70,7 +70,7 @@ def origin_rows(points: NDArray[np.float64]) -> NDArray[np.int64]:
     of a cloud in another frame lands on three exact zeros with no real chance), so such
     a row is invalid like a NaN row. Looked for on the z column first (one strided pass).
     """
-    idx = np.flatnonzero(points[:, 2] == 0.0) if len(points) else np.zeros(0, dtype=np.int64)
+    idx = np.flatnonzero(points[:, 2] == 0.0)
     return idx[(points[idx, 0] == 0.0) & (points[idx, 1] == 0.0)]
 
 

@@ -577,15 +577,9 @@ def _drop_small_objects(labels: NDArray[np.int64], n_supports: int, min_points: 
     4 planes of 64-105 points in 60 scenes). What is left is noise, as a cluster of that
     size is.
     """
-    obj = labels >= n_supports
-    if not obj.any():
-        return
-    sizes = np.bincount(labels[obj])
-    small = sizes < min_points
-    small[:n_supports] = False
-    drop = obj.copy()
-    drop[obj] = small[labels[obj]]
-    labels[drop] = -1
+    obj = np.flatnonzero(labels >= n_supports)
+    own = labels[obj]
+    labels[obj[np.bincount(own)[own] < min_points]] = -1
 
 
 def _on_local_support(p: NDArray[np.float64], support: NDArray[np.bool_],
