@@ -272,3 +272,19 @@ def test_a_cylinder_beside_a_larger_flat_part_is_rejected_for_coverage():
     # With a smaller rectangle most points lie on the cylinder again: it is accepted.
     out = fit("cylinder", cloud_of(np.vstack([cyl, plane_points(n=20000)])))
     assert isinstance(out, Fitted)
+
+
+@pytest.mark.parametrize("band_mm, is_box", [(39.0, True), (41.0, False)])
+def test_a_box_thinner_than_the_inlier_band_is_no_cuboid(band_mm, is_box):
+    # The box's smallest extent is 40 mm: within a wider band its opposite faces are one
+    # plane's points, and the thickness the fit would report is the band's, not the box's.
+    pts, axis_of_point = box_points()
+    params = ModelingParams(ransac_threshold=band_mm * MM)
+    cloud = cloud_of(pts, params=params, face_labels=axis_of_point)
+    axis_of_face = tuple(int(np.argmax(np.abs(BOX_ROT.T @ f.info.normal))) for f in cloud.faces)
+    out = fit("cuboid", cloud, main_face=0, axis_of_face=axis_of_face)
+    if is_box:
+        assert isinstance(out, Fitted)
+        assert min(out.primitive.dimensions.values()) == pytest.approx(0.040, abs=0.01 * MM)
+    else:
+        assert isinstance(out, Rejected) and "inlier band" in out.reason

@@ -12,7 +12,8 @@ from geomodel_ros.core.fitting.completion import complete_box
 from geomodel_ros.core.fitting.measure import nearest_surface, rms, without_strays
 from geomodel_ros.core.fitting.plane import RAY_SHIFT_FACTOR, plane_from_face
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted
-from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR, check_coverage, check_inlier_ratio
+from geomodel_ros.core.fitting.verify import (OUTLIER_FACTOR, check_coverage, check_inlier_ratio,
+                                              check_thickness)
 from geomodel_ros.core.primitives import DIMENSION_NAMES, Primitive, PrimitiveType
 from geomodel_ros.core.ransac import PlaneModel, refine
 
@@ -175,6 +176,9 @@ def fit_cuboid(task: FitTask) -> FitOutcome:
     if bad:
         return bad
     lo, hi = _box_extent(cloud, planes, assign, rot, nearest)
+    bad = check_thickness(hi - lo, cloud.params, CUBOID)
+    if bad:
+        return bad
     lo, hi, completed = complete_box(cloud, rot, lo, hi)
     ext = hi - lo
     names = DIMENSION_NAMES[CUBOID]

@@ -29,7 +29,7 @@ from geomodel_ros.core.ransac import ConeModel, CylinderModel
 __all__ = ["OUTLIER_FACTOR", "MIN_COVERAGE", "CONE_APEX_REACH", "CONE_BEHIND_APEX",
            "BULK_FACTOR", "BULK_MARGIN", "axis_within", "axes_within",
            "check_inlier_ratio",
-           "check_coverage", "check_radius", "check_axis", "check_arc", "check_bulk_length",
+           "check_coverage", "check_thickness", "check_radius", "check_axis", "check_arc", "check_bulk_length",
            "check_apex", "check_bulk_reach", "NOISE_SCATTER_BOUND", "check_noise_scatter",
            "check_profile_bow", "PROFILE_BOWS", "bowed_profile", "SUPPORT_BELOW_PERCENTILE",
            "SUPPORT_RISE_PERCENTILE", "SUPPORT_TOLERANCE_FACTOR", "standing_on",
@@ -122,6 +122,22 @@ def check_coverage(on_model: NDArray[np.bool_], kind: PrimitiveType) -> Rejected
     if share < MIN_COVERAGE:
         return Rejected(kind, f"{kind} rejected: only {share:.0%} of the object's points lie "
                               "on it", misfit=True)
+    return None
+
+
+def check_thickness(extents: NDArray[np.float64], params: ModelingParams,
+                    kind: PrimitiveType) -> Rejected | None:
+    """Reject a box whose observed extent along an axis is within the inlier band.
+
+    Two opposite faces closer than ``ransac_threshold`` lie within one plane's band: the
+    points cannot tell them apart, so the box's thickness is the noise's (a strip of two
+    disparity levels at 3 m was a 25 x 63 x 448 mm "box" under a 122 mm band), not the
+    object's. A plane explains such an object as well; the next candidate is tried.
+    """
+    thin = float(np.min(extents))
+    if thin <= params.ransac_threshold:
+        return Rejected(kind, f"{kind} rejected: {thin * 1e3:.1f} mm thick, within the "
+                              f"{params.ransac_threshold * 1e3:.1f} mm inlier band")
     return None
 
 
