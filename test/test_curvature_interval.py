@@ -91,3 +91,16 @@ def test_decide_type_marks_candidates_from_the_interval():
     d = decide_type([face], np.zeros((1, 1), bool), 0.3, 0.006, (a_max, a_min),
                     SPHERE, DEVELOPABLE, VARIATION)
     assert d.candidates == () and not d.between_bounds
+
+
+def test_a_median_curvature_of_rounding_noise_has_no_relative_variation_in_the_reason():
+    # 60 % of the points straight (|k1| at rounding level), 40 % bent at 30 1/m: the
+    # IQR over the median has no scale; the reason says so instead of a ratio of 1e22.
+    a_max = np.concatenate([np.full(60, 3e-22), np.full(40, 30.0)])
+    cands, why = curvature_candidates(a_max, np.zeros(100), SPHERE, DEVELOPABLE, VARIATION)
+    assert cands == ("cone", "frustum", "cylinder")
+    assert "median ~0" in why and "e+" not in why and "e22" not in why
+    # A true median keeps the relative variation.
+    a_max = np.concatenate([np.full(60, 20.0), np.full(40, 30.0)])
+    cands, why = curvature_candidates(a_max, np.zeros(100), SPHERE, DEVELOPABLE, VARIATION)
+    assert cands == ("cone", "frustum", "cylinder") and why.endswith("(0.50)")

@@ -206,6 +206,11 @@ def _mixed_decision(faces: list[FaceInfo], tol: float,
     return GraphDecision("mixed", (), main, (), "curved normals at varying angles to the plane")
 
 
+#: A median |k1| below this share of its upper quartile is zero: the relative variation
+#: (interquartile range over the median) has no scale then.
+ZERO_MEDIAN_SHARE = 1e-6
+
+
 def ratio_halfwidth(a_max: NDArray[np.float64], a_min: NDArray[np.float64],
                     blocks: NDArray[np.int64]) -> float:
     """Return the half-width of the interval of the curvature ratio median |k2| / median |k1|.
@@ -237,6 +242,10 @@ def ratio_halfwidth(a_max: NDArray[np.float64], a_min: NDArray[np.float64],
 def _developable(a_max: NDArray[np.float64], cone_variation: float) -> tuple[tuple[str, ...], str]:
     """Return the developable candidates (cone first when |k1| (M,) varies) and why."""
     q1, med, q3 = np.percentile(a_max, [25, 50, 75])
+    if not med > ZERO_MEDIAN_SHARE * q3:
+        # Most of the face is straight in every direction: |k1| varies without a scale.
+        return ("cone", "frustum", "cylinder"), \
+            f"k2 ~ 0, k1 varies (median ~0, quartiles {q1:.3g}-{q3:.3g} 1/m)"
     variation = float((q3 - q1) / med)
     if variation > cone_variation:
         return ("cone", "frustum", "cylinder"), f"k2 ~ 0, k1 varies ({variation:.2f})"
