@@ -19,6 +19,8 @@ from data_helpers import DATA, require
 from geomodel_ros.core.fitting.strategies import truncated_cost
 from geomodel_ros.core.obb import ray_offset_to_plane
 from geomodel_ros.core.modeling import model_objects, model_scene
+from geomodel_ros.core.noise import K_INLIER
+from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.tools.synth import render_scene
 from geomodel_ros.tools.synth.clutter import KINECT_CAMERA
@@ -102,6 +104,23 @@ def test_office_scene_models_without_numeric_warnings() -> None:
     from geomodel_ros.tools.io import read_cloud
 
     model_scene(read_cloud(require(PCL_SCENES / "region_growing_rgb_tutorial.pcd")).points)
+
+
+@pytest.mark.parametrize("name", ["region_growing_rgb_tutorial.pcd",
+                                  "milk_cartoon_all_small_clorox.pcd"])
+def test_no_box_is_thinner_than_the_noise_at_its_range(name: str) -> None:
+    # Two opposite faces within one inlier band (K_INLIER sigma at the object's range, the
+    # frame's own noise) are one plane's points: the office's strip of two disparity levels
+    # at 3 m (151 points) was a 25 x 63 x 448 mm box under a 122 mm band.
+    points, labels, result = _modeled(name)
+    rows = labels.ravel()
+    flat = np.asarray(points, dtype=float).reshape(-1, 3)
+    boxes = [o for o in result.objects if o.type == "cuboid"]
+    assert boxes or name.startswith("region"), "the milk scene's carton is a box"
+    for o in boxes:
+        at = float(np.median(np.linalg.norm(flat[rows == o.id], axis=1)))
+        band = max(ModelingParams().ransac_threshold, K_INLIER * result.noise.sigma(at))
+        assert min(o.dimensions.values()) > band, (o.id, o.dimensions, band)
 
 
 def test_milk_scene_has_no_huge_round_object() -> None:
