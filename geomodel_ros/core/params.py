@@ -207,6 +207,12 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "unknown fragments out of the objects; fixed: use every value exactly as given.",
               choices=("auto", "fixed")),
     # --- organized clouds -----------------------------------------------------------------
+    ParamSpec("mixed_pixel_filter", False, "", None, None,
+              "Leave out the mixed pixels of organized clouds before segmenting: returns "
+              "between two surfaces at a depth edge (time-of-flight cameras' flying pixels, "
+              "without the driver's own filter), which bridge objects to what lies behind "
+              "them. Off by default: the Kinect-class frames measured have none, and the "
+              "filter also takes some one- or two-pixel rims seen edge-on (BENCHMARKS.md)."),
     ParamSpec("organized_fast_path", False, "", None, None,
               "Segment organized clouds (an image of H x W points) on the image grid: working "
               "points from pixel blocks, neighbours from a fixed pixel stencil, no voxel grid "
@@ -289,6 +295,7 @@ class ModelingParams:
     noise_model: str = "auto"
 
     # --- organized clouds -----------------------------------------------------------------
+    mixed_pixel_filter: bool = False
     organized_fast_path: bool = False
 
     def __new__(cls, *args: Any, **kwargs: Any) -> ModelingParams:

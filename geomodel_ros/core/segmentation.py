@@ -46,6 +46,7 @@ from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, knn_among, link_compone
 from geomodel_ros.core.noise import K_SUPPORT, NoiseEstimate, disparity_step, resolve_params
 from geomodel_ros.core.joins import (contained_floors, join_contained_parts, join_occluded_parts,
                                      join_terraces, merge_patches)
+from geomodel_ros.core.mixed_pixels import mixed_rows
 from geomodel_ros.core.organized import GridCloud, grid_cloud
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd
@@ -284,6 +285,10 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     if len(finite) < MIN_INPUT_POINTS:
         timing["segmentation_s"] = time.perf_counter() - t0
         return Segmentation(labels, [], timing, noise=noise)
+    step = None
+    if shape is not None and params.mixed_pixel_filter:
+        step = disparity_step(take_rows(pts, finite))
+        finite = finite[~mixed_rows(pts, shape, finite, params, noise, step)]
     p = take_rows(pts, finite)
     grid = grid_cloud(pts, shape, finite, params) \
         if shape is not None and params.organized_fast_path else None
@@ -299,7 +304,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     supports = support_planes(wp, wn, nbrs, sqdist, params, rng)
     t2 = time.perf_counter()
     timing["seg_supports_s"] = t2 - t1
-    step = disparity_step(p)
+    step = disparity_step(p) if step is None else step
     quantum = level_quantum(p, inverse, counts, step, params.seg_voxel_size)
     floors = np.zeros(len(wp), dtype=bool)
     own_labels = _working_labels(wp, wn, counts, supports, params, grid, noise, step, quantum,

@@ -27,11 +27,14 @@ from geomodel_ros.core.segmentation import segment_scene
 from geomodel_ros.tools.evaluation import segmentation_scores
 from geomodel_ros.tools.paths import CONFIG_DIR
 from geomodel_ros.tools.synth.clutter import KINECT_NOISE, render_clutter
-from geomodel_ros.tools.synth.scenes import KINECT_CLASS_NOISE, KINECT_REAL_NOISE, NoiseModel
+from geomodel_ros.tools.synth.scenes import (KINECT_CLASS_NOISE, KINECT_REAL_NOISE,
+                                             MIXED_EDGE_NOISE, NoiseModel)
 
 #: Noise models run on request (``--noise-model``), beside the default rows: Kinect-class
-#: i.i.d. noise and the same with the correlated error and quantisation of real frames.
-OPTIONAL_NOISE = {"kinect-class": KINECT_CLASS_NOISE, "kinect-real": KINECT_REAL_NOISE}
+#: i.i.d. noise, the same with the correlated error and quantisation of real frames, and
+#: with mixed pixels at the depth edges (a time-of-flight camera's flying pixels).
+OPTIONAL_NOISE = {"kinect-class": KINECT_CLASS_NOISE, "kinect-real": KINECT_REAL_NOISE,
+                  "kinect-mixed": MIXED_EDGE_NOISE}
 
 __all__ = ["clutter_rows", "clutter_lines", "desk_pieces", "main", "MIN_SCORED_POINTS",
            "GOOD_IOU"]

@@ -41,7 +41,12 @@ def score_scene(scene, params: ModelingParams, unsized: tuple[str, ...] = ()) ->
     Objects of the types in ``unsized`` get no size errors (the room's walls and floor
     reach beyond the sensor's view: their true sizes are not observable).
     """
-    labels, result = model_scene(scene.points, params)
+    if params.mixed_pixel_filter:  # the filter needs the image grid: model every pixel
+        labels, result = model_scene(scene.organized.reshape(-1, 3), params,
+                                     organized_shape=scene.label_image.shape)
+        labels = labels[scene.valid_mask.ravel()]
+    else:
+        labels, result = model_scene(scene.points, params)
     ids = [o.id for o in scene.objects]
     scores = {s.gt_id: s for s in segmentation_scores(labels, scene.labels, ids)}
     by_id = {o.id: o for o in result.objects}

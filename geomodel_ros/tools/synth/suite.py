@@ -21,6 +21,7 @@ import numpy as np
 
 from .camera import PinholeCamera
 from .scenes import (DESK_CENTER, DESK_NORMAL, DESK_SIZE, KINECT_CLASS_NOISE, KINECT_REAL_NOISE,
+                     MIXED_EDGE_NOISE,
                      NoiseModel, Scene, apply_noise)
 from .shapes import Box, Cone, Cylinder, Frustum, Rectangle, Shape, Sphere, Torus
 
@@ -40,7 +41,8 @@ SUITE_NOISE: dict[str, NoiseModel | None] = {
 }
 #: Noise levels run only on request (``suite_cases(noises=...)``): a Kinect v1 as measured on
 #: real frames (correlated range error and disparity quantisation added to Kinect-class).
-OPTIONAL_NOISE: dict[str, NoiseModel] = {"kinect-real": KINECT_REAL_NOISE}
+OPTIONAL_NOISE: dict[str, NoiseModel] = {"kinect-real": KINECT_REAL_NOISE,
+                                          "kinect-mixed": MIXED_EDGE_NOISE}
 
 #: Layout item: a shape (posed at the origin, upright: local z along the desk normal, or
 #: lying: local z in the desk plane), its desk coordinates u, v [mm] and "standing",
