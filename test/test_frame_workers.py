@@ -151,6 +151,15 @@ def test_frames_modeled_at_once_are_published_in_arrival_order(context):
         h.close()
 
 
+def _exited(pid: int) -> bool:
+    """Whether process ``pid`` is gone or a zombie (it may vanish while being read)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split()[2] == "Z"
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+
+
 def test_node_workers_give_the_in_process_objects(context):
     h = Harness(context, model_scene, {"workers": 2, "tracking": False})
     try:
@@ -167,9 +176,7 @@ def test_node_workers_give_the_in_process_objects(context):
     finally:
         h.close()
     for pid in pids:  # destroy_node stops the worker processes
-        wait_until(lambda pid=pid: not os.path.exists(f"/proc/{pid}") or
-                   open(f"/proc/{pid}/stat").read().split()[2] == "Z",
-                   f"worker {pid} to exit", timeout=TIMEOUT)
+        wait_until(lambda pid=pid: _exited(pid), f"worker {pid} to exit", timeout=TIMEOUT)
 
 
 def test_workers_out_of_range_stop_the_node_at_start(context):
