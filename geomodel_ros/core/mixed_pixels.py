@@ -77,7 +77,7 @@ def _mark_runs(r: NDArray[np.float64], j: NDArray[np.float64], hit: NDArray[np.b
     The jump test runs on the whole image; the rest only where it holds (a few per cent of
     the windows: edges are lines in the image).
     """
-    h, width = r.shape
+    width = r.shape[1]
     flat_r = r.ravel()
     runs = edges = 0
     for run in range(1, MAX_RUN + 1):

@@ -285,11 +285,11 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     if len(finite) < MIN_INPUT_POINTS:
         timing["segmentation_s"] = time.perf_counter() - t0
         return Segmentation(labels, [], timing, noise=noise)
-    step = None
-    if shape is not None and params.mixed_pixel_filter:
-        step = disparity_step(take_rows(pts, finite))
-        finite = finite[~mixed_rows(pts, shape, finite, params, noise, step)]
     p = take_rows(pts, finite)
+    step = disparity_step(p)
+    if shape is not None and params.mixed_pixel_filter:
+        finite = finite[~mixed_rows(pts, shape, finite, params, noise, step)]
+        p = take_rows(pts, finite)
     grid = grid_cloud(pts, shape, finite, params) \
         if shape is not None and params.organized_fast_path else None
     wp, inverse, counts = voxelize(p, params.seg_voxel_size) if grid is None else \
@@ -304,7 +304,6 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
     supports = support_planes(wp, wn, nbrs, sqdist, params, rng)
     t2 = time.perf_counter()
     timing["seg_supports_s"] = t2 - t1
-    step = disparity_step(p) if step is None else step
     quantum = level_quantum(p, inverse, counts, step, params.seg_voxel_size)
     floors = np.zeros(len(wp), dtype=bool)
     own_labels = _working_labels(wp, wn, counts, supports, params, grid, noise, step, quantum,
