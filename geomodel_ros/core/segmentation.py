@@ -301,7 +301,7 @@ def segment_scene(points: NDArray, params: ModelingParams | None = None, *,
         if grid is None else (grid.normals, grid.variation, grid.neighbors, grid.sqdist)
     t1 = time.perf_counter()
     timing["seg_normals_s"] = t1 - t0
-    supports = support_planes(wp, wn, nbrs, sqdist, params, rng)
+    supports = support_planes(wp, wn, nbrs, sqdist, params, rng, noise)
     t2 = time.perf_counter()
     timing["seg_supports_s"] = t2 - t1
     quantum = level_quantum(p, inverse, counts, step, params.seg_voxel_size)

@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from geomodel_ros.core.fastmath import link_components, take_rows
+from geomodel_ros.core.fastmath import link_components, row_norms, take_rows
 from geomodel_ros.core.noise import K_SUPPORT, NoiseEstimate
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, ransac, refine
@@ -29,6 +29,9 @@ PLANE_MIN_POINTS = 3
 #: Inliers of a support plane are connected when closer than this many voxels (a voxel
 #: grid's neighbours are 1 to sqrt(3) voxels apart; 2.5 bridges single missing voxels).
 SUPPORT_LINK_VOXELS = 2.5
+#: The incidence stretches a link along a surface at most this much (1 / cos): a surface
+#: seen within 17 deg of edge-on is not followed farther.
+MIN_LINK_COS = 0.3
 #: A connected piece of the inliers stays in the support when its area is at least this
 #: share of ``seg_min_support_area``: a desk split by the objects standing on it stays one
 #: support, while small coplanar bits elsewhere (a box top at desk height far away) do not
@@ -45,25 +48,28 @@ REFIT_BAND_DIVISOR = 4.0
 REFIT_ROUNDS = 3
 
 
-def _components(n: int, sel: NDArray[np.int64], radius: float, neighbors: NDArray[np.int64],
-                sqdist: NDArray[np.float64]) -> tuple[int, NDArray[np.int64]]:
+def _components(n: int, sel: NDArray[np.int64], radius: float | NDArray[np.float64],
+                neighbors: NDArray[np.int64], sqdist: NDArray[np.float64]
+                ) -> tuple[int, NDArray[np.int64]]:
     """Label the connected components of the points ``sel`` (of ``n``).
 
     Each point is linked to those of its ``neighbors`` (n, k) (squared distances
-    ``sqdist`` [m^2]) that are in ``sel`` and closer than ``radius`` [m].
+    ``sqdist`` [m^2]) that are in ``sel`` and closer than ``radius`` [m] (one value, or
+    one per point of ``sel``).
     """
     m = len(sel)
     local = np.full(n, -1, dtype=np.int64)
     local[sel] = np.arange(m)
     nb = local[take_rows(neighbors, sel)]
-    keep = (nb >= 0) & (take_rows(sqdist, sel) <= radius * radius)
+    r2 = np.square(radius)[:, None] if np.ndim(radius) else radius * radius
+    keep = (nb >= 0) & (take_rows(sqdist, sel) <= r2)
     return link_components(nb, keep)
 
 
 def support_planes(wp: NDArray[np.float64], wn: NDArray[np.float64],
                    nbrs: NDArray[np.int64], sqdist: NDArray[np.float64],
-                   params: ModelingParams, rng: np.random.Generator
-                   ) -> list[NDArray[np.int64]]:
+                   params: ModelingParams, rng: np.random.Generator,
+                   noise: NoiseEstimate | None = None) -> list[NDArray[np.int64]]:
     """Working-point indices of each support plane, largest first.
 
     Parameters
@@ -92,7 +98,8 @@ def support_planes(wp: NDArray[np.float64], wn: NDArray[np.float64],
         inl = _plane_inliers(wp, wn, idx, params, rng)
         if inl is None or len(inl) * cell_area < params.seg_min_support_area:
             break
-        keep = _large_pieces(len(wp), inl, nbrs, sqdist, params)
+        keep = _large_pieces(len(wp), inl, nbrs, sqdist, params,
+                             _link_radii(wp, wn, inl, params, noise))
         if len(keep) * cell_area < params.seg_min_support_area:
             free[inl] = False  # not a support; do not find the same plane again
             continue
@@ -122,11 +129,32 @@ def _plane_inliers(wp: NDArray[np.float64], wn: NDArray[np.float64], idx: NDArra
                & (cos >= math.cos(params.seg_plane_normal_angle))]
 
 
+def _link_radii(wp: NDArray[np.float64], wn: NDArray[np.float64], inl: NDArray[np.int64],
+                params: ModelingParams, noise: NoiseEstimate | None) -> NDArray[np.float64]:
+    """Link radius [m] of each inlier ``inl`` of a support plane.
+
+    SUPPORT_LINK_VOXELS spacings of the points on the surface: the voxel, or where the
+    sensor's pixels lie farther apart, their footprint at the point's range stretched by
+    the incidence (a floor seen at a grazing angle has its image rows several footprints
+    apart on the floor).
+    """
+    v = params.seg_voxel_size
+    if noise is None or noise.spacing_per_m <= 0.0:
+        return np.full(len(inl), SUPPORT_LINK_VOXELS * v)
+    p, n = take_rows(wp, inl), take_rows(wn, inl)
+    r = row_norms(p)
+    cos = np.abs(np.einsum("ij,ij->i", p, n)) / np.maximum(r, 1e-12)
+    along = noise.spacing_per_m * r / np.maximum(cos, MIN_LINK_COS)
+    return SUPPORT_LINK_VOXELS * np.maximum(v, along)
+
+
 def _large_pieces(m: int, inl: NDArray[np.int64], nbrs: NDArray[np.int64],
-                  sqdist: NDArray[np.float64], params: ModelingParams) -> NDArray[np.int64]:
+                  sqdist: NDArray[np.float64], params: ModelingParams,
+                  radius: NDArray[np.float64] | None = None) -> NDArray[np.int64]:
     """Keep the points of ``inl`` (of ``m`` working points) in large connected pieces."""
     v = params.seg_voxel_size
-    n_comp, comp = _components(m, inl, SUPPORT_LINK_VOXELS * v, nbrs, sqdist)
+    n_comp, comp = _components(m, inl, SUPPORT_LINK_VOXELS * v if radius is None else radius,
+                               nbrs, sqdist)
     sizes = np.bincount(comp, minlength=n_comp)
     big = sizes * (v * v) >= SUPPORT_MIN_PIECE_SHARE * params.seg_min_support_area
     return inl[big[comp]]
