@@ -150,11 +150,13 @@ def _link_radii(wp: NDArray[np.float64], wn: NDArray[np.float64], inl: NDArray[n
 
 def _large_pieces(m: int, inl: NDArray[np.int64], nbrs: NDArray[np.int64],
                   sqdist: NDArray[np.float64], params: ModelingParams,
-                  radius: NDArray[np.float64] | None = None) -> NDArray[np.int64]:
-    """Keep the points of ``inl`` (of ``m`` working points) in large connected pieces."""
+                  radius: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Keep the points of ``inl`` (of ``m`` working points) in large connected pieces.
+
+    Two are connected when closer than ``radius`` (one per point of ``inl``) [m].
+    """
     v = params.seg_voxel_size
-    n_comp, comp = _components(m, inl, SUPPORT_LINK_VOXELS * v if radius is None else radius,
-                               nbrs, sqdist)
+    n_comp, comp = _components(m, inl, radius, nbrs, sqdist)
     sizes = np.bincount(comp, minlength=n_comp)
     big = sizes * (v * v) >= SUPPORT_MIN_PIECE_SHARE * params.seg_min_support_area
     return inl[big[comp]]
