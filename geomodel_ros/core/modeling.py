@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, with_confidence
+from geomodel_ros.core.decimation import decimate, spread_labels
 from geomodel_ros.core.errors import InputError, as_points
 from geomodel_ros.core.fastmath import centroid, group_by_label, single_threaded_blas, take_rows
 from geomodel_ros.core.faces import WorkingCloud
@@ -377,16 +378,20 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
 
     Parameters
     ----------
-    points : (N, 3) float array [m]
+    points : (N, 3) or (H, W, 3) float array [m]
         Scene cloud in the sensor frame (non-finite rows and rows farther than
-        ``params.max_range`` from the origin allowed, labelled -1). With more than
+        ``params.max_range`` from the origin allowed, labelled -1); an (H, W, 3) array is an
+        organized cloud (its rows row-major). With more than
         ``params.max_points`` of the others, the scene is averaged on a voxel grid first
         (:func:`geomodel_ros.core.input.downsample`) and segmented at that voxel; every
         row then gets the label of its voxel, sizes are exact to that voxel, and point
         counts are voxel counts.
     params : ModelingParams, optional
     organized_shape : (H, W), optional
-        Image shape when ``points`` are the rows of an organized cloud (N = H * W).
+        Image shape when (N, 3) ``points`` are the rows of an organized cloud (N = H * W). With
+        ``params.decimation`` d > 1 only every d-th pixel of every d-th row is modeled
+        and every pixel gets a sample's label (:mod:`geomodel_ros.core.decimation`);
+        point counts are then counts of samples.
     rng : Generator, seed or None
 
     Returns
@@ -403,7 +408,9 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
         For malformed arrays, or points too large for the voxel grids within ``max_range``.
     """
     params = params if params is not None else ModelingParams()
-    pts = as_points(points)
+    if organized_shape is None and np.ndim(points) == 3:
+        organized_shape = tuple(np.shape(points)[:2])
+    pts = as_points(points, allow_organized=True)
     if organized_shape is not None and organized_shape[0] * organized_shape[1] != len(pts):
         raise InputError(f"organized_shape {organized_shape} does not match {len(pts)} points")
     rng = np.random.default_rng(params.seed if rng is None else rng)
@@ -418,6 +425,15 @@ def _model_scene(pts: NDArray[np.float64], params: ModelingParams, rng: np.rando
                  organized_shape: tuple[int, int] | None
                  ) -> tuple[NDArray[np.int64], ModelingResult]:
     """Return :func:`model_scene` of the checked ``pts`` (N, 3) [m] (its body)."""
+    if params.decimation > 1 and organized_shape is not None:
+        return _model_decimated(pts, params, rng, organized_shape)
+    return _model_every_row(pts, params, rng, organized_shape)
+
+
+def _model_every_row(pts: NDArray[np.float64], params: ModelingParams,
+                     rng: np.random.Generator, organized_shape: tuple[int, int] | None
+                     ) -> tuple[NDArray[np.int64], ModelingResult]:
+    """Return :func:`model_scene` of ``pts`` (N, 3) [m] without decimation."""
     t0 = time.perf_counter()
     noise = frame_noise(pts, params) if params.noise_model == "auto" else None
     t_noise = time.perf_counter() - t0
@@ -436,6 +452,22 @@ def _model_scene(pts: NDArray[np.float64], params: ModelingParams, rng: np.rando
     labels[ds.rows] = wlabels[ds.inverse]
     result.timing["downsample_s"] = t_down
     result.timing["total_s"] += t_down
+    return labels, result
+
+
+def _model_decimated(pts: NDArray[np.float64], params: ModelingParams,
+                     rng: np.random.Generator, shape: tuple[int, int]
+                     ) -> tuple[NDArray[np.int64], ModelingResult]:
+    """Model the samples of an organized cloud (``decimation``), then label every pixel."""
+    t0 = time.perf_counter()
+    dec = decimate(pts, shape, params.decimation)
+    t_dec = time.perf_counter() - t0
+    sample_labels, result = _model_every_row(dec.points, params, rng, dec.shape)
+    t0 = time.perf_counter()
+    labels = spread_labels(pts, shape, dec, sample_labels, params.seg_voxel_size,
+                           params.seg_max_edge_factor)
+    result.timing["decimation_s"] = t_dec + time.perf_counter() - t0
+    result.timing["total_s"] += result.timing["decimation_s"]
     return labels, result
 
 

@@ -213,6 +213,15 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "without the driver's own filter), which bridge objects to what lies behind "
               "them. Off by default: the Kinect-class frames measured have none, and the "
               "filter also takes some one- or two-pixel rims seen edge-on (BENCHMARKS.md)."),
+    ParamSpec("decimation", 1, "count", 1, 8,
+              "Organized clouds only: segment and model every decimation-th pixel of every "
+              "decimation-th row (a camera's decimation filter without averaging), then give "
+              "every pixel its block's label where it lies within a segmentation link of the "
+              "block's sample (else -1); point counts count samples. For clouds denser than "
+              "the segmentation needs (decimation x the point spacing at most half of "
+              "seg_voxel_size, e.g. 1280 x 720 at a Kinect's field of view); on a 640 x 480 "
+              "Kinect frame 2 takes a third off the time but under-segments clutter more "
+              "(BENCHMARKS.md section 28). 1: every pixel."),
     ParamSpec("organized_fast_path", False, "", None, None,
               "Segment organized clouds (an image of H x W points) on the image grid: working "
               "points from pixel blocks, neighbours from a fixed pixel stencil, no voxel grid "
@@ -296,6 +305,7 @@ class ModelingParams:
 
     # --- organized clouds -----------------------------------------------------------------
     mixed_pixel_filter: bool = False
+    decimation: int = 1
     organized_fast_path: bool = False
 
     def __new__(cls, *args: Any, **kwargs: Any) -> ModelingParams:

@@ -8,6 +8,10 @@ object kind, and the segmentation time. ``--osd`` adds the osd_learn figure
 (:func:`geomodel_ros.tools.benchmark.osd_benchmark`, segmentation only);
 ``--noise-model kinect-real`` (or ``kinect-class``) adds the scenes under that noise model
 (``KINECT_REAL_NOISE``: correlated error and quantisation calibrated on real frames).
+``--camera hd720`` renders the scenes at 1280 x 720 with the Kinect's field of view across
+(twice its pixels per degree); with ``decimation`` > 1 in ``--params`` every frame is
+segmented from its samples and every pixel labelled from them
+(:mod:`geomodel_ros.core.decimation`), as ``model_scene`` does.
 """
 
 from __future__ import annotations
@@ -23,10 +27,10 @@ from typing import Sequence
 import numpy as np
 
 from geomodel_ros.core.params import ModelingParams, load_params_file
-from geomodel_ros.core.segmentation import segment_scene
-from geomodel_ros.tools.evaluation import segmentation_scores
+from geomodel_ros.tools.evaluation import segment_frame, segmentation_scores
 from geomodel_ros.tools.paths import CONFIG_DIR
-from geomodel_ros.tools.synth.clutter import KINECT_NOISE, render_clutter
+from geomodel_ros.tools.synth.camera import PinholeCamera
+from geomodel_ros.tools.synth.clutter import KINECT_CAMERA, KINECT_NOISE, render_clutter
 from geomodel_ros.tools.synth.scenes import (KINECT_CLASS_NOISE, KINECT_REAL_NOISE,
                                              MIXED_EDGE_NOISE, NoiseModel)
 
@@ -47,11 +51,20 @@ MIN_SCORED_POINTS = 200
 GOOD_IOU = 0.8
 
 
-def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: ModelingParams
-                 ) -> list[dict]:
+#: Cameras the scenes can be rendered with (``--camera``): the Kinect's 640 x 480 and a
+#: 1280 x 720 camera with the Kinect's horizontal field of view (twice its pixels per degree).
+CAMERAS = {"kinect": KINECT_CAMERA,
+           "hd720": PinholeCamera(fx=1050.0, fy=1050.0, cx=639.5, cy=359.5, width=1280,
+                                  height=720)}
+
+
+def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: ModelingParams,
+                 camera: PinholeCamera = KINECT_CAMERA) -> list[dict]:
     """Segment the clutter scenes ``seeds``; one row per scored object.
 
     ``noisy``: True for the clutter's KINECT_NOISE, False for none, or a NoiseModel.
+    Objects with fewer than MIN_SCORED_POINTS pixels of a 640 x 480 frame (more in
+    proportion for a finer ``camera``) are not scored.
 
     Each row holds ``seed``, ``id``, ``kind``, ``points``, ``iou``, ``under``, ``over``, the
     scene's ``segmentation_s`` and its ``desk_pieces``: segments reported as objects (not
@@ -60,13 +73,14 @@ def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: Modelin
     rows = []
     for seed in seeds:
         noise = noisy if isinstance(noisy, NoiseModel) else (KINECT_NOISE if noisy else None)
-        scene = render_clutter(seed, noise)
+        scene = render_clutter(seed, noise, camera)
         t0 = time.perf_counter()
-        seg = segment_scene(scene.organized, params)
+        seg = segment_frame(scene.organized, params)
         seconds = time.perf_counter() - t0
         gt = scene.label_image.ravel()
         counts = np.bincount(gt[gt >= 0], minlength=len(scene.kinds))
-        ids = [i for i in range(1, len(scene.kinds)) if counts[i] >= MIN_SCORED_POINTS]
+        least = MIN_SCORED_POINTS * camera.width * camera.height / (640 * 480)
+        ids = [i for i in range(1, len(scene.kinds)) if counts[i] >= least]
         pieces = desk_pieces(seg.labels, gt, seg.support_ids)
         for s in segmentation_scores(seg.labels, gt, ids):
             rows.append({"seed": seed, "id": s.gt_id, "kind": scene.kinds[s.gt_id],
@@ -144,6 +158,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="parameter YAML for the clutter scenes (default: defaults)")
     parser.add_argument("--osd", action="store_true",
                         help="also osd_learn (config/kinect.yaml, as `geomodel bench`)")
+    parser.add_argument("--camera", choices=sorted(CAMERAS), default="kinect",
+                        help="render the scenes with this camera (default: kinect, 640 x 480)")
     parser.add_argument("--json", type=Path, default=None, help="write the rows here")
     parser.add_argument("--failures", action="store_true", help="list objects with IoU < 0.8")
     args = parser.parse_args(argv)
@@ -154,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
             for noisy in {"both": (False, True), "clean": (False,), "kinect": (True,)}[args.noise]]
     runs += [(f"{name}-noise", OPTIONAL_NOISE[name]) for name in args.noise_model]
     for label, noisy in runs:
-        rows = report[label] = clutter_rows(seeds, noisy, params)
+        rows = report[label] = clutter_rows(seeds, noisy, params, CAMERAS[args.camera])
         print("\n".join(clutter_lines(rows, f"clutter {label}")))
         if args.failures:
             for r in rows:

@@ -1,9 +1,10 @@
 """Benchmark of the ``modeler`` node: its own overhead and end-to-end latency.
 
 Run as ``python -m geomodel_ros.tools.bench_node [--scene scene3 | --osd 20] [--frames 20]
-[--input points depth]``; ``--osd N`` takes the real Kinect frame ``osd_learn/learnN``
-(640 x 480; its depth image through the database's pinhole intrinsics, which reproduce its
-cloud) instead of a rendered scene.
+[--input points depth] [--set NAME=VALUE ...]``; ``--osd N`` takes the real Kinect frame
+``osd_learn/learnN`` (640 x 480; its depth image through the database's pinhole intrinsics,
+which reproduce its cloud) instead of a rendered scene; ``--set`` gives the node a modeling
+parameter (``--set decimation=2``).
 
 1. **Node overhead** (conversion in, markers and clouds out, publish) per frame: the node
    is given a stand-in for the scene modeling that returns a precomputed result of the real
@@ -54,6 +55,7 @@ from geomodel_ros.core.modeling import model_scene  # noqa: E402
 from geomodel_ros.ros.node import ModelerNode  # noqa: E402
 from geomodel_ros.ros.processing import SceneModeler  # noqa: E402
 from geomodel_ros.core.params import ModelingParams  # noqa: E402
+from geomodel_ros.tools.cli import parameter_overrides  # noqa: E402
 from geomodel_ros.tools.io import load_osd  # noqa: E402
 from geomodel_ros.tools.paths import data_dir  # noqa: E402
 from geomodel_ros.tools.synth import SCENE_NAMES, render_scene  # noqa: E402
@@ -117,11 +119,12 @@ def _wait(predicate, what: str, timeout: float = 30.0) -> None:
 
 
 def _run(msg: PointCloud2 | Image, info: CameraInfo | None, frames: int, core: SceneModeler,
-         tracking: bool = True) -> tuple[list[float], list[float], list[dict[str, float]]]:
+         tracking: bool = True, overrides: dict[str, object] | None = None
+         ) -> tuple[list[float], list[float], list[dict[str, float]]]:
     """Latencies [s] (publish -> markers; node callback -> published) and stage timings.
 
     ``frames`` frames of ``msg`` through a fresh node (``input: depth`` when ``info`` is
-    given, after it was delivered).
+    given, after it was delivered) whose modeling parameters ``overrides`` sets.
     """
     domain = int(os.environ.get("ROS_DOMAIN_ID", 1 + os.getpid() % 100))
     context = Context()
@@ -134,7 +137,9 @@ def _run(msg: PointCloud2 | Image, info: CameraInfo | None, frames: int, core: S
                                             Parameter("diagnostics", value=False),
                                             Parameter("tracking", value=tracking),
                                             Parameter("input", value="points" if info is None
-                                                      else "depth")])
+                                                      else "depth"),
+                                            *(Parameter(k, value=v)
+                                              for k, v in (overrides or {}).items())])
     peer = _Peer(context, "points" if info is None else "depth")
     executors, threads = [], []
     for n in (node, peer.node):
@@ -186,7 +191,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--input", nargs="+", choices=("points", "depth"),
                         default=["points", "depth"],
                         help="inputs to measure (PointCloud2, 16UC1 depth image + CameraInfo)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="modeling parameter of the node (default: every one at its "
+                             "default), e.g. --set decimation=2")
     args = parser.parse_args(argv)
+    overrides = parameter_overrides(args.set)
+    ModelingParams.from_mapping(overrides)  # a wrong name or value stops here, not in the node
     if args.frames < 1:
         parser.error("--frames must be >= 1")
     retain_freed_memory()  # as the node's main does
@@ -205,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     tracking = args.tracking == "on"
     for kind in args.input:
         msg, info = inputs[kind]
-        _report(kind, msg, info, args.frames, tracking)
+        _report(kind, msg, info, args.frames, tracking, overrides)
     return 0
 
 
@@ -219,10 +229,11 @@ def _scene(scene: str, osd: int | None) -> tuple[str, np.ndarray, CameraModel]:
         OSD_CAMERA
 
 
-def _precomputed(msg: PointCloud2 | Image, info: CameraInfo | None) -> SceneModeler:
+def _precomputed(msg: PointCloud2 | Image, info: CameraInfo | None,
+                 overrides: dict[str, object]) -> SceneModeler:
     """Stand-in core returning the real core's result for the scene as the node reads it."""
     rows = cloud_to_scene(msg).points if info is None else depth_to_scene(msg, info).points
-    labels, result = model_scene(rows, ModelingParams(),
+    labels, result = model_scene(rows, ModelingParams.from_mapping(overrides),
                                  organized_shape=(int(msg.height), int(msg.width)))
 
     def precomputed(_points, _params, **_organized_shape):
@@ -232,10 +243,11 @@ def _precomputed(msg: PointCloud2 | Image, info: CameraInfo | None) -> SceneMode
 
 
 def _report(kind: str, msg: PointCloud2 | Image, info: CameraInfo | None, frames: int,
-            tracking: bool) -> None:
+            tracking: bool, overrides: dict[str, object]) -> None:
     """Measure and print both tables for one input."""
-    lat_null, node_null, tim_null = _run(msg, info, frames, _precomputed(msg, info), tracking)
-    lat_real, node_real, tim_real = _run(msg, info, frames, model_scene, tracking)
+    lat_null, node_null, tim_null = _run(msg, info, frames, _precomputed(msg, info, overrides),
+                                         tracking, overrides)
+    lat_real, node_real, tim_real = _run(msg, info, frames, model_scene, tracking, overrides)
     print(f"\n  input: {kind}")
     print(f"  {'node overhead (core = precomputed result)':<44s} {'median ms':>9s} "
           f"{'p95 ms':>9s}")

@@ -27,6 +27,7 @@ import numpy as np
 
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.tools.cli import parameter_overrides
 from geomodel_ros.tools.evaluation import dimension_errors, expected_type, segmentation_scores
 
 __all__ = ["RECALL_IOU", "score_scene", "run_suite", "summary_lines", "main"]
@@ -127,14 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "and disparity quantisation calibrated on real Kinect frames)")
     ap.add_argument("--json", help="write every row here")
     args = ap.parse_args(argv)
-    values = {}
-    for item in args.set:
-        name, _, raw = item.partition("=")
-        try:
-            values[name] = json.loads(raw)
-        except json.JSONDecodeError:
-            values[name] = raw
-    params = ModelingParams.from_mapping(values)
+    params = ModelingParams.from_mapping(parameter_overrides(args.set))
     rows = run_suite(params, args.seeds, room=not args.no_room, extra_noise=args.noise_model)
     print("\n".join(summary_lines(rows)))
     wrong = [r for r in rows if not r["type_correct"]]

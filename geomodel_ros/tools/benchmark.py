@@ -16,7 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
-from geomodel_ros.tools.evaluation import score_objects, segmentation_scores
+from geomodel_ros.tools.evaluation import score_objects, segment_frame, segmentation_scores
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.tools.paths import data_dir
 
@@ -124,7 +124,6 @@ def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(OS
     """Segment (and model) osd_learn scenes; per-scene IoU scores and timings."""
     from geomodel_ros.tools.io import load_osd
     from geomodel_ros.core.modeling import model_objects
-    from geomodel_ros.core.segmentation import segment_scene
 
     rows = []
     for k in scenes:
@@ -132,7 +131,7 @@ def osd_benchmark(params: ModelingParams, scenes: Sequence[int] = tuple(range(OS
         points, gt = load_osd(path)
         organized = points.reshape(480, 640, 3)
         t0 = time.perf_counter()
-        seg = segment_scene(organized, params)
+        seg = segment_frame(organized, params)
         t1 = time.perf_counter()
         objects = [int(g) for g in np.unique(gt) if g >= 2]
         scores = segmentation_scores(seg.labels, gt, objects)

@@ -40,10 +40,18 @@ class CliError(Exception):
 _STRING_PARAMS = frozenset(p.name for p in PARAMETERS if p.type is str)
 
 
-def _params(args: argparse.Namespace) -> ModelingParams:
-    params = load_params_file(args.params) if getattr(args, "params", None) else ModelingParams()
-    overrides = {}
-    for item in getattr(args, "set", None) or []:
+def parameter_overrides(items: list[str] | None) -> dict[str, object]:
+    """Parse ``--set NAME=VALUE`` items into a name -> value mapping (values unchecked).
+
+    Numbers and true / false are read as JSON; other text only for string parameters.
+
+    Raises
+    ------
+    CliError
+        For an item without ``=`` or a non-string parameter's value that is no number.
+    """
+    overrides: dict[str, object] = {}
+    for item in items or []:
         if "=" not in item:
             raise CliError(f"--set expects NAME=VALUE, got {item!r}")
         name, raw = item.split("=", 1)
@@ -54,6 +62,12 @@ def _params(args: argparse.Namespace) -> ModelingParams:
                 raise CliError(f"--set {name}: {raw!r} is not a number or true/false") from None
             value = raw  # a string parameter's value (its spec checks the choices)
         overrides[name.strip()] = value
+    return overrides
+
+
+def _params(args: argparse.Namespace) -> ModelingParams:
+    params = load_params_file(args.params) if getattr(args, "params", None) else ModelingParams()
+    overrides = parameter_overrides(getattr(args, "set", None))
     return ModelingParams.from_mapping(overrides, base=params) if overrides else params
 
 
@@ -235,7 +249,8 @@ def cmd_model(args: argparse.Namespace) -> int:
               f"max_range = {params.max_range:g} m from the origin and were ignored",
               file=sys.stderr)
     if labels is None:
-        labels, result = model_scene(cloud.points, params)
+        labels, result = model_scene(cloud.points, params, organized_shape=(
+            (cloud.height, cloud.width) if cloud.is_organized else None))
         result.timing["segmentation"] = result.timing["segmentation_s"]
     else:
         result = model_objects(cloud.points, labels, params)

@@ -2,15 +2,35 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
+from geomodel_ros.core.decimation import decimate, spread_labels
 from geomodel_ros.core.geometry import perpendicular_basis
+from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive
+from geomodel_ros.core.segmentation import Segmentation, segment_scene
 
 __all__ = ["expected_type", "DimensionError", "dimension_errors", "ObjectScore", "score_objects",
-           "AxisFit", "circle_along", "scan_axis"]
+           "AxisFit", "circle_along", "scan_axis", "segment_frame"]
+
+
+def segment_frame(organized: np.ndarray, params: ModelingParams) -> Segmentation:
+    """Segment an (H, W, 3) frame as ``model_scene`` does with ``params.decimation``.
+
+    With a decimation d > 1 the frame's samples are segmented and every pixel labelled from
+    them (:mod:`geomodel_ros.core.decimation`): the labels are the frame's (H * W,).
+    """
+    if params.decimation <= 1:
+        return segment_scene(organized, params)
+    h, w = organized.shape[:2]
+    flat = organized.reshape(-1, 3)
+    dec = decimate(flat, (h, w), params.decimation)
+    seg = segment_scene(dec.points, params, organized_shape=dec.shape)
+    return dataclasses.replace(seg, labels=spread_labels(
+        flat, (h, w), dec, seg.labels, params.seg_voxel_size, params.seg_max_edge_factor))
 
 
 def expected_type(gt_type: str) -> str:
