@@ -21,6 +21,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from geomodel_ros.core.fastmath import rows_finite
+
 __all__ = ["Decimated", "decimate", "spread_labels"]
 
 
@@ -44,6 +46,7 @@ def decimate(points: NDArray[np.float64], shape: tuple[int, int], step: int) -> 
 
     The samples are the centres of the ``step`` x ``step`` blocks (offset ``step // 2``); an
     image with fewer than ``step // 2 + 1`` rows or columns keeps its first row or column.
+    Samples with a non-finite coordinate become all NaN (no return, as the core reads them).
     """
     h, w = shape
     off = step // 2
@@ -51,6 +54,9 @@ def decimate(points: NDArray[np.float64], shape: tuple[int, int], step: int) -> 
     cols = np.arange(min(off, w - 1), w, step, dtype=np.int64)
     image = points.reshape(h, w, 3)
     small = np.ascontiguousarray(image[rows[:, None], cols[None, :]]).reshape(-1, 3)
+    # A sample without a return is NaN in all three coordinates (an infinite one would
+    # make the distances of spread_labels inf - inf).
+    small[~rows_finite(small)] = np.nan
     return Decimated(small, (len(rows), len(cols)), rows, cols, step)
 
 

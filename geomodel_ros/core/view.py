@@ -243,8 +243,8 @@ class SceneView:
         spread = math.acos(min(1.0, max(-1.0, float((dirs @ e3).min()))))
         half = min(spread + CONE_MARGIN_CELLS * cell, MAX_HALF_ANGLE)
         cols, all_r = self._columns
-        along = cols[0] * e3[0] + cols[1] * e3[1] + cols[2] * e3[2]
-        with np.errstate(invalid="ignore"):
+        with np.errstate(invalid="ignore"):  # returns of huge magnitude: inf - inf
+            along = cols[0] * e3[0] + cols[1] * e3[1] + cols[2] * e3[2]
             sel = np.flatnonzero(along > math.cos(half) * all_r)
         p_sel, a_sel = cols[:, sel], along[sel]
         keys = _cell_keys((e1 @ p_sel) / a_sel, (e2 @ p_sel) / a_sel, cell, half)

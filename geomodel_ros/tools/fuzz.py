@@ -3,7 +3,7 @@
 ``python -m geomodel_ros.tools.fuzz core --cases 10000`` draws clouds with hypothesis (all
 magnitudes from 1e-6 to 1e9 m, point spacings, NaN/inf patterns, duplicates, collinear,
 coplanar and degenerate sets, tiny and large objects, organized and unorganized) and runs
-each through segmentation + modeling; ``... cli --cases 10000`` writes each cloud to a
+each through segmentation + modeling (organized ones also with ``decimation`` 2); ``... cli --cases 10000`` writes each cloud to a
 ``.npy``, ``.pcd`` or ``.ply`` file (sometimes truncated or corrupted) and runs
 ``geomodel model`` on it in-process. Every case ends as one of:
 
@@ -139,17 +139,24 @@ def _finite_result(result: Any) -> bool:
 
 
 def run_core_case(points: np.ndarray, organized: tuple[int, int] | None) -> str:
-    """Segment + model one cloud; the outcome class (see the module doc)."""
+    """Segment + model one cloud; the outcome class (see the module doc).
+
+    An organized cloud is also modeled decimated (``decimation`` 2): both runs must give
+    a label per point and finite results.
+    """
     from geomodel_ros.core.errors import InputError
     from geomodel_ros.core.modeling import model_scene
+    from geomodel_ros.core.params import ModelingParams
 
+    runs = [ModelingParams()] + ([ModelingParams(decimation=2)] if organized else [])
     try:
-        labels, result = model_scene(points, organized_shape=organized, rng=0)
+        outcomes = [model_scene(points, params, organized_shape=organized, rng=0)
+                    for params in runs]
     except InputError:
         return "clear_error"
-    if labels.shape != (len(points),):
+    if any(labels.shape != (len(points),) for labels, _ in outcomes):
         return "crash"
-    return "ok" if _finite_result(result) else "non_finite"
+    return "ok" if all(_finite_result(result) for _, result in outcomes) else "non_finite"
 
 
 def run_cli_case(points: np.ndarray, suffix: str, damage: str, folder: Path) -> str:
