@@ -132,6 +132,9 @@ def test_a_decimated_clutter_scene_keeps_its_objects_apart():
                                  organized_shape=(h, w))
     assert labels.shape == (h * w,)
     assert "decimation_s" in result.timing
+    # Every object counts the pixels that carry its label (more than its samples).
+    for o in result.objects:
+        assert o.point_count == np.count_nonzero(labels == o.id) > 0
     gt = scene.label_image.ravel()
     counts = np.bincount(gt[gt >= 0], minlength=len(scene.kinds))
     ids = [i for i in range(1, len(scene.kinds)) if counts[i] >= 200]

@@ -456,7 +456,8 @@ def test_malformed_shape_raises_input_error(shape):
 
 
 def test_model_scene_malformed_shape_raises_input_error():
-    with pytest.raises(InputError, match=r"points must be an \(N, 3\) array, got shape \(10, 2\)"):
+    shape = r"points must be \(N, 3\) or \(H, W, 3\), got shape \(10, 2\)"
+    with pytest.raises(InputError, match=shape):
         model_scene(np.zeros((10, 2)))
 
 

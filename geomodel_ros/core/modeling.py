@@ -391,7 +391,7 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
         Image shape when (N, 3) ``points`` are the rows of an organized cloud (N = H * W). With
         ``params.decimation`` d > 1 only every d-th pixel of every d-th row is modeled
         and every pixel gets a sample's label (:mod:`geomodel_ros.core.decimation`);
-        point counts are then counts of samples.
+        an object's point count is then the number of pixels that carry its label.
     rng : Generator, seed or None
 
     Returns
@@ -466,6 +466,11 @@ def _model_decimated(pts: NDArray[np.float64], params: ModelingParams,
     t0 = time.perf_counter()
     labels = spread_labels(pts, shape, dec, sample_labels, params.seg_voxel_size,
                            params.seg_max_edge_factor)
+    # Each object counts the pixels that carry its label (each of its samples among them).
+    counts = np.bincount(labels[labels >= 0], minlength=max((o.id for o in result.objects),
+                                                            default=-1) + 1)
+    result.objects = [dataclasses.replace(o, point_count=int(counts[o.id]))
+                      for o in result.objects]
     result.timing["decimation_s"] = t_dec + time.perf_counter() - t0
     result.timing["total_s"] += result.timing["decimation_s"]
     return labels, result

@@ -3,9 +3,10 @@
 ``python -m geomodel_ros.tools.fuzz core --cases 10000`` draws clouds with hypothesis (all
 magnitudes from 1e-6 to 1e9 m, point spacings, NaN/inf patterns, duplicates, collinear,
 coplanar and degenerate sets, tiny and large objects, organized and unorganized) and runs
-each through segmentation + modeling (organized ones also with ``decimation`` 2); ``... cli --cases 10000`` writes each cloud to a
-``.npy``, ``.pcd`` or ``.ply`` file (sometimes truncated or corrupted) and runs
-``geomodel model`` on it in-process. Every case ends as one of:
+each through segmentation + modeling (organized ones also with ``decimation`` 2);
+``... cli --cases 10000`` writes each cloud to a ``.npy``, ``.pcd`` or ``.ply`` file
+(sometimes truncated or corrupted) and runs ``geomodel model`` on it in-process. Every
+case ends as one of:
 
 - ``ok``: the call returned and every output number is finite;
 - ``clear_error``: a typed error with a message (InputError / ParameterError /
