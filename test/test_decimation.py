@@ -6,7 +6,8 @@ Modules: core.decimation (decimate, spread_labels), core.modeling (``model_scene
 The images below are built by hand (planes at known depths, a depth step, holes), so each
 expected sample position and label follows from the definitions: samples at the block
 centres ``d // 2 + d * i``; a pixel takes the label of its block's sample when within
-``seg_max_edge_factor`` times the larger of the voxel and the sample's spacing, else -1.
+``seg_max_edge_factor`` times the larger of the voxel and the sample's spacing (its reach),
+else that of the nearest sample of the eight blocks around whose reach holds it, else -1.
 """
 
 from __future__ import annotations
@@ -69,11 +70,26 @@ def test_a_depth_step_keeps_each_side_its_own_label_and_holes_none():
     side = np.where(dec.cols < 5, 1, 2)
     sample_labels = np.tile(side, dec.shape[0])
     labels = spread_labels(flat, (8, 10), dec, sample_labels, VOXEL, FACTOR).reshape(8, 10)
+    # Column 4's block sample (column 5) lies across the 30 cm step: its pixels take the
+    # sample of the block to their left (column 3, 4 mm away). The block whose sample has
+    # no return takes its neighbours' samples (same side). Only the holes stay -1.
     expected = np.where(np.arange(10) < 5, 1, 2)[None, :].repeat(8, axis=0)
-    expected[:, 4] = -1         # its block's sample (column 5) lies across the 30 cm step
-    expected[2:4, 6:8] = -1     # the block whose sample has no return
-    expected[6, 2] = -1         # no return
+    expected[3, 7] = expected[6, 2] = -1
     np.testing.assert_array_equal(labels, expected)
+
+
+def test_an_edge_pixel_takes_the_nearest_sample_on_its_own_side():
+    # A 3-pixel-wide near strip (columns 3-5 at 1.0 m, label 5) in a far plane (1.4 m,
+    # label 6). Samples at odd columns: column 2's block sample (3) is near, its pixel far;
+    # column 6's sample (7) far, and column 5 a near sample itself.
+    image = plane_image(6, 9, depth=1.4)
+    image[:, 3:6, 2] = 1.0
+    flat = image.reshape(-1, 3)
+    dec = decimate(flat, (6, 9), 2)
+    sample_labels = np.tile(np.where((dec.cols >= 3) & (dec.cols <= 5), 5, 6), dec.shape[0])
+    labels = spread_labels(flat, (6, 9), dec, sample_labels, VOXEL, FACTOR).reshape(6, 9)
+    expected = np.where((np.arange(9) >= 3) & (np.arange(9) <= 5), 5, 6)[None, :]
+    np.testing.assert_array_equal(labels, expected.repeat(6, axis=0))
 
 
 def test_a_pixel_beyond_a_link_of_every_sample_is_unlabelled():

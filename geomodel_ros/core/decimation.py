@@ -9,9 +9,10 @@ the modeling then see about 1 / d^2 of the points.
 Every pixel of the full image then gets a label (:func:`spread_labels`): the label of its
 block's sample when it lies within a segmentation link of that sample
 (``seg_max_edge_factor`` times the larger of ``seg_voxel_size`` and the sample's spacing to
-its nearest sample neighbour); otherwise -1. A pixel across a depth edge from its block's
-sample is farther than a link from it and is left unlabelled rather than given the wrong
-object.
+its nearest sample neighbour). A pixel across a depth edge from its block's sample, or in a
+block whose sample has no return, takes the label of the nearest sample of the blocks
+around it within whose link it lies, and is left unlabelled (-1) where there is none rather
+than given the wrong object.
 """
 
 from __future__ import annotations
@@ -92,8 +93,10 @@ def spread_labels(points: NDArray[np.float64], shape: tuple[int, int], dec: Deci
 
     Each pixel takes the label of its block's sample when it lies within ``edge_factor``
     times the larger of ``voxel`` [m] and that sample's spacing to its nearest sample
-    neighbour; otherwise -1 (and so does every non-finite pixel, and every pixel of a
-    block whose sample has no return).
+    neighbour (its reach). A finite pixel out of that reach (across a depth edge from it,
+    or in a block whose sample has no return) takes the label of the nearest of the
+    samples of the eight blocks around its own whose reach it lies within; with none, -1
+    (as every non-finite pixel).
     """
     h, w = shape
     rows = _block_counts(h, len(dec.rows), dec.step)
@@ -106,6 +109,38 @@ def spread_labels(points: NDArray[np.float64], shape: tuple[int, int], dec: Deci
         sq += diff * diff
     reach = edge_factor * np.maximum(voxel, _sample_spacing(samples))
     reach_sq = _over_blocks(reach * reach, rows, cols)
-    labels = _over_blocks(np.asarray(sample_labels, dtype=np.int64).reshape(dec.shape),
-                          rows, cols)
-    return np.where(sq <= reach_sq, labels, -1).ravel()
+    lab = np.asarray(sample_labels, dtype=np.int64).reshape(dec.shape)
+    near = sq <= reach_sq
+    out = np.where(near, _over_blocks(lab, rows, cols), -1).ravel()
+    miss = np.flatnonzero(~near.ravel() & rows_finite(points))
+    if len(miss):
+        out[miss] = _from_blocks_around(points[miss], miss // w, miss % w, dec, lab, reach)
+    return out
+
+
+def _from_blocks_around(p: NDArray[np.float64], r: NDArray[np.int64], c: NDArray[np.int64],
+                        dec: Decimated, lab: NDArray[np.int64], reach: NDArray[np.float64]
+                        ) -> NDArray[np.int64]:
+    """Label pixels ``p`` (Q, 3) at rows ``r``, columns ``c`` from the blocks around theirs.
+
+    Each takes the label (from ``lab``, h x w) of the nearest sample of the eight blocks
+    around its own whose ``reach`` (h, w) [m] holds it; with none, -1.
+    """
+    h, w = dec.shape
+    br = np.minimum(r // dec.step, h - 1)
+    bc = np.minimum(c // dec.step, w - 1)
+    samples = dec.points.reshape(h, w, 3)
+    best = np.full(len(p), np.inf)
+    out = np.full(len(p), -1, dtype=np.int64)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr == dc == 0:
+                continue
+            nr, nc = br + dr, bc + dc
+            inside = (nr >= 0) & (nr < h) & (nc >= 0) & (nc < w)
+            nr, nc = np.clip(nr, 0, h - 1), np.clip(nc, 0, w - 1)
+            sq = np.square(p - samples[nr, nc]).sum(axis=1)
+            better = inside & (sq <= np.square(reach[nr, nc])) & (sq < best)
+            best = np.where(better, sq, best)
+            out = np.where(better, lab[nr, nc], out)
+    return out

@@ -216,8 +216,9 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("decimation", 1, "count", 1, 8,
               "Organized clouds only: segment and model every decimation-th pixel of every "
               "decimation-th row (a camera's decimation filter without averaging), then give "
-              "every pixel its block's label where it lies within a segmentation link of the "
-              "block's sample (else -1); point counts count those pixels. For clouds denser than "
+              "every pixel the label of its block's sample, or across a depth edge of the "
+              "nearest sample around within a segmentation link (else -1); point counts count "
+              "those pixels. For clouds denser than "
               "the segmentation needs (decimation x the point spacing at most half of "
               "seg_voxel_size, e.g. 1280 x 720 at a Kinect's field of view); on a 640 x 480 "
               "Kinect frame 2 takes a third off the time but under-segments clutter more "
