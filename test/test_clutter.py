@@ -414,12 +414,18 @@ _SMOOTH_CONTACT = pytest.mark.xfail(strict=True, reason="one patch across the co
                                     "(see _SMOOTH_CONTACT)")
 
 
-@pytest.mark.parametrize("rng", [pytest.param(0, marks=_SMOOTH_CONTACT), 2])
+@pytest.mark.parametrize("rng", [pytest.param(0, marks=_SMOOTH_CONTACT),
+                                 pytest.param(2, marks=_SMOOTH_CONTACT), 4])
 def test_a_can_beside_a_cup_under_real_noise_stays_apart(rng):
     # The can (r 28 mm) touches the cup's rim circle (r 46 mm); both round fronts face the
-    # camera and meet at a tangential concave contact. On noise seed 2 they are apart since
+    # camera and meet at a tangential concave contact. On noise seed 4 they are apart since
     # the container join parts from a container's inside what touches its rim from outside
-    # (:func:`geomodel_ros.core.joins._part_at_rims`); on seed 0 they are still one segment.
+    # (:func:`geomodel_ros.core.joins._part_at_rims`); on seeds 0 and 2 they are one
+    # segment. Seed 2 was apart while the edge test's bound never exceeded the modelled
+    # noise; this frame's neighbourhoods show 1.18 times it, and with the bound on what
+    # they show the pair is one patch (seeds 0-5: apart on 2 and 4 before, on 4 after;
+    # over the clutter benchmark's 60 kinect-real scenes cans and cups both gained,
+    # BENCHMARKS.md section 29).
     cup = _at(make_container(0.036, 0.046, 0.065), 0.0, 0.0)
     can = _at(make_can(0.028, 0.091), 0.046 + 0.028, 0.0)
     assert not footprints_overlap(cup.footprint, can.footprint)
