@@ -1064,9 +1064,9 @@ def _seen_noise_share(off_plane: NDArray[np.float64], expected: NDArray[np.float
     bound on the model's variance, edges and grooves included, and faces grow from
     normals the noise turned. The other way, working points averaging many pixels each (a
     camera of twice the Kinect's pixels per degree: 4-6 per 4 mm voxel at 1 m) lie
-    farther off their planes than sigma / sqrt(count) says, since a voxel's walls select
-    its points by their noise: there the median is twice the model's and a bound on the
-    model cut smooth faces into edge points. The bound is taken on the variance the frame
+    farther off their planes than sigma / sqrt(count) says (likely because a voxel's walls
+    select its points by their noise): there the median is twice the model's and a bound
+    on the model cut smooth faces into edge points. The bound is taken on the variance the frame
     shows, either way.
 
     Parameters
