@@ -1066,8 +1066,8 @@ def _seen_noise_share(off_plane: NDArray[np.float64], expected: NDArray[np.float
     camera of twice the Kinect's pixels per degree: 4-6 per 4 mm voxel at 1 m) lie
     farther off their planes than sigma / sqrt(count) says (likely because a voxel's walls
     select its points by their noise): there the median is twice the model's and a bound
-    on the model cut smooth faces into edge points. The bound is taken on the variance the frame
-    shows, either way.
+    on the model cut smooth faces into edge points. The bound is taken on the variance the
+    frame shows, either way.
 
     Parameters
     ----------
