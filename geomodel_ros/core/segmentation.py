@@ -1154,9 +1154,8 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     With ``whole`` = (working-point noise (M,) [m] (:func:`working_noise`), the depth
     quantisation left in each working point (M,) [m] (:func:`level_quantum`)) each border
     is also tested as a whole for a crease (:func:`_creased_borders`), its floor the
-    per-link concavity tolerance; a border between two patches whose mean normals turn by
-    less than ``crease_angle`` [rad] holds no crease whatever its folds
-    (:func:`_patch_turn`).
+    per-link concavity tolerance; a border whose two sides' normals turn by less than
+    ``crease_angle`` [rad] holds no crease whatever its folds (:func:`_border_turn`).
 
     Returns
     -------
@@ -1193,26 +1192,65 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
         links = np.stack([0.5 * (below_i + below_j), np.minimum(noise_w[i[ok]], noise_w[j[ok]]),
                           0.5 * tolerance * dist, 0.5 * (quantum[i[ok]] + quantum[j[ok]])])
         creased = _creased_borders(inv, len(pairs), i[ok], pi < pj, links, spread)
-        if crease_angle > 0.0:
-            creased &= _patch_turn(normals, patches, n_p, pairs // n_p, pairs % n_p) \
-                >= crease_angle
+        if crease_angle > 0.0 and creased.any():
+            rows = np.flatnonzero(creased)
+            a_r, b_r = pairs[rows] // n_p, pairs[rows] % n_p
+            creased[rows] = (_border_turn(points, normals, patches, a_r, b_r, inv, rows, i[ok],
+                                          j[ok], BORDER_TURN_LINKS * max_edge)
+                             >= crease_angle) | \
+                (_patch_turn(normals, patches, n_p, a_r, b_r) >= crease_angle)
     return pairs // n_p, pairs % n_p, votes, yes, creased
 
 
 def _patch_turn(normals: NDArray[np.float64], patches: NDArray[np.int64], n_p: int,
                 a: NDArray[np.int64], b: NDArray[np.int64]) -> NDArray[np.float64]:
-    """Angle [rad] between the mean normals of patches ``a`` and ``b`` (P,) each.
-
-    Whole patches: the normals next to a border blend both sides of it (hand-built
-    borders concave by 12 deg each side under a Kinect's local and slowly varying noise:
-    the normals of the border links' ends turned by less than 11.5 deg on 8 of 12 seeds),
-    a patch's mean is that of its own surface.
-    """
+    """Angle [rad] between the mean normals of patches ``a`` and ``b`` (P,) each."""
     sums = np.stack([np.bincount(patches, weights=normals[:, c], minlength=n_p)
                      for c in range(3)], axis=1)
     sums /= np.maximum(np.linalg.norm(sums, axis=1, keepdims=True), _FOLD_TINY)
     cos = np.einsum("ij,ij->i", sums[a], sums[b])
     return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+#: The two sides' normals of a border are taken over the points of each patch within this
+#: many links (``max_edge``) of the border's centroid: a curved patch's mean normal is
+#: not its normal at the border, while the points at the border blend both sides.
+BORDER_TURN_LINKS = 2.0
+
+
+def _border_turn(points: NDArray[np.float64], normals: NDArray[np.float64],
+                 patches: NDArray[np.int64], a: NDArray[np.int64], b: NDArray[np.int64],
+                 inv: NDArray[np.int64], rows: NDArray[np.int64], i: NDArray[np.int64],
+                 j: NDArray[np.int64], radius: float) -> NDArray[np.float64]:
+    """Angle [rad] between the two sides' normals of the borders ``rows`` (R,).
+
+    ``a``, ``b`` (R,) are each border's patches, ``inv`` (L,) the border of every
+    cross-border link ``i`` -> ``j`` (L,). Each side's normal is the sum of the unit
+    normals of its patch's points within ``radius`` [m] of the border's centroid (the mean
+    of its links' ends), leaving out the points at the border (an end of one of its
+    links), whose neighbourhoods straddle both sides (hand-built borders concave by 12 deg
+    each side under a Kinect's local and slowly varying noise: the border points' own
+    normals turned by less than 11.5 deg on 8 of 12 seeds); all of the patch's points
+    where none lie there.
+    """
+    order = np.argsort(patches, kind="stable")
+    starts = np.searchsorted(patches[order], np.arange(int(patches.max()) + 2))
+    at_border = np.zeros(len(points), dtype=bool)
+    out = np.zeros(len(rows))
+    for k, (row, pa, pb) in enumerate(zip(rows.tolist(), a.tolist(), b.tolist())):
+        ends = np.concatenate([i[inv == row], j[inv == row]])
+        at_border[ends] = True
+        centre = points[ends].mean(axis=0)
+        sides = []
+        for p in (pa, pb):
+            members = order[starts[p]:starts[p + 1]]
+            near = members[(np.sum(np.square(points[members] - centre), axis=1)
+                            <= radius * radius) & ~at_border[members]]
+            sides.append(normals[near if len(near) else members].sum(axis=0))
+        at_border[ends] = False
+        norm = float(np.linalg.norm(sides[0]) * np.linalg.norm(sides[1]))
+        out[k] = math.acos(min(1.0, max(-1.0, float(sides[0] @ sides[1]) / max(norm, _FOLD_TINY))))
+    return out
 
 
 def _surface_pass_rate(points: NDArray[np.float64], normals: NDArray[np.float64],
