@@ -117,8 +117,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Neighbours (on the working cloud) used to estimate normals and surface variation."),
     ParamSpec("face_angle_threshold", 0.2, "rad", 0.01, 1.0,
               "Largest normal angle between neighbours that grow into one smooth face; also the "
-              "least turn between two patches' mean normals for their border to count as a "
-              "crease by its median fold."),
+              "least turn of two patches (their mean normals, or their normals near the "
+              "border) for their border to count as a crease by its median fold."),
     ParamSpec("edge_variation_threshold", 0.04, "1", 0.001, 0.33,
               "Surface variation above which a working point is an edge, not a face seed."),
     ParamSpec("min_face_points", 12, "count", 3, 100000,

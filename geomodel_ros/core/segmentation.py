@@ -1154,8 +1154,11 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
     With ``whole`` = (working-point noise (M,) [m] (:func:`working_noise`), the depth
     quantisation left in each working point (M,) [m] (:func:`level_quantum`)) each border
     is also tested as a whole for a crease (:func:`_creased_borders`), its floor the
-    per-link concavity tolerance; a border whose two sides' normals turn by less than
-    ``crease_angle`` [rad] holds no crease whatever its folds (:func:`_border_turn`).
+    per-link concavity tolerance. A border holds no crease, whatever its folds, where its
+    two sides turn by less than ``crease_angle`` [rad] both by the patches' mean normals
+    (:func:`_patch_turn`) and by their normals near it (:func:`_border_turn`): pieces of
+    one face that a frame's slowly varying error bends are cut where they bend most, so
+    the fold across the cut is concave by selection.
 
     Returns
     -------
