@@ -65,6 +65,27 @@ def _tilted_wall(depth: float, tilt_deg: float) -> tuple[np.ndarray, np.ndarray]
     return _quantised(rays, z)
 
 
+
+def test_depths_whose_inverse_overflows_are_ignored_without_warnings():
+    # A malformed message can hold subnormal depths (5e-324 m): 1/z is inf there, and the
+    # gaps between sorted levels would be inf - inf = NaN. Such points hold no level: the
+    # step is that of the others, and no numeric warning is raised.
+    rng = np.random.default_rng(2)
+    z = 1.0 / (STEP * rng.integers(80, 1100, size=30000))
+    pts = np.stack([0.1 * z, 0.2 * z, z], axis=1)
+    pts[::7, 2] = 5e-324
+    pts[1::7, 2] = -1e-310
+    with np.errstate(all="raise"):
+        assert disparity_step(pts) == pytest.approx(STEP, abs=1e-6)
+    # Jittered levels (every value distinct: the far-range search) likewise.
+    jittered = pts.copy()
+    jittered[2::7, 2] += rng.normal(0.0, 1e-5, jittered[2::7].shape[0])
+    with np.errstate(all="raise"):
+        disparity_step(jittered)
+    tiny = np.tile([[0.0, 0.0, 5e-324]], (100, 1))
+    with np.errstate(all="raise"):
+        assert disparity_step(tiny) is None
+
 def test_terraces_of_one_far_wall_are_joined():
     # At 3.8-4.3 m a step is 4.1-5.3 cm, longer than a link (2.5 voxels of 4 mm): the
     # wall is about ten bands of constant depth, each a segment.
