@@ -41,8 +41,9 @@ from geomodel_ros.core.faces import (THREADED_QUERIES, WorkingCloud, estimate_no
                                      smallest_eigenpairs_sym, voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.geometry import perpendicular_basis
-from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, knn_among, link_components,
-                                        robust_sigma, rows_finite, take_rows)
+from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, group_by_label, knn_among,
+                                        link_components, robust_sigma, rows_finite,
+                                        take_rows)
 from geomodel_ros.core.noise import K_SUPPORT, NoiseEstimate, disparity_step, resolve_params
 from geomodel_ros.core.joins import (contained_floors, join_contained_parts, join_occluded_parts,
                                      join_terraces, merge_patches)
@@ -1198,10 +1199,14 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
         if crease_angle > 0.0 and creased.any():
             rows = np.flatnonzero(creased)
             a_r, b_r = pairs[rows] // n_p, pairs[rows] % n_p
-            creased[rows] = (_border_turn(points, normals, patches, a_r, b_r, inv, rows, i[ok],
-                                          j[ok], BORDER_TURN_LINKS * max_edge)
-                             >= crease_angle) | \
-                (_patch_turn(normals, patches, n_p, a_r, b_r) >= crease_angle)
+            # The patches' means first (one sum per patch); the normals near the border
+            # only where the means turn by less.
+            flat = _patch_turn(normals, patches, n_p, a_r, b_r) < crease_angle
+            rows, a_r, b_r = rows[flat], a_r[flat], b_r[flat]
+            if len(rows):
+                creased[rows] = _border_turn(points, normals, patches, a_r, b_r, inv, rows,
+                                             i[ok], j[ok], BORDER_TURN_LINKS * max_edge) \
+                    >= crease_angle
     return pairs // n_p, pairs % n_p, votes, yes, creased
 
 
@@ -1236,17 +1241,21 @@ def _border_turn(points: NDArray[np.float64], normals: NDArray[np.float64],
     normals turned by less than 11.5 deg on 8 of 12 seeds); all of the patch's points
     where none lie there.
     """
-    order = np.argsort(patches, kind="stable")
-    starts = np.searchsorted(patches[order], np.arange(int(patches.max()) + 2))
+    order, ids, starts, stops = group_by_label(np.arange(len(patches)), patches)
+    member_span = dict(zip(ids.tolist(), zip(starts.tolist(), stops.tolist())))
+    sel = np.flatnonzero(np.isin(inv, rows))
+    link_order, ids, starts, stops = group_by_label(sel, inv[sel])
+    link_span = dict(zip(ids.tolist(), zip(starts.tolist(), stops.tolist())))
     at_border = np.zeros(len(points), dtype=bool)
     out = np.zeros(len(rows))
     for k, (row, pa, pb) in enumerate(zip(rows.tolist(), a.tolist(), b.tolist())):
-        ends = np.concatenate([i[inv == row], j[inv == row]])
+        links = link_order[slice(*link_span[row])]
+        ends = np.concatenate([i[links], j[links]])
         at_border[ends] = True
         centre = points[ends].mean(axis=0)
         sides = []
         for p in (pa, pb):
-            members = order[starts[p]:starts[p + 1]]
+            members = order[slice(*member_span[p])]
             near = members[(np.sum(np.square(points[members] - centre), axis=1)
                             <= radius * radius) & ~at_border[members]]
             sides.append(normals[near if len(near) else members].sum(axis=0))
