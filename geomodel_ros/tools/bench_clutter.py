@@ -11,7 +11,10 @@ object kind, and the segmentation time. ``--osd`` adds the osd_learn figure
 ``--camera hd720`` renders the scenes at 1280 x 720 with the Kinect's field of view across
 (twice its pixels per degree); with ``decimation`` > 1 in ``--params`` every frame is
 segmented from its samples and every pixel labelled from them
-(:mod:`geomodel_ros.core.decimation`), as ``model_scene`` does.
+(:mod:`geomodel_ros.core.decimation`), as ``model_scene`` does. ``--types`` models every
+frame (``model_scene``: segmentation and modeling) and adds the types: per kind, how many
+of the objects segmented with IoU >= 0.8 got the type their kind must get (:data:`KIND_TYPES`)
+and what the others got.
 """
 
 from __future__ import annotations
@@ -20,12 +23,13 @@ import argparse
 import json
 import statistics
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams, load_params_file
 from geomodel_ros.tools.evaluation import segment_frame, segmentation_scores
 from geomodel_ros.tools.paths import CONFIG_DIR
@@ -41,7 +45,7 @@ OPTIONAL_NOISE = {"kinect-class": KINECT_CLASS_NOISE, "kinect-real": KINECT_REAL
                   "kinect-mixed": MIXED_EDGE_NOISE}
 
 __all__ = ["clutter_rows", "clutter_lines", "desk_pieces", "main", "MIN_SCORED_POINTS",
-           "GOOD_IOU"]
+           "GOOD_IOU", "KIND_TYPES", "type_lines"]
 
 #: Objects with fewer visible points are not scored: slivers at the image border or
 #: behind other objects (200 points are about 1 cm^2 at 1 m, close to the segmentation's
@@ -49,6 +53,13 @@ __all__ = ["clutter_rows", "clutter_lines", "desk_pieces", "main", "MIN_SCORED_P
 MIN_SCORED_POINTS = 200
 #: An object counts as well segmented at this IoU (the project's osd_learn criterion).
 GOOD_IOU = 0.8
+
+
+#: The types an object of each clutter kind must be modeled as. A cup's rim is 1.0-1.3 times
+#: its bottom radius (a wall 0-12 deg off its axis over its height): a cylinder or a frustum.
+KIND_TYPES = {"box": ("cuboid",), "can": ("cylinder",), "lying_can": ("cylinder",),
+              "sphere": ("sphere",), "cone": ("cone",), "cup": ("cylinder", "frustum"),
+              "bowl": ("frustum",)}
 
 
 #: Cameras the scenes can be rendered with (``--camera``): the Kinect's 640 x 480 and a
@@ -59,7 +70,7 @@ CAMERAS = {"kinect": KINECT_CAMERA,
 
 
 def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: ModelingParams,
-                 camera: PinholeCamera = KINECT_CAMERA) -> list[dict]:
+                 camera: PinholeCamera = KINECT_CAMERA, types: bool = False) -> list[dict]:
     """Segment the clutter scenes ``seeds``; one row per scored object.
 
     ``noisy``: True for the clutter's KINECT_NOISE, False for none, or a NoiseModel.
@@ -68,24 +79,38 @@ def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: Modelin
 
     Each row holds ``seed``, ``id``, ``kind``, ``points``, ``iou``, ``under``, ``over``, the
     scene's ``segmentation_s`` and its ``desk_pieces``: segments reported as objects (not
-    supports) whose points are mostly the desk's (:func:`desk_pieces`).
+    supports) whose points are mostly the desk's (:func:`desk_pieces`). With ``types`` each
+    frame is modeled (``model_scene``, whose labels are its objects' ids) and each row also
+    holds ``type``, the type of the object of the best-matching segment ("none" when its
+    points are all noise); ``segmentation_s`` is then the segmentation's share of the frame.
     """
     rows = []
     for seed in seeds:
         noise = noisy if isinstance(noisy, NoiseModel) else (KINECT_NOISE if noisy else None)
         scene = render_clutter(seed, noise, camera)
-        t0 = time.perf_counter()
-        seg = segment_frame(scene.organized, params)
-        seconds = time.perf_counter() - t0
+        type_of: dict[int, str] = {}
+        if types:
+            labels, result = model_scene(scene.organized, params)
+            seconds = result.timing["segmentation_s"]
+            support_ids = list(result.supports)
+            type_of = {o.id: o.type for o in result.objects}
+        else:
+            t0 = time.perf_counter()
+            seg = segment_frame(scene.organized, params)
+            seconds = time.perf_counter() - t0
+            labels, support_ids = seg.labels, seg.support_ids
         gt = scene.label_image.ravel()
         counts = np.bincount(gt[gt >= 0], minlength=len(scene.kinds))
         least = MIN_SCORED_POINTS * camera.width * camera.height / (640 * 480)
         ids = [i for i in range(1, len(scene.kinds)) if counts[i] >= least]
-        pieces = desk_pieces(seg.labels, gt, seg.support_ids)
-        for s in segmentation_scores(seg.labels, gt, ids):
-            rows.append({"seed": seed, "id": s.gt_id, "kind": scene.kinds[s.gt_id],
-                         "points": int(counts[s.gt_id]), "iou": s.iou, "under": s.under,
-                         "over": s.over, "segmentation_s": seconds, "desk_pieces": pieces})
+        pieces = desk_pieces(labels, gt, support_ids)
+        for s in segmentation_scores(labels, gt, ids):
+            row = {"seed": seed, "id": s.gt_id, "kind": scene.kinds[s.gt_id],
+                   "points": int(counts[s.gt_id]), "iou": s.iou, "under": s.under,
+                   "over": s.over, "segmentation_s": seconds, "desk_pieces": pieces}
+            if types:
+                row["type"] = type_of.get(s.segment, "none")
+            rows.append(row)
     return rows
 
 
@@ -132,6 +157,27 @@ def clutter_lines(rows: list[dict], label: str) -> list[str]:
     return lines
 
 
+def type_lines(rows: list[dict]) -> list[str]:
+    """Per kind: objects segmented with IoU >= 0.8 that got their kind's type, and the rest."""
+    good = [r for r in rows if "type" in r and r["iou"] >= GOOD_IOU]
+    if not good:
+        return []
+    right = sum(r["type"] in KIND_TYPES[r["kind"]] for r in good)
+    lines = [f"  types of the {len(good)} objects at IoU >= 0.8: {right} right "
+             f"({100 * right / len(good):.1f} %)"]
+    by_kind = defaultdict(list)
+    for r in good:
+        by_kind[r["kind"]].append(r["type"])
+    for kind in sorted(by_kind):
+        got = by_kind[kind]
+        ok = sum(t in KIND_TYPES[kind] for t in got)
+        wrong = Counter(t for t in got if t not in KIND_TYPES[kind])
+        rest = ", ".join(f"{t} {n}" for t, n in wrong.most_common())
+        lines.append(f"    {kind:<10} {ok:>4} / {len(got):<4} {'/'.join(KIND_TYPES[kind])}"
+                     f"{'  (' + rest + ')' if rest else ''}")
+    return lines
+
+
 def _osd_lines(params: ModelingParams) -> list[str]:
     from geomodel_ros.tools.benchmark import osd_benchmark
 
@@ -162,6 +208,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="render the scenes with this camera (default: kinect, 640 x 480)")
     parser.add_argument("--json", type=Path, default=None, help="write the rows here")
     parser.add_argument("--failures", action="store_true", help="list objects with IoU < 0.8")
+    parser.add_argument("--types", action="store_true",
+                        help="model every frame and score the types of the objects segmented "
+                             "with IoU >= 0.8")
     args = parser.parse_args(argv)
     params = load_params_file(args.params) if args.params else ModelingParams()
     seeds = range(args.first, args.first + args.scenes)
@@ -170,14 +219,18 @@ def main(argv: list[str] | None = None) -> int:
             for noisy in {"both": (False, True), "clean": (False,), "kinect": (True,)}[args.noise]]
     runs += [(f"{name}-noise", OPTIONAL_NOISE[name]) for name in args.noise_model]
     for label, noisy in runs:
-        rows = report[label] = clutter_rows(seeds, noisy, params, CAMERAS[args.camera])
-        print("\n".join(clutter_lines(rows, f"clutter {label}")))
+        rows = report[label] = clutter_rows(seeds, noisy, params, CAMERAS[args.camera],
+                                            args.types)
+        print("\n".join(clutter_lines(rows, f"clutter {label}") + type_lines(rows)))
         if args.failures:
             for r in rows:
                 if r["iou"] < GOOD_IOU or r["under"]:
                     print(f"    seed {r['seed']:>3} id {r['id']:>2} {r['kind']:<10} "
                           f"{r['points']:>6} pts IoU {r['iou']:.3f}"
                           f"{' under' if r['under'] else ''}{' over' if r['over'] else ''}")
+                elif args.types and r["type"] not in KIND_TYPES[r["kind"]]:
+                    print(f"    seed {r['seed']:>3} id {r['id']:>2} {r['kind']:<10} "
+                          f"{r['points']:>6} pts IoU {r['iou']:.3f} typed {r['type']}")
     if args.osd:
         print("\n".join(_osd_lines(load_params_file(CONFIG_DIR / "kinect.yaml"))))
     if args.json:

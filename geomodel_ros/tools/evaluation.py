@@ -119,6 +119,8 @@ class SegmentScore:
     parts_iou : float
         IoU of the union of all segments lying mostly (> 80 %) inside the object: an
         occluded object seen as disjoint parts, each its own segment, scores 1 here.
+    segment : int
+        The predicted label of that best segment (-1 if all its points are noise).
     """
 
     gt_id: int
@@ -126,6 +128,7 @@ class SegmentScore:
     under: bool
     over: bool
     parts_iou: float = 0.0
+    segment: int = -1
 
 
 def segmentation_scores(pred: np.ndarray, gt: np.ndarray, object_ids, share: float = 0.2
@@ -169,7 +172,8 @@ def segmentation_scores(pred: np.ndarray, gt: np.ndarray, object_ids, share: flo
         inside[b] = True
         union_inter = int(row[inside].sum())
         parts_iou = union_inter / (gt_size[g] + int(pred_size[inside].sum()) - union_inter)
-        scores.append(SegmentScore(g, float(iou), bool(others), bool(over), float(parts_iou)))
+        scores.append(SegmentScore(g, float(iou), bool(others), bool(over), float(parts_iou),
+                                    int(p_ids[b])))
     return scores
 
 
