@@ -31,7 +31,7 @@ import numpy as np
 
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams, load_params_file
-from geomodel_ros.tools.evaluation import segment_frame, segmentation_scores
+from geomodel_ros.tools.evaluation import dimension_errors, segment_frame, segmentation_scores
 from geomodel_ros.tools.paths import CONFIG_DIR
 from geomodel_ros.tools.synth.camera import PinholeCamera
 from geomodel_ros.tools.synth.clutter import KINECT_CAMERA, KINECT_NOISE, render_clutter
@@ -82,18 +82,20 @@ def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: Modelin
     supports) whose points are mostly the desk's (:func:`desk_pieces`). With ``types`` each
     frame is modeled (``model_scene``, whose labels are its objects' ids) and each row also
     holds ``type``, the type of the object of the best-matching segment ("none" when its
-    points are all noise); ``segmentation_s`` is then the segmentation's share of the frame.
+    points are all noise), and ``size_errors``, its absolute size errors [m] where that
+    type is the object's true type (:func:`~geomodel_ros.tools.evaluation.dimension_errors`);
+    ``segmentation_s`` is then the segmentation's share of the frame.
     """
     rows = []
     for seed in seeds:
         noise = noisy if isinstance(noisy, NoiseModel) else (KINECT_NOISE if noisy else None)
         scene = render_clutter(seed, noise, camera)
-        type_of: dict[int, str] = {}
+        model_of: dict = {}
         if types:
             labels, result = model_scene(scene.organized, params)
             seconds = result.timing["segmentation_s"]
             support_ids = list(result.supports)
-            type_of = {o.id: o.type for o in result.objects}
+            model_of = {o.id: o for o in result.objects}
         else:
             t0 = time.perf_counter()
             seg = segment_frame(scene.organized, params)
@@ -109,7 +111,10 @@ def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: Modelin
                    "points": int(counts[s.gt_id]), "iou": s.iou, "under": s.under,
                    "over": s.over, "segmentation_s": seconds, "desk_pieces": pieces}
             if types:
-                row["type"] = type_of.get(s.segment, "none")
+                est = model_of.get(s.segment)
+                row["type"] = est.type if est is not None else "none"
+                row["size_errors"] = [] if est is None else \
+                    [abs(e.estimate - e.true) for e in dimension_errors(est, scene.objects[s.gt_id])]
             rows.append(row)
     return rows
 
@@ -163,8 +168,10 @@ def type_lines(rows: list[dict]) -> list[str]:
     if not good:
         return []
     right = sum(r["type"] in KIND_TYPES[r["kind"]] for r in good)
+    errors = [e for r in good for e in r["size_errors"]]
     lines = [f"  types of the {len(good)} objects at IoU >= 0.8: {right} right "
-             f"({100 * right / len(good):.1f} %)"]
+             f"({100 * right / len(good):.1f} %); size errors where typed as they are: "
+             f"median {_mm(errors, 50)}, p90 {_mm(errors, 90)} mm ({len(errors)} sizes)"]
     by_kind = defaultdict(list)
     for r in good:
         by_kind[r["kind"]].append(r["type"])
@@ -173,9 +180,16 @@ def type_lines(rows: list[dict]) -> list[str]:
         ok = sum(t in KIND_TYPES[kind] for t in got)
         wrong = Counter(t for t in got if t not in KIND_TYPES[kind])
         rest = ", ".join(f"{t} {n}" for t, n in wrong.most_common())
+        errs = [e for r in good if r["kind"] == kind for e in r["size_errors"]]
         lines.append(f"    {kind:<10} {ok:>4} / {len(got):<4} {'/'.join(KIND_TYPES[kind])}"
-                     f"{'  (' + rest + ')' if rest else ''}")
+                     f"{'  (' + rest + ')' if rest else ''}; sizes median {_mm(errs, 50)}, "
+                     f"p90 {_mm(errs, 90)} mm")
     return lines
+
+
+def _mm(errors: list[float], percentile: float) -> str:
+    return f"{1e3 * float(np.percentile(errors, percentile)):.1f}" if errors else "-"
+
 
 
 def _osd_lines(params: ModelingParams) -> list[str]:

@@ -71,8 +71,14 @@ def dimension_errors(est: Primitive, gt) -> list[DimensionError]:
             true = float(gt.dimensions[gnames[int(np.argmax(cos[a]))]])
             out.append(DimensionError(name, true, float(est.dimensions[name])))
         return out
-    return [DimensionError(k, float(gt.dimensions[k]), float(v))
-            for k, v in est.dimensions.items() if k in gt.dimensions]
+    true = dict(gt.dimensions)
+    if est.type == "frustum" and "top_radius" in true:
+        # A frustum's ``radius`` is its larger circle's (the base; a bowl stands on its
+        # smaller one), ``top_radius`` the smaller's.
+        true["radius"], true["top_radius"] = (max(true["radius"], true["top_radius"]),
+                                              min(true["radius"], true["top_radius"]))
+    return [DimensionError(k, float(true[k]), float(v))
+            for k, v in est.dimensions.items() if k in true]
 
 
 @dataclass(frozen=True)

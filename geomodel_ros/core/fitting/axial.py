@@ -8,11 +8,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core import obb
-from geomodel_ros.core.fastmath import take_rows
+from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane
 from geomodel_ros.core.fitting.curved import CurvedFit
 from geomodel_ros.core.fitting.measure import (arc_span, nearest_surface, scatter_incidence,
                                                steep_arc_span)
+from geomodel_ros.core.fitting.orient import toward_sensor
 from geomodel_ros.core.fitting.plane import RAY_SHIFT_FACTOR
 from geomodel_ros.core.fitting.result import FitTask, Rejected
 from geomodel_ros.core.fitting.verify import (OUTLIER_FACTOR, check_arc, check_axis,
@@ -20,7 +21,16 @@ from geomodel_ros.core.fitting.verify import (OUTLIER_FACTOR, check_arc, check_a
                                               check_profile_bow)
 from geomodel_ros.core.primitives import PrimitiveType
 
-__all__ = ["end_caps", "assign_to_surfaces", "axial_extent", "verified_side"]
+__all__ = ["end_caps", "assign_to_surfaces", "axial_extent", "verified_side", "cap_rim_arc",
+           "RIM_SPACINGS", "CAP_OUTSIDE_SHARE"]
+
+#: A cap's rim points lie within this many point spacings inside the side's surface (the
+#: outermost samples of a steeply seen cap are within about one spacing of its edge) ...
+RIM_SPACINGS = 2.0
+#: ... and a cap confirms the side's circle only when at most this share of its points lie
+#: outside the side by more than OUTLIER_FACTOR RANSAC thresholds (a box's top beside a
+#: round sliver reaches beyond any circle through that sliver; a can's top does not).
+CAP_OUTSIDE_SHARE = 0.05
 
 
 def end_caps(cloud: ObjectCloud, side: CurvedFit) -> list[Plane]:
@@ -52,8 +62,11 @@ def assign_to_surfaces(cloud: ObjectCloud, side: CurvedFit, caps: list[Plane],
 
 def _cap_positions(cloud: ObjectCloud, caps: list[Plane], nearest: NDArray[np.int64],
                    origin: NDArray[np.float64], axis: NDArray[np.float64]
-                   ) -> tuple[list[NDArray[np.float64]], list[float]]:
-    """Axial coordinates of the caps' points and each cap's median position [m]."""
+                   ) -> tuple[list[NDArray[np.float64]], list[tuple[float, float]]]:
+    """Axial coordinates of the caps' points; each cap's median position [m] and facing.
+
+    The facing is the sign of the cap's normal towards the sensor along ``axis`` (3,).
+    """
     parts, closed = [], []
     for ci, (normal, offset) in enumerate(caps, start=1):
         q = take_rows(cloud.points, nearest == ci)
@@ -64,7 +77,8 @@ def _cap_positions(cloud: ObjectCloud, caps: list[Plane], nearest: NDArray[np.in
                                  RAY_SHIFT_FACTOR * cloud.params.ransac_threshold)
         t_cap = (q - origin) @ axis
         parts.append(t_cap)
-        closed.append(float(np.median(t_cap)))
+        facing = float(toward_sensor(np.asarray(normal, dtype=np.float64), centroid(q)) @ axis)
+        closed.append((float(np.median(t_cap)), facing))
     return parts, closed
 
 
@@ -74,18 +88,50 @@ def axial_extent(cloud: ObjectCloud, side_points: NDArray[np.float64], caps: lis
     """Extent [lo, hi] [m] of the object along ``axis`` (3,) from ``origin`` (3,).
 
     From the side's points (n, 3) and those of its caps (re-projected onto them along
-    their rays); a cap closes the end it is nearer to, a support plane an end no cap
+    their rays); a cap seen from outside closes the end it is nearer to (one seen from
+    inside, a cup's or bowl's inner floor, closes nothing), a support plane an end no cap
     closes, and open ends get the edge correction.
     """
     parts, closed = _cap_positions(cloud, caps, nearest, origin, axis)
     t_all = np.concatenate([(side_points - origin) @ axis] + parts)
     tmin, tmax = float(t_all.min()), float(t_all.max())
-    closed_lo = [c for c in closed if c - tmin < tmax - c]
-    closed_hi = [c for c in closed if c - tmin >= tmax - c]
+    # A cap closes the end it is nearer to only when it is seen from outside the solid
+    # (its normal towards the sensor points out of that end): one seen from inside is an
+    # open container's inner floor, above its hidden bottom.
+    closed_lo = [c for c, facing in closed if c - tmin < tmax - c and facing < 0]
+    closed_hi = [c for c, facing in closed if c - tmin >= tmax - c and facing > 0]
     s_lo, s_hi = cloud.support_ends(axis, origin, tmin, tmax)
     return obb.interval(t_all, cloud.spacing, min(closed_lo) if closed_lo else s_lo,
                         max(closed_hi) if closed_hi else s_hi,
                         correct=cloud.params.edge_correction)
+
+
+def cap_rim_arc(cloud: ObjectCloud, side: CurvedFit, nearest: NDArray[np.int64],
+                n_caps: int, origin: NDArray[np.float64]) -> float:
+    """Angle [rad] round the axis that the rims of the side's planar end caps confirm.
+
+    A round side seen only at grazing incidence (a can from above: its side within 20 deg
+    of edge-on) shows no arc steep enough to judge (:func:`~.measure.steep_arc_span`); its
+    cap, seen steeply, does: the cap's points lie inside the side's circle, and its rim
+    points (within RIM_SPACINGS point spacings inside the surface, the model's signed
+    ``distance``) span the arc round the axis that the cap's edge confirms. A cap with more
+    than CAP_OUTSIDE_SHARE of its points outside the side (by more than OUTLIER_FACTOR
+    RANSAC thresholds) has another outline and confirms nothing. 0 without such a cap.
+    Only the object's own planar faces count (``n_caps`` of the caps, numbered 1.. in
+    ``nearest``), not the side's inner caps.
+    """
+    inner = RIM_SPACINGS * cloud.spacing + cloud.params.ransac_threshold
+    outer = OUTLIER_FACTOR * cloud.params.ransac_threshold
+    best = 0.0
+    for ci in range(1, n_caps + 1):
+        q = take_rows(cloud.points, nearest == ci)
+        if len(q) == 0:
+            continue
+        d = side.model.distance(q)
+        if np.count_nonzero(d > outer) > CAP_OUTSIDE_SHARE * len(q):
+            continue
+        best = max(best, arc_span(q[(d >= -inner) & (d <= outer)], origin, side.model.axis))
+    return best
 
 
 def verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None,
@@ -126,6 +172,9 @@ def verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | N
     cos = scatter_incidence(model.distance, side_points) if steep else None
     arc = steep_arc_span(side_points, origin, model.axis, model.distance, cos) if steep else \
         arc_span(side_points, origin, model.axis)
+    if steep and arc < cloud.params.min_arc:
+        own_caps = len(caps) - len(side.inner_caps)
+        arc = max(arc, cap_rim_arc(cloud, side, nearest, own_caps, origin))
     bad = check_arc(arc, cloud.params, kind, steep) or \
         check_noise_scatter(side_points, model.distance, cloud.params, kind, cos) or \
         check_profile_bow(side_points, model, cloud, kind)
