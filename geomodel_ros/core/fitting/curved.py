@@ -7,7 +7,9 @@ working points. A cone's least squares cannot reverse its opening (the cylinder,
 0, lies between the two), so a cone that refines below the least half-angle is refined
 again from the opposite opening, which is kept when it fits better beyond the noise
 (:func:`refined`). A cylinder or cone may take a flat end that region growing joined to
-its side as an *inner cap* (:func:`inner_cap`).
+its side as an *inner cap* (:func:`inner_cap`). An open container's inner wall, seen
+through its opening, faces the axis (:func:`inside_facing`); a cylinder or cone is drawn
+from the side's other points, and the inner wall's points are left out of the side.
 """
 
 from __future__ import annotations
@@ -26,13 +28,14 @@ from geomodel_ros.core.fitting.orient import toward_sensor
 from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import FitTask, Rejected
 from geomodel_ros.core.fitting.verify import check_inlier_ratio
+from geomodel_ros.core.noise import MIN_INCIDENCE_COS
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import PrimitiveType
 from geomodel_ros.core.ransac import ConeModel, CylinderModel, PlaneModel, SphereModel, ransac, \
     refine
 
 __all__ = ["CurvedModel", "CurvedFit", "INNER_CAP_SHARE", "INNER_CAP_CONE_MARGIN",
-           "axis_prior", "inner_cap", "reversed_cone", "refined", "fit_curved"]
+           "axis_prior", "inner_cap", "inside_facing", "reversed_cone", "refined", "fit_curved"]
 
 CurvedModel = Union[SphereModel, CylinderModel, ConeModel]
 
@@ -59,12 +62,15 @@ class CurvedFit:
     planar : list[int], the object's planar faces (caps and base candidates)
     inner_caps : tuple of Plane, flat ends found inside the curved faces
     rmse : float [m], RMS distance of the curved faces' full-resolution sample
+    inside : (N,) bool array or None, the object's points on an inner wall
+        (:func:`inside_facing`), which are not the side's; None without one
     """
 
     model: CurvedModel
     planar: list[int]
     inner_caps: tuple[Plane, ...]
     rmse: float
+    inside: NDArray[np.bool_] | None = None
 
 
 def axis_prior(task: FitTask) -> NDArray[np.float64] | None:
@@ -119,6 +125,27 @@ def inner_cap(wp: NDArray[np.float64], wn: NDArray[np.float64], model: CurvedMod
         return None
     normal = toward_sensor(plane.normal, centroid(cand))
     return normal, float(plane.d) if normal @ plane.normal > 0 else -float(plane.d), on_cap
+
+
+def inside_facing(model: CylinderModel | ConeModel, wp: NDArray[np.float64],
+                  wn: NDArray[np.float64], params: ModelingParams) -> NDArray[np.bool_]:
+    """Which working points (``wp``, ``wn``: (m, 3), normals towards the sensor) face the axis.
+
+    A solid's side, seen from outside, shows the sensor normals that point away from its
+    axis; an open container's inner wall, seen through its opening, normals that point
+    towards it. A point counts as facing the axis when its normal's radial component is
+    below -sin(``angle_tolerance``) (normals within the tolerance of the axis, a cap's,
+    have no telling radial sign) and it is seen within acos(MIN_INCIDENCE_COS) of its
+    normal (where the rays graze a side, noise can turn its normal's orientation).
+    """
+    origin = model.point if isinstance(model, CylinderModel) else model.apex
+    v = wp - origin
+    radial = v - np.outer(v @ model.axis, model.axis)
+    length = np.maximum(np.linalg.norm(radial, axis=1), 1e-12)
+    facing = np.einsum("ij,ij->i", wn, radial) / length
+    rays = wp / np.maximum(np.linalg.norm(wp, axis=1), 1e-12)[:, None]
+    steep = np.abs(np.einsum("ij,ij->i", wn, rays)) >= MIN_INCIDENCE_COS
+    return (facing < -math.sin(params.angle_tolerance)) & steep
 
 
 def reversed_cone(model: ConeModel, points: NDArray[np.float64]) -> ConeModel:
@@ -200,7 +227,23 @@ def fit_curved(cloud: ObjectCloud, kind: PrimitiveType, model_cls: type,
                  params.ransac_max_iterations, params.ransac_confidence, cloud.rng, accept=accept)
     if fit is None:
         return Rejected(kind, f"{kind}: no valid RANSAC hypothesis")
-    full = cloud.sample(cloud.face_points(curved))
+    rows = cloud.face_points(curved)
+    inside = None
+    if model_cls is not SphereModel:
+        inner = inside_facing(fit.model, wp, wn, params)
+        # Two walls (outer and inner) a wall's thickness apart: the side is drawn from the
+        # one seen more, the other is left out of it.
+        other = inner if inner.sum() <= 0.5 * len(wp) else ~inner
+        wall = fit if other.sum() < _cap_need(len(wp), params) else \
+            ransac(model_cls, wp[~other], wn[~other], params.ransac_threshold,
+                   params.ransac_normal_threshold, params.ransac_max_iterations,
+                   params.ransac_confidence, cloud.rng, accept=accept)
+        if wall is not fit and wall is not None:
+            on_other = np.zeros(len(cloud.wc.points), dtype=bool)
+            on_other[cw[other]] = True
+            inside = on_other[cloud.wc.point_to_working]
+            fit, wp, wn, rows = wall, wp[~other], wn[~other], rows[~inside[rows]]
+    full = cloud.sample(rows)
     model = refined(fit.model, wp, None if cloud.first_look else full, params)
     on_model = np.abs(model.distance(wp)) <= params.ransac_threshold
     caps: tuple[Plane, ...] = ()
@@ -212,4 +255,4 @@ def fit_curved(cloud: ObjectCloud, kind: PrimitiveType, model_cls: type,
     bad = check_inlier_ratio(float(np.mean(on_model)), params, kind)
     if bad:
         return bad
-    return CurvedFit(model, planar, caps, rms(model.distance(full)))
+    return CurvedFit(model, planar, caps, rms(model.distance(full)), inside)
