@@ -7,9 +7,11 @@ working points. A cone's least squares cannot reverse its opening (the cylinder,
 0, lies between the two), so a cone that refines below the least half-angle is refined
 again from the opposite opening, which is kept when it fits better beyond the noise
 (:func:`refined`). A cylinder or cone may take a flat end that region growing joined to
-its side as an *inner cap* (:func:`inner_cap`). An open container's inner wall, seen
-through its opening, faces the axis (:func:`inside_facing`); a cylinder or cone is drawn
-from the side's other points, and the inner wall's points are left out of the side.
+its side as an *inner cap* (:func:`inner_cap`). An open container shows two walls, the
+outer one and, through its opening, the inner one, whose normals face the axis
+(:func:`inside_facing`); where no model fits both (``ObjectCloud.one_wall``, the modeling's
+second pass for an object no model fitted), a cylinder or cone is drawn from the wall
+seen more and the other wall's points are left out of the side.
 """
 
 from __future__ import annotations
@@ -46,6 +48,10 @@ INNER_CAP_SHARE = 0.1
 #: ``angle_tolerance``: its side's own normals are then within twice the tolerance of the
 #: axis, as a cap's are, and the two cannot be told apart.
 INNER_CAP_CONE_MARGIN = 2.0
+#: Second entropy word of the random stream of the one-wall RANSAC (the first is
+#: ``params.seed``): its own stream, so that an object without a second wall draws the
+#: same models as before.
+WALL_STREAM = 15
 #: Least-squares rounds of a curved model on the working cloud (settles the RANSAC model
 #: near the surface) and then on the full-resolution points (which the sizes come from).
 WORKING_REFINE_ROUNDS = 1
@@ -229,20 +235,24 @@ def fit_curved(cloud: ObjectCloud, kind: PrimitiveType, model_cls: type,
         return Rejected(kind, f"{kind}: no valid RANSAC hypothesis")
     rows = cloud.face_points(curved)
     inside = None
-    if model_cls is not SphereModel:
+    if model_cls is not SphereModel and not cloud.first_look:
         inner = inside_facing(fit.model, wp, wn, params)
-        # Two walls (outer and inner) a wall's thickness apart: the side is drawn from the
-        # one seen more, the other is left out of it.
+        # Two walls (outer and inner) a wall's thickness apart: with ``one_wall`` the side
+        # is drawn from the one seen more and the other is left out of it; without, the
+        # cloud notes that it has two (:attr:`ObjectCloud.second_wall`).
         other = inner if inner.sum() <= 0.5 * len(wp) else ~inner
-        wall = fit if other.sum() < _cap_need(len(wp), params) else \
-            ransac(model_cls, wp[~other], wn[~other], params.ransac_threshold,
-                   params.ransac_normal_threshold, params.ransac_max_iterations,
-                   params.ransac_confidence, cloud.rng, accept=accept)
-        if wall is not fit and wall is not None:
-            on_other = np.zeros(len(cloud.wc.points), dtype=bool)
-            on_other[cw[other]] = True
-            inside = on_other[cloud.wc.point_to_working]
-            fit, wp, wn, rows = wall, wp[~other], wn[~other], rows[~inside[rows]]
+        if other.sum() >= _cap_need(len(wp), params):
+            cloud.second_wall.append(kind)
+            wall = ransac(model_cls, wp[~other], wn[~other], params.ransac_threshold,
+                          params.ransac_normal_threshold, params.ransac_max_iterations,
+                          params.ransac_confidence,
+                          np.random.default_rng((params.seed, WALL_STREAM)),
+                          accept=accept) if cloud.one_wall else None
+            if wall is not None:
+                on_other = np.zeros(len(cloud.wc.points), dtype=bool)
+                on_other[cw[other]] = True
+                inside = on_other[cloud.wc.point_to_working]
+                fit, wp, wn, rows = wall, wp[~other], wn[~other], rows[~inside[rows]]
     full = cloud.sample(rows)
     model = refined(fit.model, wp, None if cloud.first_look else full, params)
     on_model = np.abs(model.distance(wp)) <= params.ransac_threshold
