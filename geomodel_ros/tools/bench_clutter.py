@@ -113,8 +113,8 @@ def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: Modelin
             if types:
                 est = model_of.get(s.segment)
                 row["type"] = est.type if est is not None else "none"
-                row["size_errors"] = [] if est is None else \
-                    [abs(e.estimate - e.true) for e in dimension_errors(est, scene.objects[s.gt_id])]
+                errors = [] if est is None else dimension_errors(est, scene.objects[s.gt_id])
+                row["size_errors"] = [abs(e.estimate - e.true) for e in errors]
             rows.append(row)
     return rows
 
