@@ -114,11 +114,6 @@ def _check_labels(labels: NDArray, n: int, what: str) -> NDArray[np.int64]:
     return arr.astype(np.int64, copy=False)
 
 
-#: The types a second pass over one wall of an open container may give
-#: (:attr:`~geomodel_ros.core.fitting.cloud.ObjectCloud.one_wall`).
-ONE_WALL_TYPES = (PrimitiveType.CYLINDER, PrimitiveType.CONE, PrimitiveType.FRUSTUM)
-
-
 def _unknown(oid: int, points: NDArray[np.float64], reason: str,
              faces: tuple[FaceSummary, ...] = ()) -> Primitive:
     """Return an ``unknown`` object at the centroid of its ``points`` (n, 3)."""
@@ -197,16 +192,7 @@ def _fitted(points: NDArray[np.float64], object_id: int, params: ModelingParams,
         return _unknown(object_id, points, "too few distinct points after voxelization")
     cloud = ObjectCloud(object_id, points, wc, faces, adjacency, setting.spacing, params, rng,
                         setting.supports, setting.view, setting.correlation, setting.slow_null)
-    decision = decide(cloud)
-    prim, summaries, reasons = run_strategies(Situation(cloud, decision))
-    if prim is None and cloud.second_wall:
-        # An open container's two walls: no model fits both; a round one may fit one of
-        # them (the second pass's other models are not taken: they saw the same points).
-        again, faces, tried = run_strategies(
-            Situation(dataclasses.replace(cloud, one_wall=True, second_wall=[]), decision))
-        reasons.extend(f"one wall of two: {r}" for r in tried[1:])
-        if again is not None and again.type in ONE_WALL_TYPES:
-            prim, summaries = again, faces
+    prim, summaries, reasons = run_strategies(Situation(cloud, decide(cloud)))
     if prim is not None:
         prim = with_confidence(prim, points, params.ransac_threshold)
         return dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons))

@@ -50,20 +50,13 @@ def assign_to_surfaces(cloud: ObjectCloud, side: CurvedFit, caps: list[Plane],
     """Surface of each of the object's points (N,): 0 the side, i the i-th cap, -1 none.
 
     Each point goes to its nearest surface; points farther than OUTLIER_FACTOR RANSAC
-    thresholds from all are outliers, and so are the points of an inner wall
-    (``side.inside``), which count as explained. Rejected when too few points lie on the
-    surfaces.
+    thresholds from all are outliers. Rejected when too few points lie on the surfaces.
     """
     dists = [np.abs(side.model.distance(cloud.points))] + \
         [np.abs(cloud.points @ normal + offset) for normal, offset in caps]
     nearest, nearest_dist = nearest_surface(dists)
     nearest[nearest_dist > OUTLIER_FACTOR * cloud.params.ransac_threshold] = -1
-    covered = nearest >= 0
-    if side.inside is not None:
-        # An inner wall is the container's, not its side's: it counts as explained.
-        nearest[side.inside & (nearest == 0)] = -1
-        covered |= side.inside
-    bad = check_coverage(covered, kind)
+    bad = check_coverage(nearest >= 0, kind)
     return bad if bad else nearest
 
 

@@ -94,11 +94,6 @@ class ObjectCloud:
     first_look : bool, a thinned copy fitted only to judge whether a model is worth a
         full fit (``strategies.thinned``): round fits skip their refinement on the
         full-resolution points
-    one_wall : bool, round sides are fitted to one wall of two (an open container's outer
-        or inner wall, :func:`~.curved.fit_curved`): the modeling's second pass for an
-        object that had two and that no model fitted
-    second_wall : list, shared by the copies of a cloud: the kinds of the round fits that
-        found a second wall (:func:`~.curved.inside_facing`)
     center : (3,) float64 [m], centroid of ``points``
     """
 
@@ -115,8 +110,6 @@ class ObjectCloud:
     correlation: float = 1.0
     slow_null: SlowBendNull | None = None
     first_look: bool = False
-    one_wall: bool = False
-    second_wall: list = field(default_factory=list)
     center: NDArray[np.float64] = field(init=False)
 
     def __post_init__(self) -> None:

@@ -7,11 +7,7 @@ working points. A cone's least squares cannot reverse its opening (the cylinder,
 0, lies between the two), so a cone that refines below the least half-angle is refined
 again from the opposite opening, which is kept when it fits better beyond the noise
 (:func:`refined`). A cylinder or cone may take a flat end that region growing joined to
-its side as an *inner cap* (:func:`inner_cap`). An open container shows two walls, the
-outer one and, through its opening, the inner one, whose normals face the axis
-(:func:`inside_facing`); where no model fits both (``ObjectCloud.one_wall``, the modeling's
-second pass for an object no model fitted), a cylinder or cone is drawn from the wall
-seen more and the other wall's points are left out of the side.
+its side as an *inner cap* (:func:`inner_cap`).
 """
 
 from __future__ import annotations
@@ -30,14 +26,13 @@ from geomodel_ros.core.fitting.orient import toward_sensor
 from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import FitTask, Rejected
 from geomodel_ros.core.fitting.verify import check_inlier_ratio
-from geomodel_ros.core.noise import MIN_INCIDENCE_COS
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import PrimitiveType
 from geomodel_ros.core.ransac import ConeModel, CylinderModel, PlaneModel, SphereModel, ransac, \
     refine
 
 __all__ = ["CurvedModel", "CurvedFit", "INNER_CAP_SHARE", "INNER_CAP_CONE_MARGIN",
-           "axis_prior", "inner_cap", "inside_facing", "reversed_cone", "refined", "fit_curved"]
+           "axis_prior", "inner_cap", "reversed_cone", "refined", "fit_curved"]
 
 CurvedModel = Union[SphereModel, CylinderModel, ConeModel]
 
@@ -48,10 +43,6 @@ INNER_CAP_SHARE = 0.1
 #: ``angle_tolerance``: its side's own normals are then within twice the tolerance of the
 #: axis, as a cap's are, and the two cannot be told apart.
 INNER_CAP_CONE_MARGIN = 2.0
-#: Second entropy word of the random stream of the one-wall RANSAC (the first is
-#: ``params.seed``): its own stream, so that an object without a second wall draws the
-#: same models as before.
-WALL_STREAM = 15
 #: Least-squares rounds of a curved model on the working cloud (settles the RANSAC model
 #: near the surface) and then on the full-resolution points (which the sizes come from).
 WORKING_REFINE_ROUNDS = 1
@@ -68,15 +59,12 @@ class CurvedFit:
     planar : list[int], the object's planar faces (caps and base candidates)
     inner_caps : tuple of Plane, flat ends found inside the curved faces
     rmse : float [m], RMS distance of the curved faces' full-resolution sample
-    inside : (N,) bool array or None, the object's points on an inner wall
-        (:func:`inside_facing`), which are not the side's; None without one
     """
 
     model: CurvedModel
     planar: list[int]
     inner_caps: tuple[Plane, ...]
     rmse: float
-    inside: NDArray[np.bool_] | None = None
 
 
 def axis_prior(task: FitTask) -> NDArray[np.float64] | None:
@@ -131,27 +119,6 @@ def inner_cap(wp: NDArray[np.float64], wn: NDArray[np.float64], model: CurvedMod
         return None
     normal = toward_sensor(plane.normal, centroid(cand))
     return normal, float(plane.d) if normal @ plane.normal > 0 else -float(plane.d), on_cap
-
-
-def inside_facing(model: CylinderModel | ConeModel, wp: NDArray[np.float64],
-                  wn: NDArray[np.float64], params: ModelingParams) -> NDArray[np.bool_]:
-    """Which working points (``wp``, ``wn``: (m, 3), normals towards the sensor) face the axis.
-
-    A solid's side, seen from outside, shows the sensor normals that point away from its
-    axis; an open container's inner wall, seen through its opening, normals that point
-    towards it. A point counts as facing the axis when its normal's radial component is
-    below -sin(``angle_tolerance``) (normals within the tolerance of the axis, a cap's,
-    have no telling radial sign) and it is seen within acos(MIN_INCIDENCE_COS) of its
-    normal (where the rays graze a side, noise can turn its normal's orientation).
-    """
-    origin = model.point if isinstance(model, CylinderModel) else model.apex
-    v = wp - origin
-    radial = v - np.outer(v @ model.axis, model.axis)
-    length = np.maximum(np.linalg.norm(radial, axis=1), 1e-12)
-    facing = np.einsum("ij,ij->i", wn, radial) / length
-    rays = wp / np.maximum(np.linalg.norm(wp, axis=1), 1e-12)[:, None]
-    steep = np.abs(np.einsum("ij,ij->i", wn, rays)) >= MIN_INCIDENCE_COS
-    return (facing < -math.sin(params.angle_tolerance)) & steep
 
 
 def reversed_cone(model: ConeModel, points: NDArray[np.float64]) -> ConeModel:
@@ -233,27 +200,7 @@ def fit_curved(cloud: ObjectCloud, kind: PrimitiveType, model_cls: type,
                  params.ransac_max_iterations, params.ransac_confidence, cloud.rng, accept=accept)
     if fit is None:
         return Rejected(kind, f"{kind}: no valid RANSAC hypothesis")
-    rows = cloud.face_points(curved)
-    inside = None
-    if model_cls is not SphereModel and not cloud.first_look:
-        inner = inside_facing(fit.model, wp, wn, params)
-        # Two walls (outer and inner) a wall's thickness apart: with ``one_wall`` the side
-        # is drawn from the one seen more and the other is left out of it; without, the
-        # cloud notes that it has two (:attr:`ObjectCloud.second_wall`).
-        other = inner if inner.sum() <= 0.5 * len(wp) else ~inner
-        if other.sum() >= _cap_need(len(wp), params):
-            cloud.second_wall.append(kind)
-            wall = ransac(model_cls, wp[~other], wn[~other], params.ransac_threshold,
-                          params.ransac_normal_threshold, params.ransac_max_iterations,
-                          params.ransac_confidence,
-                          np.random.default_rng((params.seed, WALL_STREAM)),
-                          accept=accept) if cloud.one_wall else None
-            if wall is not None:
-                on_other = np.zeros(len(cloud.wc.points), dtype=bool)
-                on_other[cw[other]] = True
-                inside = on_other[cloud.wc.point_to_working]
-                fit, wp, wn, rows = wall, wp[~other], wn[~other], rows[~inside[rows]]
-    full = cloud.sample(rows)
+    full = cloud.sample(cloud.face_points(curved))
     model = refined(fit.model, wp, None if cloud.first_look else full, params)
     on_model = np.abs(model.distance(wp)) <= params.ransac_threshold
     caps: tuple[Plane, ...] = ()
@@ -265,4 +212,4 @@ def fit_curved(cloud: ObjectCloud, kind: PrimitiveType, model_cls: type,
     bad = check_inlier_ratio(float(np.mean(on_model)), params, kind)
     if bad:
         return bad
-    return CurvedFit(model, planar, caps, rms(model.distance(full)), inside)
+    return CurvedFit(model, planar, caps, rms(model.distance(full)))

@@ -1,0 +1,135 @@
+"""Round objects seen from above: cans by their caps' rims, open containers by their walls.
+
+A camera looking down at a table (elevation 70-85 deg) sees a standing can's side only
+at grazing incidence, steeper than the 70 deg within which a side's points judge its arc
+(:func:`geomodel_ros.core.fitting.measure.steep_arc_span`); its top, seen steeply, is a
+disc whose rim is the side's circle (:func:`geomodel_ros.core.fitting.axial.cap_rim_arc`).
+An open container shows its inner floor, a cap seen from inside that closes no end: the
+container reaches down to the desk it stands on. Expected sizes are the rendered shapes'
+(:mod:`geomodel_ros.tools.synth.clutter`); the rim-arc cases are hand-built.
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from geomodel_ros.core.fitting.axial import cap_rim_arc
+from geomodel_ros.core.modeling import model_scene
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.ransac import CylinderModel
+from geomodel_ros.tools.synth.clutter import (KINECT_NOISE, camera_pose, make_box, make_can,
+                                              make_container, render_layout)
+
+MM = 1e-3
+#: A can 70 mm across and 100 mm tall; a bowl 90 mm across at its foot, 160 mm at its rim;
+#: a cup 70 mm across at its foot, 90 mm at its rim (walls 4 mm, floors 8 mm thick).
+CAN = (0.035, 0.100)
+BOWL = (0.045, 0.080, 0.060)
+CUP = (0.035, 0.045, 0.080)
+WALL = 0.004
+
+
+def _modeled(item, elevation_deg: float, noise=None):
+    """The object modeled from the most pixels of the one item seen from 0.8 m."""
+    scene = render_layout([item], [0], camera_pose(0.8, math.radians(elevation_deg), 0.5),
+                          noise=noise, rng=0)
+    labels, result = model_scene(scene.organized)
+    gt = scene.label_image.ravel()
+    mine = labels[(gt == 1) & (labels >= 0)]
+    assert len(mine), "the item was not segmented at all"
+    best = int(np.bincount(mine).argmax())
+    return {o.id: o for o in result.objects}[best]
+
+
+# ------------------------------------------------------------------------ cans from above
+@pytest.mark.parametrize("elevation", [70.0, 75.0, 80.0])
+@pytest.mark.parametrize("noisy", [False, True])
+def test_a_can_seen_from_above_is_a_cylinder_of_its_size(elevation, noisy):
+    # From 70-80 deg above the desk the side is seen within 10-20 deg of edge-on: no point
+    # of it judges an arc, the top's rim does. Sizes: the radius from the side, the height
+    # from the top down to the desk.
+    obj = _modeled(make_can(*CAN), elevation, KINECT_NOISE if noisy else None)
+    assert obj.type == "cylinder", obj.reason
+    tol = 2.0 * MM if noisy else 0.3 * MM
+    assert obj.dimensions["radius"] == pytest.approx(CAN[0], abs=tol)
+    assert obj.dimensions["height"] == pytest.approx(CAN[1], abs=2 * tol)
+
+
+def _cap(xy: np.ndarray, z: float = 0.7) -> np.ndarray:
+    return np.column_stack([xy, np.full(len(xy), z)])
+
+
+def _rim_arc(cap_points: np.ndarray, radius: float) -> float:
+    """cap_rim_arc of a cap (points at z = 0.7 m) on a vertical cylinder about the z axis."""
+    model = CylinderModel(np.zeros(3), np.array([0.0, 0.0, 1.0]), radius)
+    params = ModelingParams(ransac_threshold=0.001)
+    cloud = SimpleNamespace(points=cap_points, spacing=0.002, params=params)
+    side = SimpleNamespace(model=model)
+    nearest = np.ones(len(cap_points), dtype=np.int64)
+    return cap_rim_arc(cloud, side, nearest, 1, np.zeros(3))
+
+
+def _grid(half: float, step: float = 0.002) -> np.ndarray:
+    g = np.arange(-half, half + 1e-9, step)
+    x, y = np.meshgrid(g, g)
+    return np.column_stack([x.ravel(), y.ravel()])
+
+
+def test_a_disc_confirms_its_whole_circle_and_a_half_disc_half_of_it():
+    r = 0.035
+    g = _grid(r)
+    disc = g[np.hypot(g[:, 0], g[:, 1]) <= r]
+    assert _rim_arc(_cap(disc), r) > 2 * math.pi - 0.2
+    half = disc[disc[:, 0] >= 0]
+    assert _rim_arc(_cap(half), r) == pytest.approx(math.pi, abs=0.2)
+
+
+def test_a_square_top_confirms_no_circle_through_its_sides():
+    # A box's top reaches beyond the circle inscribed in it (its corners): not a rim.
+    r = 0.035
+    assert _rim_arc(_cap(_grid(r)), r) == 0.0
+
+
+def test_a_cap_well_inside_the_side_confirms_nothing():
+    # A lid 20 mm smaller than the side has no points near the side's circle.
+    r = 0.035
+    g = _grid(r)
+    small = g[np.hypot(g[:, 0], g[:, 1]) <= r - 0.020]
+    assert _rim_arc(_cap(small), r) == 0.0
+
+
+# ------------------------------------------------------------------- open containers
+@pytest.mark.parametrize("elevation", [45.0, 60.0, 75.0])
+def test_a_bowl_seen_from_above_reaches_down_to_the_desk(elevation):
+    # Its inner floor (8 mm above the desk) is seen from inside: it is no bottom. The
+    # height is rim to desk; the radii those of the wall fitted, the inner one seen more
+    # (within a wall's thickness of the outer ones, the foot's extrapolated 8 mm below the
+    # inner floor).
+    obj = _modeled(make_container(*BOWL, "bowl"), elevation)
+    assert obj.type == "frustum", obj.reason
+    assert obj.dimensions["height"] == pytest.approx(BOWL[2], abs=2 * MM)
+    assert BOWL[1] - WALL - 1.5 * MM <= obj.dimensions["radius"] <= BOWL[1] + 1 * MM
+    assert BOWL[0] - WALL - 1.5 * MM <= obj.dimensions["top_radius"] <= BOWL[0] + 1 * MM
+
+
+@pytest.mark.parametrize("elevation", [60.0, 75.0])
+def test_a_cup_seen_from_above_reaches_down_to_the_desk(elevation):
+    obj = _modeled(make_container(*CUP, "cup"), elevation)
+    assert obj.type == "frustum", obj.reason
+    assert obj.dimensions["height"] == pytest.approx(CUP[2], abs=2 * MM)
+
+
+@pytest.mark.parametrize("elevation", [45.0, 75.0])
+def test_closed_solids_seen_from_above_keep_their_tops(elevation):
+    # A can's top is seen from outside and closes its end: its height is not stretched.
+    # A box has no round side for a rim to confirm.
+    can = _modeled(make_can(*CAN), elevation)
+    assert can.type == "cylinder"
+    assert can.dimensions["height"] == pytest.approx(CAN[1], abs=0.3 * MM)
+    box = _modeled(make_box(0.08, 0.06, 0.10), elevation)
+    assert box.type == "cuboid"
+    assert sorted(box.dimensions.values()) == pytest.approx([0.06, 0.08, 0.10], abs=0.3 * MM)
