@@ -34,7 +34,7 @@ WALL = 0.004
 
 
 def _modeled(item, elevation_deg: float, noise=None):
-    """The object modeled from the most pixels of the one item seen from 0.8 m."""
+    """Return the object modeled from the most pixels of the one item seen from 0.8 m."""
     scene = render_layout([item], [0], camera_pose(0.8, math.radians(elevation_deg), 0.5),
                           noise=noise, rng=0)
     labels, result = model_scene(scene.organized)
