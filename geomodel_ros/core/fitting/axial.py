@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 from geomodel_ros.core import obb
 from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane
-from geomodel_ros.core.fitting.curved import CurvedFit
+from geomodel_ros.core.fitting.curved import INNER_CAP_CONE_MARGIN, CurvedFit
 from geomodel_ros.core.fitting.measure import (arc_span, nearest_surface, scatter_incidence,
                                                steep_arc_span)
 from geomodel_ros.core.fitting.orient import toward_sensor
@@ -20,6 +20,7 @@ from geomodel_ros.core.fitting.verify import (OUTLIER_FACTOR, check_arc, check_a
                                               check_coverage, check_noise_scatter,
                                               check_profile_bow)
 from geomodel_ros.core.primitives import PrimitiveType
+from geomodel_ros.core.ransac import ConeModel
 
 __all__ = ["end_caps", "assign_to_surfaces", "axial_extent", "verified_side", "cap_rim_arc",
            "RIM_SPACINGS", "CAP_OUTSIDE_SHARE"]
@@ -177,5 +178,27 @@ def verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | N
         arc = max(arc, cap_rim_arc(cloud, side, nearest, own_caps, origin))
     bad = check_arc(arc, cloud.params, kind, steep) or \
         check_noise_scatter(side_points, model.distance, cloud.params, kind, cos) or \
-        check_profile_bow(side_points, model, cloud, kind)
+        check_profile_bow(_without_cap_normals(cloud, nearest == 0, model), model, cloud,
+                          kind)
     return bad if bad else (caps, nearest, side_points)
+
+
+def _without_cap_normals(cloud: ObjectCloud, side: NDArray[np.bool_], model
+                         ) -> NDArray[np.float64]:
+    """The ``side`` points of ``cloud`` (mask (N,)) whose normals do not run along the axis.
+
+    Within the inlier band of a side lie points of a flat end it meets (an open
+    container's inner floor where region growing joined it to the wall, under a real
+    sensor's noise): their working points' normals lie within ``angle_tolerance`` of the
+    axis, a side's do not (unless the side itself is a cone within twice the tolerance of
+    flat, as for inner caps; then every side point is kept). A thinned first-look cloud
+    keeps every point (its points are not the working cloud's).
+    """
+    params = cloud.params
+    flat_side = isinstance(model, ConeModel) and \
+        model.half_angle > math.pi / 2 - INNER_CAP_CONE_MARGIN * params.angle_tolerance
+    if flat_side or len(cloud.wc.point_to_working) != len(cloud.points):
+        return take_rows(cloud.points, side)
+    normals = cloud.wc.normals[cloud.wc.point_to_working]
+    along = np.abs(normals @ model.axis) >= math.cos(params.angle_tolerance)
+    return take_rows(cloud.points, side & ~along)
