@@ -185,7 +185,7 @@ def verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | N
 
 def _without_cap_normals(cloud: ObjectCloud, side: NDArray[np.bool_], model
                          ) -> NDArray[np.float64]:
-    """The ``side`` points of ``cloud`` (mask (N,)) whose normals do not run along the axis.
+    """Return the ``side`` points of ``cloud`` (mask (N,)) whose normals do not run along the axis.
 
     Within the inlier band of a side lie points of a flat end it meets (an open
     container's inner floor where region growing joined it to the wall, under a real
