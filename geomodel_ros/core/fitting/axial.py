@@ -23,7 +23,7 @@ from geomodel_ros.core.primitives import PrimitiveType
 from geomodel_ros.core.ransac import ConeModel
 
 __all__ = ["end_caps", "assign_to_surfaces", "axial_extent", "verified_side", "cap_rim_arc",
-           "RIM_SPACINGS", "CAP_OUTSIDE_SHARE"]
+           "rim_arc", "RIM_SPACINGS", "CAP_OUTSIDE_SHARE"]
 
 #: A cap's rim points lie within this many point spacings inside the side's surface (the
 #: outermost samples of a steeply seen cap are within about one spacing of its edge) ...
@@ -107,32 +107,44 @@ def axial_extent(cloud: ObjectCloud, side_points: NDArray[np.float64], caps: lis
                         correct=cloud.params.edge_correction)
 
 
+def rim_arc(caps: list[NDArray[np.float64]], distance, axis: NDArray[np.float64],
+            origin: NDArray[np.float64], spacing: float, threshold: float) -> float:
+    """Angle [rad] round an axis that the rims of flat end caps confirm for a round side.
+
+    ``caps``: each cap's points (k, 3) [m]; ``distance``: the side's signed distance
+    (positive outside); the axis (3,) through ``origin`` (3,); the object's point
+    ``spacing`` and the RANSAC ``threshold`` [m]. A cap's points lie inside the side's
+    circle, and its rim points (within RIM_SPACINGS point spacings plus ``threshold``
+    inside the surface) span the arc round the axis that the cap's edge confirms. A cap
+    with more than CAP_OUTSIDE_SHARE of its points outside the side (by more than
+    OUTLIER_FACTOR thresholds) has another outline and confirms nothing. The largest arc
+    of the caps; 0 without one.
+    """
+    inner = RIM_SPACINGS * spacing + threshold
+    outer = OUTLIER_FACTOR * threshold
+    best = 0.0
+    for q in caps:
+        if len(q) == 0:
+            continue
+        d = distance(q)
+        if np.count_nonzero(d > outer) > CAP_OUTSIDE_SHARE * len(q):
+            continue
+        best = max(best, arc_span(q[(d >= -inner) & (d <= outer)], origin, axis))
+    return best
+
+
 def cap_rim_arc(cloud: ObjectCloud, side: CurvedFit, nearest: NDArray[np.int64],
                 n_caps: int, origin: NDArray[np.float64]) -> float:
     """Angle [rad] round the axis that the rims of the side's planar end caps confirm.
 
     A round side seen only at grazing incidence (a can from above: its side within 20 deg
     of edge-on) shows no arc steep enough to judge (:func:`~.measure.steep_arc_span`); its
-    cap, seen steeply, does: the cap's points lie inside the side's circle, and its rim
-    points (within RIM_SPACINGS point spacings inside the surface, the model's signed
-    ``distance``) span the arc round the axis that the cap's edge confirms. A cap with more
-    than CAP_OUTSIDE_SHARE of its points outside the side (by more than OUTLIER_FACTOR
-    RANSAC thresholds) has another outline and confirms nothing. 0 without such a cap.
-    Only the object's own planar faces count (``n_caps`` of the caps, numbered 1.. in
-    ``nearest``), not the side's inner caps.
+    cap, seen steeply, does (:func:`rim_arc`). Only the object's own planar faces count
+    (``n_caps`` of the caps, numbered 1.. in ``nearest``), not the side's inner caps.
     """
-    inner = RIM_SPACINGS * cloud.spacing + cloud.params.ransac_threshold
-    outer = OUTLIER_FACTOR * cloud.params.ransac_threshold
-    best = 0.0
-    for ci in range(1, n_caps + 1):
-        q = take_rows(cloud.points, nearest == ci)
-        if len(q) == 0:
-            continue
-        d = side.model.distance(q)
-        if np.count_nonzero(d > outer) > CAP_OUTSIDE_SHARE * len(q):
-            continue
-        best = max(best, arc_span(q[(d >= -inner) & (d <= outer)], origin, side.model.axis))
-    return best
+    caps = [take_rows(cloud.points, nearest == ci) for ci in range(1, n_caps + 1)]
+    return rim_arc(caps, side.model.distance, side.model.axis, origin, cloud.spacing,
+                   cloud.params.ransac_threshold)
 
 
 def verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None,

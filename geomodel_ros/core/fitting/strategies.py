@@ -37,6 +37,7 @@ from geomodel_ros.core.fastmath import centroid
 from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
                                              bends_beyond_noise)
 from geomodel_ros.core.confidence import surface_distance, surface_normals
+from geomodel_ros.core.fitting.axial import rim_arc
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.normal_box import (MIN_SIDE_NORMALS, axis_costs, box_axes,
                                                   normal_costs, side_labels)
@@ -49,6 +50,7 @@ from geomodel_ros.core.model_graph import (BETWEEN_BOUNDS, NO_CURVATURE, FaceInf
                                            GraphDecision, curvature_candidates, decide_type)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
+from geomodel_ros.core.ransac import CylinderModel
 from geomodel_ros.core.surface_type import face_feature, principal_curvatures
 
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
@@ -725,6 +727,27 @@ def round_rival(cloud: ObjectCloud, box: Primitive
     return attempt, rnd, spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)), c_box
 
 
+def disc_end(cloud: ObjectCloud, cylinder: Primitive) -> bool:
+    """Whether a planar face of ``cloud`` is a disc end of ``cylinder``, all round.
+
+    A face whose normal is within ``angle_tolerance`` of the cylinder's axis, whose points
+    all lie inside its circle and whose rim runs round the whole circle but for a gap
+    below ``min_arc`` (:func:`~.axial.rim_arc`): a can's lid seen whole. A box's face
+    reaches beyond the circle through its sides (its corners), and a cylinder is no box.
+    """
+    if cylinder.type is not PrimitiveType.CYLINDER:
+        return False
+    params = cloud.params
+    axis, origin, radius = cylinder.rotation[:, 2], cylinder.center, \
+        cylinder.dimensions["radius"]
+    side = CylinderModel(origin, axis, radius)
+    cos_tol = math.cos(params.angle_tolerance)
+    caps = [cloud.points[f.points] for f in cloud.faces
+            if f.info.planar and abs(float(f.info.normal @ axis)) >= cos_tol]
+    arc = rim_arc(caps, side.distance, axis, origin, cloud.spacing, params.ransac_threshold)
+    return arc >= 2.0 * math.pi - params.min_arc
+
+
 def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
                  reasons: list[str]) -> tuple[Primitive, tuple[FaceSummary, ...]]:
     """Return the cuboid ``prim`` or the round model of the whole object, whichever costs less.
@@ -740,9 +763,10 @@ def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary
     error over blocks of neighbouring points, whose depth errors are correlated). Far
     from the sensor the noise band outgrows a small object's shape, and a round model
     may fit a box's points about as well; a real box's edges do not fit a round model
-    where the shape shows (its cost stays far above the box's). Only with ``noise_model
-    = auto`` (``fixed`` keeps the previous strategies exactly). The comparison is added
-    to ``reasons``.
+    where the shape shows (its cost stays far above the box's). Within the noise the flat
+    end decides: a round rival that is a cylinder, costs less on average and has a disc
+    end (:func:`disc_end`) replaces the box too. Only with ``noise_model = auto`` (``fixed``
+    keeps the previous strategies exactly). The comparison is added to ``reasons``.
     """
     cloud = situation.cloud
     if prim.type is not PrimitiveType.CUBOID or cloud.params.noise_model != "auto":
@@ -753,9 +777,12 @@ def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary
     attempt, rnd, blocks, c_box = found
     c_round = truncated_costs(rnd, cloud)
     lower, stat = lower_beyond_noise(c_round, c_box, blocks)
-    verdict = "replaces" if lower else "does not replace"
+    disc = not lower and np.mean(c_round) < np.mean(c_box) and disc_end(cloud, rnd)
+    verdict = "replaces" if lower or disc else "does not replace"
     reasons.append(f"{attempt.note}; {rnd.type} (cost {np.mean(c_round):.3f}) {verdict} "
-                   f"cuboid (cost {np.mean(c_box):.3f}, t = {stat:.1f})")
+                   f"cuboid (cost {np.mean(c_box):.3f}, t = {stat:.1f}"
+                   f"{', a disc end' if disc else ''})")
+    lower = lower or disc
     if lower:
         return rnd, tuple(f.summary for f in attempt.cloud.faces)
     return prim, faces
