@@ -211,6 +211,7 @@ def _without_cap_normals(cloud: ObjectCloud, side: NDArray[np.bool_], model
         model.half_angle > math.pi / 2 - INNER_CAP_CONE_MARGIN * params.angle_tolerance
     if flat_side or len(cloud.wc.point_to_working) != len(cloud.points):
         return take_rows(cloud.points, side)
-    normals = cloud.wc.normals[cloud.wc.point_to_working]
+    rows = np.flatnonzero(side)
+    normals = take_rows(cloud.wc.normals, cloud.wc.point_to_working[rows])
     along = np.abs(normals @ model.axis) >= math.cos(params.angle_tolerance)
-    return take_rows(cloud.points, side & ~along)
+    return take_rows(cloud.points, rows[~along])
