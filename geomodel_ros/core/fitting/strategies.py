@@ -58,7 +58,7 @@ __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_stra
            "UprightAboveSupport", "BoxRival", "PlanarPatchesOfCurvedObjects", "BoxOfFlatCores",
            "DoublyCurvedAsSphere", "flat_faces",
            "flat_core_faces", "box_rival", "normal_box_rival", "prefer_box_of_normals",
-           "support_below", "truncated_cost", "truncated_costs",
+           "support_below", "truncated_cost", "truncated_costs", "cavity_floor",
            "prefer_box",
            "prefer_round", "round_rival", "thinned", "all_faces_curved", "as_curved"]
 
@@ -501,26 +501,51 @@ def prefer_box_of_normals(situation: Situation, prim: Primitive,
     return prim, faces
 
 
-def truncated_costs(p: Primitive, cloud: ObjectCloud) -> NDArray[np.float64]:
+def truncated_costs(p: Primitive, cloud: ObjectCloud,
+                    keep: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
     """MSAC cost (k,) of ``p`` per compared point: min(d, t)^2 / t^2, in [0, 1].
 
     ``d`` is each point's distance to the fitted surface (every k-th of about
-    :data:`RIVAL_SAMPLE` points of the object), ``t`` the RANSAC threshold (the noise
-    band): points on the surface cost their squared residual, points off it (outliers)
-    one band each. All ones when ``p`` has no surface.
+    :data:`RIVAL_SAMPLE` points of the object, of those ``keep`` (N,) marks if given),
+    ``t`` the RANSAC threshold (the noise band): points on the surface cost their squared
+    residual, points off it (outliers) one band each. All ones when ``p`` has no surface.
     """
     t = cloud.params.ransac_threshold
-    sample = np.ascontiguousarray(every_kth(cloud.points, RIVAL_SAMPLE))
+    points = cloud.points if keep is None else cloud.points[keep]
+    sample = np.ascontiguousarray(every_kth(points, RIVAL_SAMPLE))
     d = surface_distance(p, sample)
     if d is None or t <= 0:
         return np.ones(len(sample))
     return np.minimum(d / t, 1.0) ** 2
 
 
-def truncated_cost(p: Primitive, cloud: ObjectCloud) -> float:
+def truncated_cost(p: Primitive, cloud: ObjectCloud,
+                   keep: NDArray[np.bool_] | None = None) -> float:
     """MSAC cost of ``p`` on the object's points: the mean of :func:`truncated_costs`."""
-    c = truncated_costs(p, cloud)
+    c = truncated_costs(p, cloud, keep)
     return float(np.mean(c)) if len(c) else 1.0
+
+
+def cavity_floor(cloud: ObjectCloud, round_model: Primitive) -> NDArray[np.bool_]:
+    """Which of the object's points (N,) lie on a floor seen inside ``round_model``.
+
+    The planar faces perpendicular to its axis (within ``angle_tolerance``) that are seen
+    from inside the solid at the end they are nearer to (:func:`~.axial.axial_extent`: a
+    cup's or bowl's inner floor): an open container's cavity, which neither a round solid
+    nor a box explains.
+    """
+    axis, center = round_model.rotation[:, 2], round_model.center
+    cos_tol = math.cos(cloud.params.angle_tolerance)
+    floor = np.zeros(len(cloud.points), dtype=bool)
+    for f in cloud.faces:
+        if not f.info.planar or abs(float(f.info.normal @ axis)) < cos_tol or not len(f.points):
+            continue
+        q = cloud.points[f.points]
+        at = float(np.median((q - center) @ axis))
+        facing = float(toward_sensor(f.info.normal, centroid(q)) @ axis)
+        if (at < 0 < facing) or (facing < 0 <= at):
+            floor[f.points] = True
+    return floor
 
 
 def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
@@ -528,7 +553,8 @@ def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, 
     """Return the round fit ``prim`` or the box of the flat cores, whichever costs less.
 
     The box (:func:`box_rival`) is fitted to the same object; it replaces ``prim``
-    when its :func:`truncated_cost` over all the object's points is lower. The
+    when its :func:`truncated_cost` over the object's points is lower (an open
+    container's inner floor left out, :func:`cavity_floor`: neither solid explains it). The
     comparison is added to ``reasons``. Without that box, the box of the point
     normals' modes is judged instead (:func:`prefer_box_of_normals`).
     """
@@ -541,7 +567,9 @@ def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, 
     box, _ = fit_first(box_cloud, rival.decision)
     if box is None:
         return prim, faces
-    c_round, c_box = truncated_cost(prim, situation.cloud), truncated_cost(box, situation.cloud)
+    cloud = situation.cloud
+    walls = ~cavity_floor(cloud, prim)
+    c_round, c_box = truncated_cost(prim, cloud, walls), truncated_cost(box, cloud, walls)
     verdict = "replaces" if c_box < c_round else "does not replace"
     reasons.append(f"{note}; cuboid (cost {c_box:.3f}) {verdict} {prim.type} "
                    f"(cost {c_round:.3f})")
