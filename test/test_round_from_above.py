@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from geomodel_ros.core.fitting.axial import cap_rim_arc
-from geomodel_ros.core.fitting.strategies import disc_end
+from geomodel_ros.core.fitting.strategies import cavity_floor, disc_end
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import PrimitiveType
@@ -188,3 +188,32 @@ def test_cans_in_clutter_that_a_box_fits_as_well_are_cylinders_by_their_lids(see
     obj = _best(render_clutter(seed, KINECT_REAL_NOISE), gt_id)
     assert obj.type == "cylinder", obj.reason
     assert "a disc end" in obj.reason
+
+
+def test_an_inner_floor_is_the_cavity_and_a_lid_is_not():
+    # A round solid about the z axis (centre 0.75 m from the sensor at the origin, either
+    # axis sign). A lid at its near end (z = 0.71 m) faces the sensor from outside; a floor
+    # at its far end (z = 0.79 m), seen through the opening, faces the sensor from inside.
+    # Both normals point towards the sensor (-z).
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-0.02, 0.02, (50, 2))
+    points = np.vstack([np.column_stack([xy, np.full(50, 0.71)]),
+                        np.column_stack([xy, np.full(50, 0.79)])])
+    towards_sensor = np.array([0.0, 0.0, -1.0])
+    faces = [SimpleNamespace(info=SimpleNamespace(planar=True, normal=towards_sensor),
+                             points=np.arange(0, 50)),
+             SimpleNamespace(info=SimpleNamespace(planar=True, normal=towards_sensor),
+                             points=np.arange(50, 100))]
+    cloud = SimpleNamespace(points=points, faces=faces, params=ModelingParams())
+    for rotation in (np.eye(3), np.diag([1.0, -1.0, -1.0])):
+        solid = SimpleNamespace(rotation=rotation, center=np.array([0.0, 0.0, 0.75]))
+        floor = cavity_floor(cloud, solid)
+        assert not floor[:50].any() and floor[50:].all()
+
+
+def test_a_cup_reaching_down_to_the_desk_is_not_beaten_by_the_box_of_its_flat_cores():
+    # Clutter seed 52, noise-free: the cylinder's cost counted its inner floor, 8 mm inside
+    # the solid once the cup reaches the desk, and the box of its flat cores won.
+    obj = _best(render_clutter(52, None), 6)
+    assert obj.type == "cylinder", obj.reason
+    assert "does not replace cylinder" in obj.reason
