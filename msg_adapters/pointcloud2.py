@@ -351,7 +351,9 @@ def cloud_to_xyz(
     _check_xyz(layout)
     view = _view(layout)
     for i, name in enumerate(_XYZ):
-        points[..., i] = view[name]
+        # FLOAT64 fields beyond a float32 output's range become +-inf.
+        with np.errstate(over="ignore", invalid="ignore"):
+            points[..., i] = view[name]
     return points
 
 
@@ -688,7 +690,9 @@ def _fill(flat: NDArray, extras: list[_OutField], dtype: np.dtype) -> tuple[arra
     if n:
         record = np.frombuffer(data, dtype=dtype)
         for i, name in enumerate(_XYZ):
-            record[name] = flat[:, i]
+            # Coordinates beyond float32's range become +-inf (not finite: not dense).
+            with np.errstate(over="ignore", invalid="ignore"):
+                record[name] = flat[:, i]
             is_dense = is_dense and bool(np.isfinite(record[name]).all())
         for extra in extras:
             record[extra.name] = extra.values
@@ -708,7 +712,8 @@ def xyz_to_cloud(
     Parameters
     ----------
     points : (N, 3) or (H, W, 3) real array [m]
-        Stored as little-endian float32; NaNs are kept (organized clouds need them).
+        Stored as little-endian float32 (values beyond its range as +-inf); NaNs are kept
+        (organized clouds need them).
     header : std_msgs.msg.Header
         ``frame_id`` and ``stamp`` are copied into a new header of the output.
     fields : dict of str to array, optional

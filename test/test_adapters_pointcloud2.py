@@ -11,6 +11,7 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 import array
 import re
 import struct
+import warnings
 from types import SimpleNamespace
 from typing import NamedTuple
 
@@ -196,6 +197,27 @@ def test_float64_xyz_keeps_full_precision():
     )
     assert np.array_equal(cloud_to_xyz(msg), xyz)
     assert np.array_equal(cloud_to_xyz(msg, dtype=np.float32), xyz.astype(np.float32))
+
+
+def test_coordinates_beyond_float32_become_infinite_without_numeric_warnings():
+    # A malformed or fuzzed cloud's 1e300 m: stored as +-inf in FLOAT32 (the cloud is then
+    # not dense), read back as +-inf into a float32 array; no RuntimeWarning either way.
+    xyz = np.array([[1e300, -1e300, 0.5], [1.0, 2.0, 3.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        msg = xyz_to_cloud(xyz, Header())
+        back = cloud_to_xyz(msg, skip_nans=False)
+    assert not msg.is_dense
+    assert back[0, 0] == np.inf and back[0, 1] == -np.inf and back[0, 2] == np.float32(0.5)
+    assert np.array_equal(back[1], [1.0, 2.0, 3.0])
+    specs = [Spec("x", 0, F64), Spec("y", 8, F64), Spec("z", 16, F64)]
+    wide = make_cloud(specs, {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]}, height=1,
+                      width=2, point_step=24)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        narrow = cloud_to_xyz(wide, dtype=np.float32, keep_organized=True, skip_nans=False)
+    assert narrow[0, 0, 0] == np.inf and narrow[0, 0, 1] == -np.inf
+    assert np.array_equal(cloud_to_xyz(wide, skip_nans=False), xyz)
 
 
 def test_mixed_float32_and_float64_xyz_big_endian():
