@@ -16,6 +16,7 @@ import pytest
 from geomodel_ros.core.joins import join_terraces
 from geomodel_ros.core.noise import disparity_step
 from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.segmentation import level_quantum
 
 #: Kinect v1's disparity step in 1/z [1/m].
 STEP = 2.85e-3
@@ -85,6 +86,17 @@ def test_depths_whose_inverse_overflows_are_ignored_without_warnings():
     tiny = np.tile([[0.0, 0.0, 5e-324]], (100, 1))
     with np.errstate(all="raise"):
         assert disparity_step(tiny) is None
+
+
+def test_depths_whose_step_squares_beyond_float64_hold_a_level_without_warnings():
+    # A malformed cloud's 1e80 m depths: the depth step there (step z^2 = 3e157 m) squares
+    # beyond float64's range. Two equal depths are one level; the near working point's
+    # step (3 mm at 1 m) is below the 4 mm grid: no level. No numeric warning.
+    pts = np.array([[0.0, 0.0, 1e80], [0.0, 0.0, 1e80], [0.0, 0.0, 1.0], [0.001, 0.0, 1.0]])
+    with np.errstate(all="raise"):
+        quantum = level_quantum(pts, np.array([0, 0, 1, 1]), np.array([2, 2]), 0.003, 0.004)
+    assert quantum[0] == pytest.approx(0.003 * 1e160, rel=1e-12)
+    assert quantum[1] == 0.0
 
 def test_terraces_of_one_far_wall_are_joined():
     # At 3.8-4.3 m a step is 4.1-5.3 cm, longer than a link (2.5 voxels of 4 mm): the

@@ -1132,7 +1132,9 @@ def level_quantum(points: NDArray[np.float64], inverse: NDArray[np.int64],
     mean = np.bincount(inverse, weights=z, minlength=len(counts)) / n
     var = np.bincount(inverse, weights=np.square(z - mean[inverse]), minlength=len(counts)) / n
     depth_step = step * np.square(mean)
-    level = (var < np.square(LEVEL_SPREAD * depth_step)) & (depth_step > spacing)
+    # Depths near float64's range (a malformed cloud's 1e80 m) square to inf: a level.
+    with np.errstate(over="ignore"):
+        level = (var < np.square(LEVEL_SPREAD * depth_step)) & (depth_step > spacing)
     return np.where(level, depth_step, 0.0)
 
 
