@@ -86,6 +86,12 @@ def test_depths_whose_inverse_overflows_are_ignored_without_warnings():
     tiny = np.tile([[0.0, 0.0, 5e-324]], (100, 1))
     with np.errstate(all="raise"):
         assert disparity_step(tiny) is None
+    # Normal but so small that 1/z overflows when scaled for the rounding (1e-305 m).
+    small = pts.copy()
+    small[::7, 2] = 1e-305
+    small[1::7, 2] = -3e-303
+    with np.errstate(all="raise"):
+        assert disparity_step(small) == pytest.approx(STEP, abs=1e-6)
 
 
 def test_depths_whose_step_squares_beyond_float64_hold_a_level_without_warnings():

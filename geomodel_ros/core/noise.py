@@ -549,7 +549,8 @@ def disparity_step(points: NDArray[np.float64]) -> float | None:
     ----------
     points : (N, 3) float array [m]
         The frame in the sensor frame, optical axis along +z or -z; non-finite rows and
-        points at z = 0 (or at a subnormal z, whose 1/z may overflow) are ignored.
+        points at z = 0 (or at a z so small that 1/z overflows once scaled for rounding)
+        are ignored.
 
     Returns
     -------
@@ -560,9 +561,10 @@ def disparity_step(points: NDArray[np.float64]) -> float | None:
     """
     z = np.asarray(points, dtype=np.float64).reshape(-1, 3)[:, 2]
     z = np.abs(z[::max(1, len(z) // DISPARITY_SAMPLE)])
-    # A subnormal depth (from a malformed message) has no level: its 1/z may overflow and
-    # make the gaps inf - inf. Above the smallest normal float 1/z is finite.
-    z = z[np.isfinite(z) & (z >= np.finfo(np.float64).tiny)]
+    # A depth so small that 1/z, scaled for the rounding to DISPARITY_DECIMALS, overflows
+    # (a subnormal or 1e-305 m from a malformed message) has no level: its gaps would be
+    # inf - inf.
+    z = z[np.isfinite(z) & (z >= 10.0 ** DISPARITY_DECIMALS / np.finfo(np.float64).max)]
     if len(z) < 2:
         return None
     ordered = np.sort(1.0 / z)
