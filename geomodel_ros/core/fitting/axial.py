@@ -9,7 +9,7 @@ from numpy.typing import NDArray
 
 from geomodel_ros.core import obb
 from geomodel_ros.core.fastmath import centroid, take_rows
-from geomodel_ros.core.fitting.cloud import ObjectCloud, Plane
+from geomodel_ros.core.fitting.cloud import ObjectCloud, ObjectFace, Plane
 from geomodel_ros.core.fitting.curved import INNER_CAP_CONE_MARGIN, CurvedFit
 from geomodel_ros.core.fitting.measure import (arc_span, nearest_surface, scatter_incidence,
                                                steep_arc_span)
@@ -22,8 +22,8 @@ from geomodel_ros.core.fitting.verify import (OUTLIER_FACTOR, check_arc, check_a
 from geomodel_ros.core.primitives import PrimitiveType
 from geomodel_ros.core.ransac import ConeModel
 
-__all__ = ["end_caps", "assign_to_surfaces", "axial_extent", "verified_side", "cap_rim_arc",
-           "rim_arc", "RIM_SPACINGS", "CAP_OUTSIDE_SHARE"]
+__all__ = ["across_axis", "end_caps", "assign_to_surfaces", "axial_extent", "verified_side",
+           "cap_rim_arc", "rim_arc", "RIM_SPACINGS", "CAP_OUTSIDE_SHARE"]
 
 #: A cap's rim points lie within this many point spacings inside the side's surface (the
 #: outermost samples of a steeply seen cap are within about one spacing of its edge) ...
@@ -34,16 +34,20 @@ RIM_SPACINGS = 2.0
 CAP_OUTSIDE_SHARE = 0.05
 
 
+def across_axis(cloud: ObjectCloud, axis: NDArray[np.float64]) -> list[ObjectFace]:
+    """Return the object's planar faces perpendicular to ``axis`` (3,) (``angle_tolerance``)."""
+    cos_tol = math.cos(cloud.params.angle_tolerance)
+    return [f for f in cloud.faces if f.info.planar and abs(float(f.info.normal @ axis)) >= cos_tol]
+
+
 def end_caps(cloud: ObjectCloud, side: CurvedFit) -> list[Plane]:
     """Planes that may close the side's ends.
 
     The object's planar faces perpendicular to the axis (within ``angle_tolerance``),
     then the side's inner caps.
     """
-    axis = side.model.axis
-    cos_tol = math.cos(cloud.params.angle_tolerance)
-    return [(cloud.faces[i].info.normal, cloud.faces[i].info.offset) for i in side.planar
-            if abs(cloud.faces[i].info.normal @ axis) >= cos_tol] + list(side.inner_caps)
+    return [(f.info.normal, f.info.offset) for f in across_axis(cloud, side.model.axis)] + \
+        list(side.inner_caps)
 
 
 def assign_to_surfaces(cloud: ObjectCloud, side: CurvedFit, caps: list[Plane],

@@ -37,7 +37,7 @@ from geomodel_ros.core.fastmath import centroid
 from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
                                              bends_beyond_noise)
 from geomodel_ros.core.confidence import surface_distance, surface_normals
-from geomodel_ros.core.fitting.axial import rim_arc
+from geomodel_ros.core.fitting.axial import across_axis, rim_arc
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.normal_box import (MIN_SIDE_NORMALS, axis_costs, box_axes,
                                                   normal_costs, side_labels)
@@ -535,10 +535,9 @@ def cavity_floor(cloud: ObjectCloud, round_model: Primitive) -> NDArray[np.bool_
     nor a box explains.
     """
     axis, center = round_model.rotation[:, 2], round_model.center
-    cos_tol = math.cos(cloud.params.angle_tolerance)
     floor = np.zeros(len(cloud.points), dtype=bool)
-    for f in cloud.faces:
-        if not f.info.planar or abs(float(f.info.normal @ axis)) < cos_tol or not len(f.points):
+    for f in across_axis(cloud, axis):
+        if not len(f.points):
             continue
         q = cloud.points[f.points]
         at = float(np.median((q - center) @ axis))
@@ -769,9 +768,7 @@ def disc_end(cloud: ObjectCloud, cylinder: Primitive) -> bool:
     axis, origin, radius = cylinder.rotation[:, 2], cylinder.center, \
         cylinder.dimensions["radius"]
     side = CylinderModel(origin, axis, radius)
-    cos_tol = math.cos(params.angle_tolerance)
-    caps = [cloud.points[f.points] for f in cloud.faces
-            if f.info.planar and abs(float(f.info.normal @ axis)) >= cos_tol]
+    caps = [cloud.points[f.points] for f in across_axis(cloud, axis)]
     arc = rim_arc(caps, side.distance, axis, origin, cloud.spacing, params.ransac_threshold)
     return arc >= 2.0 * math.pi - params.min_arc
 
