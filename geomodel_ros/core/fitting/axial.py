@@ -22,8 +22,9 @@ from geomodel_ros.core.fitting.verify import (OUTLIER_FACTOR, check_arc, check_a
 from geomodel_ros.core.primitives import PrimitiveType
 from geomodel_ros.core.ransac import ConeModel
 
-__all__ = ["across_axis", "end_caps", "assign_to_surfaces", "axial_extent", "verified_side",
-           "cap_rim_arc", "rim_arc", "RIM_SPACINGS", "CAP_OUTSIDE_SHARE"]
+__all__ = ["across_axis", "cap_facing", "seen_from_outside", "end_caps", "assign_to_surfaces",
+           "axial_extent", "verified_side", "cap_rim_arc", "rim_arc", "RIM_SPACINGS",
+           "CAP_OUTSIDE_SHARE"]
 
 #: A cap's rim points lie within this many point spacings inside the side's surface (the
 #: outermost samples of a steeply seen cap are within about one spacing of its edge) ...
@@ -82,9 +83,23 @@ def _cap_positions(cloud: ObjectCloud, caps: list[Plane], nearest: NDArray[np.in
                                  RAY_SHIFT_FACTOR * cloud.params.ransac_threshold)
         t_cap = (q - origin) @ axis
         parts.append(t_cap)
-        facing = float(toward_sensor(np.asarray(normal, dtype=np.float64), centroid(q)) @ axis)
-        closed.append((float(np.median(t_cap)), facing))
+        closed.append((float(np.median(t_cap)), cap_facing(q, normal, axis)))
     return parts, closed
+
+
+def cap_facing(q: NDArray[np.float64], normal: NDArray[np.float64],
+               axis: NDArray[np.float64]) -> float:
+    """Component along ``axis`` (3,) of a cap's normal towards the sensor (its points q)."""
+    return float(toward_sensor(np.asarray(normal, dtype=np.float64), centroid(q)) @ axis)
+
+
+def seen_from_outside(facing: float, high_end: bool) -> bool:
+    """Whether a cap at the high (else low) end along the axis faces out of the solid.
+
+    ``facing``: :func:`cap_facing`. A cap seen from inside (an open container's inner
+    floor, through its opening) faces into the solid at its end and closes nothing.
+    """
+    return facing > 0 if high_end else facing < 0
 
 
 def axial_extent(cloud: ObjectCloud, side_points: NDArray[np.float64], caps: list[Plane],
@@ -103,8 +118,10 @@ def axial_extent(cloud: ObjectCloud, side_points: NDArray[np.float64], caps: lis
     # A cap closes the end it is nearer to only when it is seen from outside the solid
     # (its normal towards the sensor points out of that end): one seen from inside is an
     # open container's inner floor, above its hidden bottom.
-    closed_lo = [c for c, facing in closed if c - tmin < tmax - c and facing < 0]
-    closed_hi = [c for c, facing in closed if c - tmin >= tmax - c and facing > 0]
+    closed_lo = [c for c, facing in closed
+                 if c - tmin < tmax - c and seen_from_outside(facing, high_end=False)]
+    closed_hi = [c for c, facing in closed
+                 if c - tmin >= tmax - c and seen_from_outside(facing, high_end=True)]
     s_lo, s_hi = cloud.support_ends(axis, origin, tmin, tmax)
     return obb.interval(t_all, cloud.spacing, min(closed_lo) if closed_lo else s_lo,
                         max(closed_hi) if closed_hi else s_hi,

@@ -37,7 +37,8 @@ from geomodel_ros.core.fastmath import centroid
 from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
                                              bends_beyond_noise)
 from geomodel_ros.core.confidence import surface_distance, surface_normals
-from geomodel_ros.core.fitting.axial import across_axis, rim_arc
+from geomodel_ros.core.fitting.axial import (across_axis, cap_facing, rim_arc,
+                                              seen_from_outside)
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.normal_box import (MIN_SIDE_NORMALS, axis_costs, box_axes,
                                                   normal_costs, side_labels)
@@ -540,10 +541,9 @@ def cavity_floor(cloud: ObjectCloud, round_model: Primitive) -> NDArray[np.bool_
         if not len(f.points):
             continue
         q = cloud.points[f.points]
-        at = float(np.median((q - center) @ axis))
-        facing = float(toward_sensor(f.info.normal, centroid(q)) @ axis)
-        if (at < 0 < facing) or (facing < 0 <= at):
-            floor[f.points] = True
+        high_end = float(np.median((q - center) @ axis)) >= 0
+        # Seen from inside: its normal towards the sensor points into the solid.
+        floor[f.points] = seen_from_outside(-cap_facing(q, f.info.normal, axis), high_end)
     return floor
 
 
