@@ -164,3 +164,21 @@ def test_one_rendered_object_under_real_noise_stays_one_object(kind, rng):
     seg = segment_scene(scene.organized, PARAMS)
     (score,) = segmentation_scores(seg.labels, scene.label_image.ravel(), [1])
     assert score.iou >= 0.8 and not score.over, (score.iou, score.over)
+
+
+def test_a_split_patch_whose_pieces_are_all_small_stays_whole(monkeypatch):
+    # A patch called two-sided whose sides break into pieces below min_piece each (every
+    # point alone: no link is shorter than max_edge) keeps its id; it used to raise an
+    # IndexError (the pieces of a synthetic office frame's far wall, noise-free).
+    import geomodel_ros.core.segmentation as seg
+
+    m = 6
+    p = np.column_stack([np.arange(m) * 0.1, np.zeros(m), np.ones(m)])
+    side = np.arange(m) % 2 == 0
+    monkeypatch.setattr(seg, "_fold_candidates", lambda *_args: (side, np.array([True])))
+    nbrs = np.tile(np.arange(m), (m, 1))
+    sqdist = np.square(p[:, None, 0] - p[None, :, 0])
+    patches = np.zeros(m, dtype=np.int64)
+    out = _split_folds(p, np.tile([0.0, 0.0, -1.0], (m, 1)), nbrs, sqdist, patches,
+                       0.01, np.full(m, SIGMA), 3, PARAMS.face_angle_threshold)
+    assert np.array_equal(out, patches)

@@ -1004,6 +1004,8 @@ def _split_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
     piece_patch = np.full(len(size), -1, dtype=np.int64)
     piece_patch[comp[big]] = patches[big]
     pieces = np.flatnonzero(piece_patch >= 0)
+    if not len(pieces):
+        return patches  # every piece below min_piece: nothing to part
     rank = np.lexsort((-size[pieces], piece_patch[pieces]))
     pieces = pieces[rank]
     first = np.r_[True, piece_patch[pieces][1:] != piece_patch[pieces][:-1]]
