@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from geomodel_ros.core.joins import join_terraces
-from geomodel_ros.core.noise import disparity_step
+from geomodel_ros.core.noise import NoiseEstimate, disparity_step
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.segmentation import level_quantum
 
@@ -135,7 +135,43 @@ def test_terraces_not_joined_without_a_step_or_near_the_sensor():
     assert np.unique(out[valid]).size == np.unique(comp[valid]).size
 
 
-def test_terraces_of_a_curved_surface_stay_apart():
+def _bent_wall(depth: float, tilt_deg: float, bend: float) -> tuple[np.ndarray, np.ndarray]:
+    """Build the tilted wall of :func:`_tilted_wall` bent by a slow error, then quantise it.
+
+    The error (a sensor's depth distortion) is ``bend`` [m] x sin over two periods across
+    the image's columns, along the viewing ray.
+    """
+    rays = _rays()
+    z = depth / (1.0 - math.tan(math.radians(tilt_deg)) * rays[:, 1])
+    u = rays[:, 0] / np.abs(rays[:, 0]).max()
+    return _quantised(rays, z + bend * np.sin(2.0 * math.pi * u))
+
+
+def _far_noise(sigma_at_4m: float) -> NoiseEstimate:
+    """Return a noise estimate whose sigma grows as z^2 to ``sigma_at_4m`` [m] at 4 m."""
+    return NoiseEstimate(a=0.0, b=sigma_at_4m / 16.0, spacing_per_m=1.0 / F, samples=500)
+
+
+def test_terraces_of_a_wall_bent_by_a_slow_error_join_within_the_frames_noise():
+    # A 4 cm slow error bends the wall: the union of its terraces lies up to 1.2 steps
+    # (95th percentile; 5.5 cm at 4 m) off its plane, beyond the one step allowed for the
+    # quantisation alone. The frame's noise (2.5 cm at 4 m, as a real Kinect's there)
+    # explains it: 0.5 step + 2 x 2.1 cm (the noise without the quantisation's share).
+    pts, level = _bent_wall(4.0, 30.0, 0.04)
+    comp = level - level.min()
+    valid = np.ones(len(pts), dtype=bool)
+    params = ModelingParams()
+    alone = join_terraces(pts, comp, valid, STEP, params)
+    assert np.unique(alone).size > 1
+    out = join_terraces(pts, comp, valid, STEP, params, _far_noise(0.025))
+    assert np.unique(out).size == 1
+    # A frame with little noise there allows no more than the step: as without it.
+    np.testing.assert_array_equal(
+        join_terraces(pts, comp, valid, STEP, params, _far_noise(0.002)), alone)
+
+
+@pytest.mark.parametrize("sigma", [None, 0.025])
+def test_terraces_of_a_curved_surface_stay_apart(sigma):
     # A trough z = 4 + 0.6 x^2 over x = +-0.56 m: 19 cm deeper at the sides than at the
     # middle (about 4 steps), so no plane holds both sides within a step: the bands of
     # the left and right sides (levels appear twice) never end in one group.
@@ -152,7 +188,8 @@ def test_terraces_of_a_curved_surface_stay_apart():
     # is one segment that borders the next level on both sides.
     comp = np.where(level == level.max(), 0, 2 * (level.max() - level) + side - 1)
     valid = np.ones(len(pts), dtype=bool)
-    out = join_terraces(pts, comp, valid, STEP, ModelingParams())
+    out = join_terraces(pts, comp, valid, STEP, ModelingParams(),
+                        None if sigma is None else _far_noise(sigma))
     assert np.unique(out).size < np.unique(comp).size  # neighbouring bands do join
     outer = np.abs(pts[:, 0]) > 0.45
     left = set(out[outer & (side == 0)].tolist())

@@ -1461,11 +1461,17 @@ TERRACE_MIN_BORDER_LINKS = 1.0
 #: voxel centroids and depth noise).
 TERRACE_PLANE_PERCENTILE = 95.0
 TERRACE_PLANE_STEPS = 1.0
+#: With the frame's noise known, a point may also lie within half a step (the
+#: quantisation) and this many sigmas of the depth noise that is not quantisation, at its
+#: range (the frame's sigma includes the slow error that bends a far wall and the
+#: quantisation's own step / sqrt(12), which is taken out).
+TERRACE_NOISE_SIGMAS = 2.0
 
 
 def join_terraces(points: NDArray[np.float64], comp: NDArray[np.int64],
                   valid: NDArray[np.bool_], step: float | None,
-                  params: ModelingParams) -> NDArray[np.int64]:
+                  params: ModelingParams, noise: NoiseEstimate | None = None
+                  ) -> NDArray[np.int64]:
     """Join the terraces of constant depth into which disparity steps cut a far plane.
 
     Parameters
@@ -1481,6 +1487,9 @@ def join_terraces(points: NDArray[np.float64], comp: NDArray[np.int64],
         disparity_step`); None (an unquantised frame) joins nothing.
     params : ModelingParams
         ``seg_voxel_size`` and ``seg_max_edge_factor`` (the link length) are used.
+    noise : NoiseEstimate, optional
+        The frame's depth noise: the union's plane test allows for it
+        (:data:`TERRACE_NOISE_SIGMAS`); without it, for one step only.
 
     Returns
     -------
@@ -1514,7 +1523,7 @@ def join_terraces(points: NDArray[np.float64], comp: NDArray[np.int64],
                 sets.find(a) == sets.find(b):
             continue
         group = [i for i in segs.members if sets.find(i) in (sets.find(a), sets.find(b))]
-        if _one_plane(points[np.concatenate([segs.members[i] for i in group])], step):
+        if _one_plane(points[np.concatenate([segs.members[i] for i in group])], step, noise):
             big, other = (a, b) if len(segs.members[a]) >= len(segs.members[b]) else (b, a)
             sets.union(big, other)
     return sets.relabel(comp, valid)
@@ -1561,11 +1570,14 @@ def _next_level_links(segs: _Segments, comp: NDArray[np.int64], inv: NDArray[np.
     return np.stack([keys // width, keys % width], axis=1), links
 
 
-def _one_plane(pts: NDArray[np.float64], step: float) -> bool:
+def _one_plane(pts: NDArray[np.float64], step: float, noise: NoiseEstimate | None = None
+               ) -> bool:
     """Whether ``pts`` (n, 3) [m] lie on one plane within a disparity step along their rays.
 
     A point at depth z and range r is one step (``step`` in 1/z [1/m]) off along its ray at
-    ``step * z * r`` [m]; the plane is the total-least-squares fit.
+    ``step * z * r`` [m]; the plane is the total-least-squares fit. With ``noise`` a point
+    may instead lie within half a step and :data:`TERRACE_NOISE_SIGMAS` of the noise at its
+    range that is not quantisation, where that is farther.
     """
     c = pts.mean(axis=0)
     _, vecs = np.linalg.eigh((pts - c).T @ (pts - c))
@@ -1574,4 +1586,9 @@ def _one_plane(pts: NDArray[np.float64], step: float) -> bool:
     cos = np.abs(pts @ n) / np.maximum(r, _TINY)
     along = np.abs((pts - c) @ n) / np.maximum(cos, _TINY)
     one_step = step * np.abs(pts[:, 2]) * r
-    return bool(np.percentile(along / one_step, TERRACE_PLANE_PERCENTILE) <= TERRACE_PLANE_STEPS)
+    bound = TERRACE_PLANE_STEPS * one_step
+    if noise is not None and noise.samples > 0:
+        sigma = np.sqrt(np.maximum(np.square(noise.sigma(r)) - np.square(one_step) / 12.0,
+                                   0.0))
+        bound = np.maximum(bound, 0.5 * one_step + TERRACE_NOISE_SIGMAS * sigma)
+    return bool(np.percentile(along / bound, TERRACE_PLANE_PERCENTILE) <= 1.0)
