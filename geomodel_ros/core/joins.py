@@ -1587,7 +1587,7 @@ def _one_plane(pts: NDArray[np.float64], step: float, noise: NoiseEstimate | Non
     along = np.abs((pts - c) @ n) / np.maximum(cos, _TINY)
     one_step = step * np.abs(pts[:, 2]) * r
     bound = TERRACE_PLANE_STEPS * one_step
-    if noise is not None and noise.samples > 0:
+    if noise is not None:  # an empty estimate's sigma is 0: one step, as without it
         sigma = np.sqrt(np.maximum(np.square(noise.sigma(r)) - np.square(one_step) / 12.0,
                                    0.0))
         bound = np.maximum(bound, 0.5 * one_step + TERRACE_NOISE_SIGMAS * sigma)

@@ -380,8 +380,7 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
                                      params.seg_plane_threshold + params.seg_voxel_size))
     if params.seg_max_occlusion_gap > 0:
         comp = join_occluded_parts(wp, wn, comp, comp_ok, params)
-    comp = join_terraces(wp, comp, comp_ok, step, params,
-                         noise if isinstance(noise, NoiseEstimate) else None)
+    comp = join_terraces(wp, comp, comp_ok, step, params, noise)
     if contained:
         if links is not None:
             taken = _return_floors(wp, wn, comp, comp_ok, wlabel, supports, params, links,
