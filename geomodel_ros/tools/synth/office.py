@@ -15,9 +15,11 @@ Labels: 0 floor, 1 back wall, 2 door, 3 side wall, 4 box (0.4 x 0.3 x 0.4 m), 5 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from .clutter import KINECT_CAMERA, _to_camera
+from .clutter import KINECT_CAMERA, _to_camera, camera_pose
 from .scenes import NoiseModel, Scene, apply_noise
 from .shapes import Box, Rectangle
 
@@ -70,13 +72,12 @@ def office_scene(wall_distance: float = 3.5, yaw_deg: float = 0.0,
         Box(0.4, 0.3, 0.4, center=[1.8, 0.3, 0.2], rotation=np.eye(3)),
         Box(0.5, 0.5, 0.5, center=[2.6, -0.5, 0.25], rotation=np.eye(3)),
     ]
-    yaw = np.radians(yaw_deg)
-    position = np.array([0.0, 0.0, OFFICE_CAMERA_HEIGHT])
-    target = np.array([OFFICE_AIM, OFFICE_AIM * np.tan(yaw), 0.0])
-    forward = (target - position) / np.linalg.norm(target - position)
-    right = np.cross(forward, ez)
-    right /= np.linalg.norm(right)
-    rotation = np.stack([right, np.cross(forward, right), forward])
+    # The camera stands above the floor's origin and looks at the aim point on the floor.
+    aim = (OFFICE_AIM, OFFICE_AIM * math.tan(math.radians(yaw_deg)))
+    ground = math.hypot(*aim)
+    rotation, position = camera_pose(math.hypot(ground, OFFICE_CAMERA_HEIGHT),
+                                     math.atan2(OFFICE_CAMERA_HEIGHT, ground),
+                                     math.atan2(-aim[1], -aim[0]), aim)
     posed = [_to_camera(s, rotation, position) for s in shapes]
     organized, labels = KINECT_CAMERA.render(posed)
     if noise is not None:
