@@ -115,6 +115,78 @@ def test_nearly_perpendicular_face_off_the_box_axes_rejects_cuboid():
     assert d.axis_of_face == ()
 
 
+def _corner(front_x, side_x, side_z):
+    """Build a face at z = 3 m and a perpendicular one at x = ``side_x``, depth ``side_z``.
+
+    Both face the sensor at the origin (normals -z and -x).
+    """
+    front = planar([0.0, 0.0, -1.0], [front_x, 0.0, 3.0], 300)
+    side = planar([-1.0, 0.0, 0.0], [side_x, 0.0, side_z], 200)
+    return [front, side]
+
+
+def test_a_box_edge_seen_from_outside_is_a_cuboid():
+    # The box spans x 0.2 .. 1.2 m and z 3 .. 4 m; its left side faces the sensor.
+    d = decide(_corner(0.7, 0.2, 3.5))
+    assert d.candidates == ("cuboid",)
+
+
+def test_a_room_corner_seen_from_inside_is_no_cuboid():
+    # A back wall at z = 3 m (x -0.5 .. 1 m) and a side wall at x = 1 m (z 2 .. 3 m)
+    # meeting it: each wall's centre lies 0.5 m in front of the other's plane.
+    d = decide(_corner(0.25, 1.0, 2.5))
+    assert d.candidates == ()
+    assert "concave" in d.reason
+
+
+def test_a_concave_corner_in_front_of_a_box_face_vetoes_the_cuboid():
+    # A box seen from outside (three faces) and, touching its front face, a perpendicular
+    # piece of another surface that stands in front of it (a wall's foot beside the box).
+    rot = _rotation(0.3, 0.7)
+    c = np.array([0.0, 0.0, 0.5])
+    box = [planar(-rot[:, 0], c - 0.03 * rot[:, 0], 300),
+           planar(-rot[:, 1], c - 0.02 * rot[:, 1], 200),
+           planar(-rot[:, 2], c - 0.04 * rot[:, 2], 100)]
+    assert decide(box).candidates == ("cuboid",)
+    # In front of face 0's plane (along its outward normal -rot[:, 0]), its own normal
+    # along rot[:, 1] pointing back over face 0: the two centres each lie in front of the
+    # other's plane.
+    piece = planar(rot[:, 1], c - 0.08 * rot[:, 0] - 0.02 * rot[:, 1], 100)
+    adjacency = np.zeros((4, 4), dtype=bool)
+    adjacency[0, 1:] = adjacency[1:, 0] = True
+    adjacency[1, 2] = adjacency[2, 1] = True
+    d = decide(box + [piece], adjacency)
+    assert d.candidates == ()
+    assert "concave" in d.reason
+    # Not adjacent to any face it is concave with: the box stands.
+    adjacency[0, 3] = adjacency[3, 0] = False
+    assert decide(box + [piece], adjacency).candidates == ("cuboid",)
+
+
+def test_a_side_bent_into_two_pieces_is_still_a_cuboid():
+    # The front face of a box in two pieces that meet concavely by 4 deg (a sensor's
+    # slow error bends it): pieces of one side are not a corner.
+    tilt = math.radians(2.0)
+    left = planar([math.sin(tilt), 0.0, -math.cos(tilt)], [0.35, 0.0, 3.0], 200)
+    right = planar([-math.sin(tilt), 0.0, -math.cos(tilt)], [0.85, 0.0, 3.0], 200)
+    # Each piece's centre lies in front of the other's plane ...
+    for a, b in ((left, right), (right, left)):
+        assert float(b.normal @ a.center) + b.offset > 0.0
+    side = planar([-1.0, 0.0, 0.0], [0.1, 0.0, 3.3], 150)  # the box's left side
+    d = decide([left, right, side])
+    assert d.candidates == ("cuboid",)
+
+
+def test_a_concave_sliver_does_not_veto_the_cuboid():
+    rot = _rotation(0.3, 0.7)
+    c = np.array([0.0, 0.0, 0.5])
+    box = [planar(-rot[:, 0], c - 0.03 * rot[:, 0], 300),
+           planar(-rot[:, 1], c - 0.02 * rot[:, 1], 200),
+           planar(-rot[:, 2], c - 0.04 * rot[:, 2], 100)]
+    sliver = planar(rot[:, 1], c - 0.08 * rot[:, 0] - 0.02 * rot[:, 1], 20)  # 20 / 620 < 5 %
+    assert decide(box + [sliver]).candidates == ("cuboid",)
+
+
 def test_single_planar_face_is_a_plane():
     d = decide([planar([0, -0.6, -0.8], [0, 0, 0.5], 500)])
     assert d.candidates == ("plane",)

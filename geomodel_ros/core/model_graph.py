@@ -140,6 +140,10 @@ def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: f
         assignment = np.argmax(cos_axes, axis=1)
         aligned = cos_axes.max(axis=1) >= math.cos(tol)
         if np.all(aligned | sliver):
+            if _concave_corner(faces, adjacency, np.where(sliver, -1, assignment)):
+                return GraphDecision("planar", (), main, (),
+                                     "planar faces meet in a concave corner (seen from "
+                                     "inside: no box)")
             assignment = np.where(aligned, assignment, -1)
             return GraphDecision("planar", ("cuboid",), main, tuple(int(a) for a in assignment),
                                  "planar faces with perpendicular adjacent normals")
@@ -159,6 +163,32 @@ def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: f
         return GraphDecision("planar", (), main, (), "parallel planar faces at different offsets")
     return GraphDecision("planar", (), main, (),
                          "planar faces neither perpendicular nor parallel to the main face")
+
+
+def _concave_corner(faces: list[FaceInfo], adjacency: NDArray[np.bool_],
+                    axis: NDArray[np.int64]) -> bool:
+    """Tell whether two adjacent faces on different box axes meet in a concave corner.
+
+    ``axis`` (F,): the box axis of each face, -1 for faces not counted (slivers). A convex
+    solid's faces seen from outside each lie behind (or on) the planes of the others,
+    their normals towards the sensor; two adjacent perpendicular faces each of whose
+    centres lies in front of the other's plane are seen from inside (a room's corner, a
+    box against a wall), which no box shows. At a box's edge each centre lies behind the
+    other face's plane by half its face's width; the noise moves a fitted plane at another
+    face's centre by a small share of the point noise (both are least-squares fits of
+    their points), so the signs decide without a band. Faces on one axis (pieces of one
+    side, or two parallel sides) are not compared: a side that a sensor's slow error bends
+    gives pieces whose signs are the noise's.
+    """
+    idx = [i for i, f in enumerate(faces) if axis[i] >= 0 and f.center is not None]
+    for a in idx:
+        for b in idx:
+            if a < b and adjacency[a, b] and axis[a] != axis[b]:
+                fa, fb = faces[a], faces[b]
+                if float(fb.normal @ fa.center) + fb.offset > 0.0 and \
+                        float(fa.normal @ fb.center) + fa.offset > 0.0:
+                    return True
+    return False
 
 
 def side_tilt(normals: NDArray[np.float64], axis: NDArray[np.float64]) -> float:
