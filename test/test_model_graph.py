@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from geomodel_ros.core.model_graph import FaceInfo, GraphDecision, curvature_candidates, decide_type
+from geomodel_ros.core.modeling import model_objects
 from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import PrimitiveType
 
 TOL = 0.14  # angle tolerance [rad] (the default)
 COPLANAR = 0.006  # coplanarity tolerance [m] (3 x the default RANSAC threshold)
@@ -129,17 +131,21 @@ def test_a_box_edge_seen_from_outside_is_a_cuboid():
     # The box spans x 0.2 .. 1.2 m and z 3 .. 4 m; its left side faces the sensor.
     d = decide(_corner(0.7, 0.2, 3.5))
     assert d.candidates == ("cuboid",)
+    assert not d.concave_corner
 
 
-def test_a_room_corner_seen_from_inside_is_no_cuboid():
+def test_a_room_corner_seen_from_inside_is_flagged():
     # A back wall at z = 3 m (x -0.5 .. 1 m) and a side wall at x = 1 m (z 2 .. 3 m)
     # meeting it: each wall's centre lies 0.5 m in front of the other's plane.
     d = decide(_corner(0.25, 1.0, 2.5))
-    assert d.candidates == ()
+    # The cuboid stays a candidate for its rivals (a round model of all faces may replace
+    # it); as the outcome it is refused (fitting.strategies.run_strategies).
+    assert d.candidates == ("cuboid",)
+    assert d.concave_corner
     assert "concave" in d.reason
 
 
-def test_a_concave_corner_in_front_of_a_box_face_vetoes_the_cuboid():
+def test_a_concave_corner_beside_a_box_face_is_flagged():
     # A box seen from outside (three faces) and, touching its front face, a perpendicular
     # piece of another surface that stands in front of it (a wall's foot beside the box).
     rot = _rotation(0.3, 0.7)
@@ -147,7 +153,7 @@ def test_a_concave_corner_in_front_of_a_box_face_vetoes_the_cuboid():
     box = [planar(-rot[:, 0], c - 0.03 * rot[:, 0], 300),
            planar(-rot[:, 1], c - 0.02 * rot[:, 1], 200),
            planar(-rot[:, 2], c - 0.04 * rot[:, 2], 100)]
-    assert decide(box).candidates == ("cuboid",)
+    assert not decide(box).concave_corner
     # In front of face 0's plane (along its outward normal -rot[:, 0]), its own normal
     # along rot[:, 1] pointing back over face 0: the two centres each lie in front of the
     # other's plane.
@@ -155,12 +161,33 @@ def test_a_concave_corner_in_front_of_a_box_face_vetoes_the_cuboid():
     adjacency = np.zeros((4, 4), dtype=bool)
     adjacency[0, 1:] = adjacency[1:, 0] = True
     adjacency[1, 2] = adjacency[2, 1] = True
-    d = decide(box + [piece], adjacency)
-    assert d.candidates == ()
-    assert "concave" in d.reason
+    assert decide(box + [piece], adjacency).concave_corner
     # Not adjacent to any face it is concave with: the box stands.
     adjacency[0, 3] = adjacency[3, 0] = False
-    assert decide(box + [piece], adjacency).candidates == ("cuboid",)
+    assert not decide(box + [piece], adjacency).concave_corner
+
+
+def _grid(origin, u, v, n):
+    a, b = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    return np.asarray(origin) + a.reshape(-1, 1) * np.asarray(u) + b.reshape(-1, 1) * v
+
+
+def test_a_room_corner_is_not_modeled_as_a_cuboid():
+    # Two 0.4 m walls seen from inside their corner, 1.5 m away, as one object: the model
+    # graph's cuboid is refused as the outcome (no round model fits either).
+    back = _grid((0.0, -0.2, 1.5), (0.4, 0.0, 0.0), np.array([0.0, 0.4, 0.0]), 80)
+    side = _grid((0.4, -0.2, 1.1), (0.0, 0.0, 0.4), np.array([0.0, 0.4, 0.0]), 80)
+    pts = np.vstack([back, side])
+    params = ModelingParams(noise_model="fixed")
+    corner = model_objects(pts, np.zeros(len(pts), dtype=np.int64), params).objects[0]
+    assert corner.type == PrimitiveType.UNKNOWN
+    assert "cuboid refused" in corner.reason
+    # The same two faces as a box's edge seen from outside: a cuboid.
+    front = _grid((0.1, -0.2, 1.5), (0.4, 0.0, 0.0), np.array([0.0, 0.4, 0.0]), 80)
+    left = _grid((0.1, -0.2, 1.5), (0.0, 0.0, 0.4), np.array([0.0, 0.4, 0.0]), 80)
+    pts = np.vstack([front, left])
+    box = model_objects(pts, np.zeros(len(pts), dtype=np.int64), params).objects[0]
+    assert box.type == PrimitiveType.CUBOID
 
 
 def test_a_side_bent_into_two_pieces_is_still_a_cuboid():
@@ -175,16 +202,17 @@ def test_a_side_bent_into_two_pieces_is_still_a_cuboid():
     side = planar([-1.0, 0.0, 0.0], [0.1, 0.0, 3.3], 150)  # the box's left side
     d = decide([left, right, side])
     assert d.candidates == ("cuboid",)
+    assert not d.concave_corner
 
 
-def test_a_concave_sliver_does_not_veto_the_cuboid():
+def test_a_concave_sliver_is_not_flagged():
     rot = _rotation(0.3, 0.7)
     c = np.array([0.0, 0.0, 0.5])
     box = [planar(-rot[:, 0], c - 0.03 * rot[:, 0], 300),
            planar(-rot[:, 1], c - 0.02 * rot[:, 1], 200),
            planar(-rot[:, 2], c - 0.04 * rot[:, 2], 100)]
     sliver = planar(rot[:, 1], c - 0.08 * rot[:, 0] - 0.02 * rot[:, 1], 20)  # 20 / 620 < 5 %
-    assert decide(box + [sliver]).candidates == ("cuboid",)
+    assert not decide(box + [sliver]).concave_corner
 
 
 def test_single_planar_face_is_a_plane():

@@ -92,6 +92,10 @@ class GraphDecision:
     between_bounds : bool
         All-curved objects: the curvature ratio lay between the developable and the
         spherical bound (any candidates come from its uncertainty, not from the ratio).
+    concave_corner : bool
+        Planar faces on different box axes meet in a concave corner (:func:`_concave_corner`):
+        the cuboid candidate is for its rivals only (a round model of all faces may replace
+        it, as for any cuboid); as the outcome it is refused (seen from inside: no box).
     """
 
     category: str
@@ -100,6 +104,7 @@ class GraphDecision:
     axis_of_face: tuple[int, ...] = ()
     reason: str = ""
     between_bounds: bool = False
+    concave_corner: bool = False
 
 
 #: Faces smaller than this share of an object's working points that fit no relation are
@@ -114,6 +119,8 @@ MIXED_VETO_SHARE = 2 * SLIVER_SHARE
 #: interquartile spread is at most this many angle tolerances (+- one tolerance about
 #: the median).
 CONE_ANGLE_SPREAD = 2
+#: Part of the reason of a planar decision whose faces meet in a concave corner.
+CONCAVE_CORNER = " meeting in a concave corner"
 #: Reason of :func:`curvature_candidates` when no point has a curvature to judge.
 NO_CURVATURE = "no curvature"
 #: Part of the reason of :func:`curvature_candidates` when the ratio lay between the bounds
@@ -140,13 +147,12 @@ def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: f
         assignment = np.argmax(cos_axes, axis=1)
         aligned = cos_axes.max(axis=1) >= math.cos(tol)
         if np.all(aligned | sliver):
-            if _concave_corner(faces, adjacency, np.where(sliver, -1, assignment)):
-                return GraphDecision("planar", (), main, (),
-                                     "planar faces meet in a concave corner (seen from "
-                                     "inside: no box)")
+            concave = _concave_corner(faces, adjacency, np.where(sliver, -1, assignment))
             assignment = np.where(aligned, assignment, -1)
             return GraphDecision("planar", ("cuboid",), main, tuple(int(a) for a in assignment),
-                                 "planar faces with perpendicular adjacent normals")
+                                 "planar faces with perpendicular adjacent normals"
+                                 + (CONCAVE_CORNER if concave else ""),
+                                 concave_corner=concave)
         return GraphDecision("planar", (), main, (),
                              "planar faces not aligned with three orthogonal axes")
     if (parallel | sliver).all():

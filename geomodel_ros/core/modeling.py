@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, with_confidence
+from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, estimate_confidence, with_confidence
 from geomodel_ros.core.decimation import decimate, spread_labels
 from geomodel_ros.core.errors import InputError, as_points
 from geomodel_ros.core.fastmath import centroid, group_by_label, single_threaded_blas, take_rows
@@ -35,6 +35,7 @@ from geomodel_ros.core.fitting.slow_bend import SlowBendNull, slow_bend_null
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategies
 from geomodel_ros.core.input import downsample, in_range, working_params
+from geomodel_ros.core.model_graph import SLIVER_SHARE
 from geomodel_ros.core.noise import (NoiseEstimate, frame_noise, is_fragment, object_params,
                                      support_band)
 from geomodel_ros.core.params import ModelingParams
@@ -299,6 +300,23 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
     return [done[k] for k in range(len(ids))]
 
 
+def _scene_context(pts: NDArray[np.float64], lab: NDArray[np.int64], params: ModelingParams,
+                   supports: dict[int, Plane] | None, noise: NoiseEstimate | None
+                   ) -> tuple[SceneView | None, SlowBendNull | None]:
+    """Return the scene's view and its slow errors' bend null for modeling its objects.
+
+    Hidden ends are completed only where the sensor sits at the origin (the view, with
+    ``supports`` and ``reproject_along_rays``); the bend test's null comes from the frame's
+    support where its noise is correlated (:func:`~geomodel_ros.core.fitting.slow_bend.
+    slow_bend_null`).
+    """
+    view = SceneView(pts, lab, params.max_range) if supports and \
+        params.reproject_along_rays else None
+    null = None if noise is None or independent_noise(params, noise.scale) else \
+        slow_bend_null(pts, lab, supports, noise)
+    return view, null
+
+
 def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | None = None, *,
                   face_labels: NDArray | None = None,
                   rng: np.random.Generator | int | None = None,
@@ -359,12 +377,7 @@ def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArr
     objects: list[Primitive] = []
     if idx_all.size:
         order, ids, starts, ends = group_by_label(idx_all, lab[idx_all])
-        # Hidden ends are completed only where the sensor sits at the origin.
-        view = SceneView(pts, lab, params.max_range) if supports and \
-            params.reproject_along_rays else None
-        # Slow sensor errors: the bend test's null from the frame's support (slow_bend).
-        null = None if noise is None or independent_noise(params, noise.scale) else \
-            slow_bend_null(pts, lab, supports, noise)
+        view, null = _scene_context(pts, lab, params, supports, noise)
         objects = _model_groups(pts, order, ids, (starts, ends), flab, params, rng, supports,
                                 view, noise, null)
     return ModelingResult(objects, {"modeling_s": time.perf_counter() - t0}, noise=noise)
@@ -493,7 +506,9 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     t0 = time.perf_counter()
     result = _model_rows(pts, np.flatnonzero(seg.labels >= 0), seg.labels, None, params, rng,
                          seg.support_planes, t0, noise)
-    labels = _drop_fragments(seg.labels, result, params)
+    labels = _join_box_pieces(pts, seg.labels, result, params, seg.support_planes, noise)
+    result.timing["modeling_s"] = time.perf_counter() - t0
+    labels = _drop_fragments(labels, result, params)
     result.timing.update(seg.timing)
     result.timing["noise_s"] = t_noise
     result.timing["total_s"] = result.timing["modeling_s"] + seg.timing["segmentation_s"] \
@@ -502,6 +517,106 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     result.supported = resting_objects(result.objects, result.supports,
                                        partial(_contact_tolerance, params=params, noise=noise))
     return labels, result
+
+
+#: A plane piece joins a box (:func:`_join_box_pieces`) across a border of at least this
+#: many of its points within a segmentation link of the box's points, times the square
+#: root of its points (the border of a face is about that long in points).
+PIECE_MIN_BORDER = 1.0
+#: Random stream of the boxes modeled again with their pieces (``[seed, this, box id,
+#: piece id]``): independent of the segmentation's, the modeling's and the noise's.
+PIECE_STREAM = 0x6A6F696E
+
+
+def _join_box_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
+                     result: ModelingResult, params: ModelingParams,
+                     supports: dict[int, Plane], noise: NoiseEstimate | None
+                     ) -> NDArray[np.int64]:
+    """Join the plane pieces of boxes to their boxes; return the labels (N,), a new array.
+
+    Under noise the segmentation cuts a face off a box now and then (its border's links
+    vote concave by chance), and the face is reported as a plane of its own beside the
+    box's cuboid. A plane (no support) whose points touch a cuboid's (at least
+    :data:`PIECE_MIN_BORDER` sqrt(its points) of them within a segmentation link) joins it
+    when the two are one box: their union, modeled again as one object, is a cuboid whose
+    surface holds the cuboid's points and the plane's each as well as their own models did
+    (:func:`_explains`). A flat object beside a box (a lying can's flat side, a book) is no
+    face of a box through both. ``result`` is
+    updated in place: the cuboid becomes the union's, the plane is gone.
+    """
+    boxes = [o for o in result.objects
+             if o.type == PrimitiveType.CUBOID and o.id not in supports]
+    pieces = [o for o in result.objects
+              if o.type == PrimitiveType.PLANE and o.id not in supports]
+    if not boxes or not pieces:
+        return labels
+    labels = labels.copy()
+    by_id = {o.id: o for o in result.objects}
+    gone: set[int] = set()
+    for box in sorted(boxes, key=lambda o: -o.point_count):
+        own = np.flatnonzero(labels == box.id)
+        for piece in sorted(pieces, key=lambda o: -o.point_count):
+            if piece.id in gone:
+                continue
+            mine = np.flatnonzero(labels == piece.id)
+            if not _touching(take_rows(pts, own), take_rows(pts, mine), params, noise):
+                continue
+            union = np.concatenate([own, mine])
+            upts = take_rows(pts, union)
+            labels[mine] = box.id  # the scene as the union sees it (undone if refused)
+            view, null = _scene_context(pts, labels, params, supports, noise)
+            oparams = params if noise is None else object_params(params, noise,
+                                                                 *object_range(upts))
+            orng = np.random.default_rng([params.seed, PIECE_STREAM, box.id, piece.id])
+            planes = tuple(v for key, v in supports.items() if key != box.id)
+            joined = model_object(upts, box.id, oparams, orng, estimate_spacing(upts, orng),
+                                  None, planes, view,
+                                  1.0 if noise is None else max(noise.scale, 1.0), null)
+            if joined.type != PrimitiveType.CUBOID or not all(
+                    _explains(joined, by_id[part_id], take_rows(pts, part), oparams)
+                    for part_id, part in ((box.id, own), (piece.id, mine))):
+                labels[mine] = piece.id
+                continue
+            own = union
+            by_id[box.id] = dataclasses.replace(joined, point_count=len(union))
+            gone.add(piece.id)
+    if gone:
+        result.objects = [by_id[o.id] for o in result.objects if o.id not in gone]
+    return labels
+
+
+def _explains(joined: Primitive, alone: Primitive, points: NDArray[np.float64],
+              params: ModelingParams) -> bool:
+    """Tell whether the ``joined`` model explains a part's ``points`` as its own model did.
+
+    Its inlier ratio over them (within ``ransac_threshold``) must be at least
+    ``min_inlier_ratio`` and lose at most a sliver's share
+    (:data:`~geomodel_ros.core.model_graph.SLIVER_SHARE`) against ``alone``'s: a box
+    standing on a box whose top alone is seen fits one cuboid through both, which leaves
+    the lower box's top face off its surface.
+    """
+    thr = params.ransac_threshold
+    together = estimate_confidence(joined, points, thr).inlier_ratio
+    apart = estimate_confidence(alone, points, thr).inlier_ratio
+    return together >= params.min_inlier_ratio and together >= apart - SLIVER_SHARE
+
+
+def _touching(a: NDArray[np.float64], b: NDArray[np.float64], params: ModelingParams,
+              noise: NoiseEstimate | None) -> bool:
+    """Tell whether the points ``b`` (m, 3) [m] border on ``a`` (n, 3) (:func:`_join_box_pieces`).
+
+    A point of ``b`` borders on ``a`` within a segmentation link (``seg_max_edge_factor``
+    ``seg_voxel_size``, resolved at ``b``'s range with a noise estimate).
+    """
+    oparams = params if noise is None else object_params(params, noise, *object_range(b))
+    link = oparams.seg_max_edge_factor * oparams.seg_voxel_size
+    lo, hi = a.min(axis=0) - link, a.max(axis=0) + link
+    near = b[np.all((b >= lo) & (b <= hi), axis=1)]
+    need = PIECE_MIN_BORDER * math.sqrt(len(b))
+    if len(near) < need:
+        return False
+    dist, _ = cKDTree(a).query(near, distance_upper_bound=link)
+    return int(np.count_nonzero(np.isfinite(dist))) >= need
 
 
 def _contact_tolerance(o: Primitive, params: ModelingParams, noise: NoiseEstimate | None

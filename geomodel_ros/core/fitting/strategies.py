@@ -996,5 +996,10 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
         if prim is not None:
             faces = tuple(f.summary for f in attempt.cloud.faces)
             prim, faces = prefer_box(situation, prim, faces, reasons)
-            return (*prefer_round(situation, prim, faces, reasons), reasons)
+            prim, faces = prefer_round(situation, prim, faces, reasons)
+            if prim.type == PrimitiveType.CUBOID and attempt.decision.concave_corner:
+                reasons.append("cuboid refused: its faces meet in a concave corner (seen "
+                               "from inside: no box)")
+                continue
+            return prim, faces, reasons
     return None, tuple(f.summary for f in situation.cloud.faces), reasons
