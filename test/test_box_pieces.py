@@ -19,6 +19,7 @@ from geomodel_ros.tools.synth.clutter import render_clutter
 from geomodel_ros.tools.synth.scenes import KINECT_CLASS_NOISE, KINECT_REAL_NOISE
 
 STEP = 0.003  # sample spacing on the faces [m]
+SIZE = (0.24, 0.18, 0.3)  # the hand-built box [m]
 PARAMS = ModelingParams(noise_model="fixed")
 
 
@@ -60,8 +61,7 @@ def _assert_apart(box, plane):
 
 
 def test_a_face_cut_off_a_box_joins_it():
-    size = (0.24, 0.18, 0.3)
-    front, top, left = _box(0.05, 0.1, 0.9, size)
+    front, top, left = _box(0.05, 0.1, 0.9, SIZE)
     # The segmentation gave the top and left faces one object and the front face another.
     pts, labels, result = _model([np.vstack([top, left]), front])
     assert [o.type for o in result.objects] == [PrimitiveType.CUBOID, PrimitiveType.PLANE]
@@ -72,14 +72,13 @@ def test_a_face_cut_off_a_box_joins_it():
     assert box.point_count == len(pts)
     assert np.all(joined == 0)
     dims = sorted(box.dimensions.values())
-    assert dims == pytest.approx(sorted(size), abs=2 * STEP)
+    assert dims == pytest.approx(sorted(SIZE), abs=2 * STEP)
     # The labels given are not changed in place.
     assert np.any(labels == 1)
 
 
 def test_a_flat_object_beside_a_box_stays_apart():
-    size = (0.24, 0.18, 0.3)
-    front, top, left = _box(0.05, 0.1, 0.9, size)
+    front, top, left = _box(0.05, 0.1, 0.9, SIZE)
     # A book lying on the floor against the box's left face: its top 2 cm above the floor
     # (the box's bottom edge at y = 0.28 m), 0.2 x 0.25 m, touching the box.
     book = _face((-0.15, 0.26, 0.92), (0.198, 0, 0), (0, 0, 0.25), 67, 84)
@@ -87,8 +86,7 @@ def test_a_flat_object_beside_a_box_stays_apart():
 
 
 def test_a_face_of_the_box_that_does_not_touch_it_stays_apart():
-    size = (0.24, 0.18, 0.3)
-    front, top, left = _box(0.05, 0.1, 0.9, size)
+    front, top, left = _box(0.05, 0.1, 0.9, SIZE)
     # The same front face 5 cm to the side of the box: on its plane, not on the box.
     shifted = front + np.array([-0.3, 0.0, 0.0])
     _assert_apart(np.vstack([top, left]), shifted)
@@ -121,8 +119,7 @@ def test_a_small_plate_off_the_box_surface_stays_apart():
     # A shelf-like plate sticking out of the box's left face 5 cm below its top: one
     # cuboid through both leaves the plate's points far off its faces (a box with an
     # outlier share of ~5 % verifies), so the plate is no face of the box.
-    size = (0.24, 0.18, 0.3)
-    front, top, left = _box(0.05, 0.1, 0.9, size)
+    front, top, left = _box(0.05, 0.1, 0.9, SIZE)
     plate = _face((-0.05, 0.15, 0.95), (0.098, 0, 0), (0, 0, 0.1), 34, 34)
     _assert_apart(np.vstack([front, top, left]), plate)
 
