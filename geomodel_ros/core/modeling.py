@@ -552,37 +552,54 @@ def _join_box_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
         return labels
     labels = labels.copy()
     by_id = {o.id: o for o in result.objects}
+    rows = np.flatnonzero(labels >= 0)
+    order, ids, starts, ends = group_by_label(rows, labels[rows])
+    parts = {int(i): _Part(pts, order[a:b]) for i, a, b in zip(ids, starts, ends)
+             if int(i) in {o.id for o in boxes + pieces}}
     gone: set[int] = set()
     for box in sorted(boxes, key=lambda o: -o.point_count):
-        own = np.flatnonzero(labels == box.id)
         for piece in sorted(pieces, key=lambda o: -o.point_count):
-            if piece.id in gone:
+            own, mine = parts[box.id], parts[piece.id]
+            if piece.id in gone or not _touching(own, mine, params, noise):
                 continue
-            mine = np.flatnonzero(labels == piece.id)
-            if not _touching(take_rows(pts, own), take_rows(pts, mine), params, noise):
-                continue
-            union = np.concatenate([own, mine])
-            upts = take_rows(pts, union)
-            labels[mine] = box.id  # the scene as the union sees it (undone if refused)
+            union = _Part(pts, np.concatenate([own.rows, mine.rows]))
+            labels[mine.rows] = box.id  # the scene as the union sees it (undone if refused)
             view, null = _scene_context(pts, labels, params, supports, noise)
             oparams = params if noise is None else object_params(params, noise,
-                                                                 *object_range(upts))
+                                                                 *object_range(union.points))
             orng = np.random.default_rng([params.seed, PIECE_STREAM, box.id, piece.id])
             planes = tuple(v for key, v in supports.items() if key != box.id)
-            joined = model_object(upts, box.id, oparams, orng, estimate_spacing(upts, orng),
-                                  None, planes, view,
+            joined = model_object(union.points, box.id, oparams, orng,
+                                  estimate_spacing(union.points, orng), None, planes, view,
                                   1.0 if noise is None else max(noise.scale, 1.0), null)
             if joined.type != PrimitiveType.CUBOID or not all(
-                    _explains(joined, by_id[part_id], take_rows(pts, part), oparams)
+                    _explains(joined, by_id[part_id], part.points, oparams)
                     for part_id, part in ((box.id, own), (piece.id, mine))):
-                labels[mine] = piece.id
+                labels[mine.rows] = piece.id
                 continue
-            own = union
-            by_id[box.id] = dataclasses.replace(joined, point_count=len(union))
+            parts[box.id] = union
+            by_id[box.id] = dataclasses.replace(joined, point_count=len(union.rows))
             gone.add(piece.id)
     if gone:
         result.objects = [by_id[o.id] for o in result.objects if o.id not in gone]
     return labels
+
+
+class _Part:
+    """The rows (n,) of one object, their points (n, 3) [m], bounds and k-d tree (lazy)."""
+
+    def __init__(self, pts: NDArray[np.float64], rows: NDArray[np.int64]) -> None:
+        self.rows = rows
+        self.points = take_rows(pts, rows)
+        self.lo, self.hi = self.points.min(axis=0), self.points.max(axis=0)
+        self._tree: cKDTree | None = None
+
+    @property
+    def tree(self) -> cKDTree:
+        """Return the k-d tree of the points, built on first use."""
+        if self._tree is None:
+            self._tree = cKDTree(self.points)
+        return self._tree
 
 
 def _explains(joined: Primitive, alone: Primitive, points: NDArray[np.float64],
@@ -601,21 +618,22 @@ def _explains(joined: Primitive, alone: Primitive, points: NDArray[np.float64],
     return together >= params.min_inlier_ratio and together >= apart - SLIVER_SHARE
 
 
-def _touching(a: NDArray[np.float64], b: NDArray[np.float64], params: ModelingParams,
-              noise: NoiseEstimate | None) -> bool:
-    """Tell whether the points ``b`` (m, 3) [m] border on ``a`` (n, 3) (:func:`_join_box_pieces`).
+def _touching(a: _Part, b: _Part, params: ModelingParams, noise: NoiseEstimate | None
+              ) -> bool:
+    """Tell whether the object ``b`` borders on ``a`` (:func:`_join_box_pieces`).
 
-    A point of ``b`` borders on ``a`` within a segmentation link (``seg_max_edge_factor``
-    ``seg_voxel_size``, resolved at ``b``'s range with a noise estimate).
+    At least :data:`PIECE_MIN_BORDER` sqrt(its points) of ``b``'s points lie within a
+    segmentation link of ``a``'s (``seg_max_edge_factor`` ``seg_voxel_size``, resolved at
+    ``b``'s range with a noise estimate).
     """
-    oparams = params if noise is None else object_params(params, noise, *object_range(b))
+    oparams = params if noise is None else object_params(params, noise,
+                                                         *object_range(b.points))
     link = oparams.seg_max_edge_factor * oparams.seg_voxel_size
-    lo, hi = a.min(axis=0) - link, a.max(axis=0) + link
-    near = b[np.all((b >= lo) & (b <= hi), axis=1)]
-    need = PIECE_MIN_BORDER * math.sqrt(len(b))
+    need = PIECE_MIN_BORDER * math.sqrt(len(b.rows))
+    near = b.points[np.all((b.points >= a.lo - link) & (b.points <= a.hi + link), axis=1)]
     if len(near) < need:
         return False
-    dist, _ = cKDTree(a).query(near, distance_upper_bound=link)
+    dist, _ = a.tree.query(near, distance_upper_bound=link)
     return int(np.count_nonzero(np.isfinite(dist))) >= need
 
 
