@@ -554,8 +554,9 @@ def _join_box_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
     by_id = {o.id: o for o in result.objects}
     rows = np.flatnonzero(labels >= 0)
     order, ids, starts, ends = group_by_label(rows, labels[rows])
+    wanted = {o.id for o in boxes + pieces}
     parts = {int(i): _Part(pts, order[a:b]) for i, a, b in zip(ids, starts, ends)
-             if int(i) in {o.id for o in boxes + pieces}}
+             if int(i) in wanted}
     gone: set[int] = set()
     for box in sorted(boxes, key=lambda o: -o.point_count):
         for piece in sorted(pieces, key=lambda o: -o.point_count):
