@@ -541,8 +541,8 @@ def _join_box_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
     when the two are one box: their union, modeled again as one object, is a cuboid whose
     surface holds the cuboid's points and the plane's each as well as their own models did
     (:func:`_explains`). A flat object beside a box (a lying can's flat side, a book) is no
-    face of a box through both. ``result`` is
-    updated in place: the cuboid becomes the union's, the plane is gone.
+    face of a box through both. ``result`` is updated in place: the cuboid becomes the
+    union's, the plane is gone.
     """
     boxes = [o for o in result.objects
              if o.type == PrimitiveType.CUBOID and o.id not in supports]
