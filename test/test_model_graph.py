@@ -63,12 +63,17 @@ def test_no_faces_is_empty():
     assert d == GraphDecision("empty", (), -1, (), "no faces")
 
 
-def test_box_faces_give_cuboid_with_axis_assignment():
+def _box_seen_from_outside():
+    """Return (rotation, centre [m], its three faces seen from outside, 300/200/100 points)."""
     rot = _rotation(0.3, 0.7)
     c = np.array([0.0, 0.0, 0.5])
-    faces = [planar(-rot[:, 0], c - 0.03 * rot[:, 0], 300),
-             planar(-rot[:, 1], c - 0.02 * rot[:, 1], 200),
-             planar(-rot[:, 2], c - 0.04 * rot[:, 2], 100)]
+    return rot, c, [planar(-rot[:, 0], c - 0.03 * rot[:, 0], 300),
+                    planar(-rot[:, 1], c - 0.02 * rot[:, 1], 200),
+                    planar(-rot[:, 2], c - 0.04 * rot[:, 2], 100)]
+
+
+def test_box_faces_give_cuboid_with_axis_assignment():
+    _, _, faces = _box_seen_from_outside()
     d = decide(faces)
     assert d.category == "planar"
     assert d.candidates == ("cuboid",)
@@ -148,11 +153,7 @@ def test_a_room_corner_seen_from_inside_is_flagged():
 def test_a_concave_corner_beside_a_box_face_is_flagged():
     # A box seen from outside (three faces) and, touching its front face, a perpendicular
     # piece of another surface that stands in front of it (a wall's foot beside the box).
-    rot = _rotation(0.3, 0.7)
-    c = np.array([0.0, 0.0, 0.5])
-    box = [planar(-rot[:, 0], c - 0.03 * rot[:, 0], 300),
-           planar(-rot[:, 1], c - 0.02 * rot[:, 1], 200),
-           planar(-rot[:, 2], c - 0.04 * rot[:, 2], 100)]
+    rot, c, box = _box_seen_from_outside()
     assert not decide(box).concave_corner
     # In front of face 0's plane (along its outward normal -rot[:, 0]), its own normal
     # along rot[:, 1] pointing back over face 0: the two centres each lie in front of the
@@ -206,11 +207,7 @@ def test_a_side_bent_into_two_pieces_is_still_a_cuboid():
 
 
 def test_a_concave_sliver_is_not_flagged():
-    rot = _rotation(0.3, 0.7)
-    c = np.array([0.0, 0.0, 0.5])
-    box = [planar(-rot[:, 0], c - 0.03 * rot[:, 0], 300),
-           planar(-rot[:, 1], c - 0.02 * rot[:, 1], 200),
-           planar(-rot[:, 2], c - 0.04 * rot[:, 2], 100)]
+    rot, c, box = _box_seen_from_outside()
     sliver = planar(rot[:, 1], c - 0.08 * rot[:, 0] - 0.02 * rot[:, 1], 20)  # 20 / 620 < 5 %
     assert not decide(box + [sliver]).concave_corner
 
