@@ -109,28 +109,39 @@ def test_a_closed_modeler_refuses_frames(scene_points):
 
 # --------------------------------------------------------------------------- the node
 class SlowFirst:
-    """Stand-in core: the first frame takes ``delay`` s longer than the others."""
+    """Stand-in core: the first frame ends ``hold`` s after a later frame's modeling ended.
 
-    def __init__(self, delay: float) -> None:
-        self.delay = delay
+    The first frame waits for the second to finish (at most ``timeout`` s, so that a node
+    that models one frame at a time still ends) and then ``hold`` s more: the order in
+    which the two end, and that the second waits at least ``hold`` s for its turn, hold
+    however slowly the machine runs.
+    """
+
+    def __init__(self, hold: float, timeout: float = 15.0) -> None:
+        self.hold = hold
+        self.timeout = timeout
         self.finished: list[int] = []  # stamps' seconds in the order modeling ended
         self.lock = threading.Lock()
         self.calls = 0
+        self.later_done = threading.Event()
 
     def __call__(self, points, params, *, organized_shape=None):
         with self.lock:
             self.calls += 1
             first = self.calls == 1
         if first:
-            time.sleep(self.delay)
+            self.later_done.wait(self.timeout)
+            time.sleep(self.hold)
         out = model_scene(points, params, organized_shape=organized_shape)
         with self.lock:
             self.finished.append(1 if first else 2)
+        if not first:
+            self.later_done.set()
         return out
 
 
 def test_frames_modeled_at_once_are_published_in_arrival_order(context):
-    core = SlowFirst(delay=1.5)
+    core = SlowFirst(hold=1.0)
     h = Harness(context, core, {"workers": 2})
     try:
         h.publish_and_wait_received(scene_cloud("tiny_box", sec=1))
@@ -195,7 +206,7 @@ def test_workers_is_read_only(context):
 
 
 class SlowFirstFails(SlowFirst):
-    """Stand-in core: the first frame takes ``delay`` s longer and then fails."""
+    """Stand-in core: the first frame ends after the second (:class:`SlowFirst`), failing."""
 
     def __call__(self, points, params, *, organized_shape=None):
         with self.lock:
@@ -207,7 +218,7 @@ class SlowFirstFails(SlowFirst):
 
 
 def test_a_frame_failing_after_a_later_one_was_modeled_does_not_hold_it(context, capfd):
-    core = SlowFirstFails(delay=1.0)
+    core = SlowFirstFails(hold=0.5)
     h = Harness(context, core, {"workers": 2})
     try:
         h.publish_and_wait_received(scene_cloud("tiny_box", sec=1))
