@@ -1,4 +1,4 @@
-"""A box's face cut off by the segmentation joins its box (``modeling._join_box_pieces``).
+"""A box's face cut off by the segmentation joins its box (``compounds.join_box_pieces``).
 
 Hand-built boxes seen from a sensor at the origin: the expectations are the boxes' own
 dimensions, and what must not join (a flat object beside a box, a plane that does not touch
@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geomodel_ros.core.modeling import _join_box_pieces, model_objects, model_scene
+from geomodel_ros.core.compounds import join_box_pieces
+from geomodel_ros.core.modeling import model_objects, model_part, model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import PrimitiveType
 from geomodel_ros.tools.synth.office import OFFICE_NAMES, office_scene
@@ -55,7 +56,8 @@ def _assert_apart(box, plane):
     """Model ``box`` (a cuboid) and ``plane`` (a plane) apart; assert that they stay so."""
     pts, labels, result = _model([box, plane])
     assert [o.type for o in result.objects] == [PrimitiveType.CUBOID, PrimitiveType.PLANE]
-    joined = _join_box_pieces(pts, labels, result, PARAMS, {}, None)
+    joined = join_box_pieces(pts, labels, result, PARAMS, {}, None,
+                             model_part(pts, PARAMS, {}, None))
     assert [o.id for o in result.objects] == [0, 1]
     assert np.array_equal(joined, labels)
 
@@ -65,7 +67,8 @@ def test_a_face_cut_off_a_box_joins_it():
     # The segmentation gave the top and left faces one object and the front face another.
     pts, labels, result = _model([np.vstack([top, left]), front])
     assert [o.type for o in result.objects] == [PrimitiveType.CUBOID, PrimitiveType.PLANE]
-    joined = _join_box_pieces(pts, labels, result, PARAMS, {}, None)
+    joined = join_box_pieces(pts, labels, result, PARAMS, {}, None,
+                             model_part(pts, PARAMS, {}, None))
     assert [o.id for o in result.objects] == [0]
     box = result.objects[0]
     assert box.type == PrimitiveType.CUBOID

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,8 +38,8 @@ from geomodel_ros.core.fitting.verify import OUTLIER_FACTOR
 from geomodel_ros.core.primitives import Confidence, Primitive, PrimitiveType
 
 __all__ = ["VIEW_COVERAGE", "CONFIDENCE_SAMPLE", "UNKNOWN_CONFIDENCE", "surface_distance",
-           "surface_normals", "coverage", "confidence_value", "estimate_confidence",
-           "with_confidence"]
+           "round_outline", "surface_normals", "coverage", "confidence_value",
+           "estimate_confidence", "with_confidence"]
 
 #: One viewpoint sees at most half of a cylinder's circumference or of a sphere's surface:
 #: that coverage counts as complete.
@@ -76,6 +77,25 @@ def _profile(p: Primitive) -> list[tuple[float, float]] | None:
     if kind == "frustum":  # base circle at -h, top circle at +h (rotation z: base -> top)
         return [(0.0, -h), (d["radius"], -h), (d["top_radius"], h), (0.0, h)]
     return None
+
+
+def round_outline(p: Primitive
+                  ) -> tuple[float, Callable[[NDArray[np.float64]], NDArray[np.float64]],
+                             float] | None:
+    """Return the outline of a solid of revolution about its z axis; None for other types.
+
+    As (half height [m], radius [m] at heights z (n,) [m] with |z| <= half height, largest
+    radius [m]).
+    """
+    profile = _profile(p)
+    if profile is None:
+        return None
+    (_, low), (r_low, _), (r_high, high) = profile[0], profile[1], profile[2]
+
+    def radius_at(z: NDArray[np.float64]) -> NDArray[np.float64]:
+        return r_low + (r_high - r_low) * (z - low) / max(high - low, _TINY)
+
+    return high, radius_at, max(r_low, r_high)
 
 
 def _profile_distances(p: Primitive, local: NDArray[np.float64]

@@ -19,8 +19,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["row_norms", "centroid", "rows_finite", "take_rows", "robust_sigma", "knn", "knn_among",
-           "link_components", "group_by_label", "MAX_INT16_LABEL", "retain_freed_memory",
-           "single_threaded_blas", "blas_libraries"]
+           "link_components", "pair_components", "group_by_label", "MAX_INT16_LABEL",
+           "retain_freed_memory", "single_threaded_blas", "blas_libraries"]
 
 #: :func:`link_components` first joins each point to its nearest this many neighbours
 #: (besides itself): on voxel grids those few links already hold nearly all of a surface
@@ -163,6 +163,14 @@ def link_components(neighbors: NDArray[np.int64], keep: NDArray[np.bool_]
     n, merged = connected_components(csr_matrix((np.ones(len(a)), (a, b)), shape=(n, n)),
                                      directed=False)
     return n, merged[labels]
+
+
+def pair_components(n: int, pairs: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Label (n,) the connected components of ``n`` nodes linked by ``pairs`` (L, 2)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
 def group_by_label(idx: NDArray[np.int64], lab: NDArray[np.int64]

@@ -31,7 +31,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core.fastmath import group_by_label, link_components, row_norms, take_rows
+from geomodel_ros.core.fastmath import (group_by_label, link_components, pair_components,
+                                        row_norms, take_rows)
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.noise import NoiseEstimate
 from geomodel_ros.core.params import ModelingParams
@@ -972,7 +973,7 @@ def _parts_beyond_rim(points: NDArray[np.float64], xy: NDArray[np.float64],
     if not beyond.any():
         return []
     pairs = cKDTree(points[rest]).query_pairs(link, output_type="ndarray")
-    group = _pair_components(len(rest), pairs)
+    group = pair_components(len(rest), pairs)
     parts = []
     for g in np.unique(group).tolist():
         part = rest[group == g]
@@ -1002,14 +1003,6 @@ def _over_rim(points: NDArray[np.float64], up: NDArray[np.float64], inside: NDAr
     near, _ = cKDTree(points[part]).query(points[inside], distance_upper_bound=link)
     touched = inside[np.isfinite(near)]
     return bool(len(touched)) and np.median(up[touched]) >= np.median(up[inside])
-
-
-def _pair_components(n: int, pairs: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Label the connected components of ``n`` nodes linked by ``pairs`` (L, 2)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
 def _holds_inside(part: NDArray[np.int64], labels: NDArray[np.int64], xy: NDArray[np.float64],

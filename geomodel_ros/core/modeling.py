@@ -18,13 +18,13 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Callable, NamedTuple, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, estimate_confidence, with_confidence
+from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, with_confidence
 from geomodel_ros.core.decimation import decimate, spread_labels
 from geomodel_ros.core.errors import InputError, as_points
 from geomodel_ros.core.fastmath import centroid, group_by_label, single_threaded_blas, take_rows
@@ -35,13 +35,15 @@ from geomodel_ros.core.fitting.slow_bend import SlowBendNull, slow_bend_null
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategies
 from geomodel_ros.core.input import downsample, in_range, working_params
-from geomodel_ros.core.model_graph import SLIVER_SHARE
 from geomodel_ros.core.noise import (NoiseEstimate, frame_noise, is_fragment, object_params,
                                      support_band)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, ModelingResult, Primitive, PrimitiveType
 from geomodel_ros.core.resting import resting_objects
 from geomodel_ros.core.view import SceneView
+
+if TYPE_CHECKING:
+    from geomodel_ros.core.compounds import ModelPart
 
 __all__ = ["model_objects", "model_object", "model_scene", "estimate_spacing", "InputError"]
 
@@ -64,6 +66,9 @@ OBJECT_RANGE_SAMPLE = 1000
 #: A uniform distribution of length L has standard deviation L / sqrt(12).
 UNIFORM_SPAN = math.sqrt(12.0)
 
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 _pool_lock = threading.Lock()
 _pool: ThreadPoolExecutor | None = None
@@ -296,8 +301,39 @@ def _model_groups(pts: NDArray[np.float64], order: NDArray[np.int64], ids: NDArr
     # hold (:func:`~geomodel_ros.core.fastmath.single_threaded_blas`).
     # Largest objects first so that the pool stays balanced.
     order_k = np.argsort(-(ends - starts), kind="stable").tolist()
-    done = dict(zip(order_k, _worker_pool().map(one, order_k)))
+    done = dict(zip(order_k, parallel_map(one, order_k)))
     return [done[k] for k in range(len(ids))]
+
+
+def parallel_map(fn: Callable[[T], R], items: list[T]) -> list[R]:
+    """Return ``[fn(x) for x in items]``, computed on the modeling's worker threads."""
+    if len(items) <= 1 or (os.cpu_count() or 1) <= 1:
+        return [fn(x) for x in items]
+    return list(_worker_pool().map(fn, items))
+
+
+def model_part(pts: NDArray[np.float64], params: ModelingParams, supports: dict[int, Plane],
+               noise: NoiseEstimate | None) -> ModelPart:
+    """Return the modeling of one object of the scene ``pts`` (N, 3) [m], for a second look.
+
+    The returned ``model(points (n, 3) [m], object id, key, labels (N,))`` models the
+    object as :func:`model_scene` does (its tolerances at its range, the scene's view and
+    slow errors as ``labels`` divide it, the other supports), from the random stream
+    ``[params.seed, *key]`` (:mod:`geomodel_ros.core.compounds`).
+    """
+    correlation = 1.0 if noise is None else max(noise.scale, 1.0)
+
+    def model(points: NDArray[np.float64], object_id: int, key: tuple[int, ...],
+              labels: NDArray[np.int64]) -> Primitive:
+        view, null = _scene_context(pts, labels, params, supports, noise)
+        oparams = params if noise is None else object_params(params, noise,
+                                                             *object_range(points))
+        rng = np.random.default_rng([params.seed, *key])
+        planes = tuple(v for k, v in supports.items() if k != object_id)
+        return model_object(points, object_id, oparams, rng, estimate_spacing(points, rng),
+                            None, planes, view, correlation, null)
+
+    return model
 
 
 def _scene_context(pts: NDArray[np.float64], lab: NDArray[np.int64], params: ModelingParams,
@@ -499,6 +535,7 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     ``t_noise`` [s]; fragments are taken out of the objects (:func:`_drop_fragments`).
     ``organized_shape`` (H, W) is handed to the segmentation.
     """
+    from geomodel_ros.core.compounds import join_box_pieces, split_compounds
     from geomodel_ros.core.segmentation import segment_scene
 
     seg = segment_scene(pts, params, rng=rng, noise=noise, organized_shape=organized_shape)
@@ -506,7 +543,9 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     t0 = time.perf_counter()
     result = _model_rows(pts, np.flatnonzero(seg.labels >= 0), seg.labels, None, params, rng,
                          seg.support_planes, t0, noise)
-    labels = _join_box_pieces(pts, seg.labels, result, params, seg.support_planes, noise)
+    model = model_part(pts, params, seg.support_planes, noise)
+    labels = join_box_pieces(pts, seg.labels, result, params, seg.support_planes, noise, model)
+    labels = split_compounds(pts, labels, result, params, seg.support_planes, noise, model)
     result.timing["modeling_s"] = time.perf_counter() - t0
     labels = _drop_fragments(labels, result, params)
     result.timing.update(seg.timing)
@@ -517,125 +556,6 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     result.supported = resting_objects(result.objects, result.supports,
                                        partial(_contact_tolerance, params=params, noise=noise))
     return labels, result
-
-
-#: A plane piece joins a box (:func:`_join_box_pieces`) across a border of at least this
-#: many of its points within a segmentation link of the box's points, times the square
-#: root of its points (the border of a face is about that long in points).
-PIECE_MIN_BORDER = 1.0
-#: Random stream of the boxes modeled again with their pieces (``[seed, this, box id,
-#: piece id]``): independent of the segmentation's, the modeling's and the noise's.
-PIECE_STREAM = 0x6A6F696E
-
-
-def _join_box_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
-                     result: ModelingResult, params: ModelingParams,
-                     supports: dict[int, Plane], noise: NoiseEstimate | None
-                     ) -> NDArray[np.int64]:
-    """Join the plane pieces of boxes to their boxes; return the labels (N,), a new array.
-
-    Under noise the segmentation cuts a face off a box now and then (its border's links
-    vote concave by chance), and the face is reported as a plane of its own beside the
-    box's cuboid. A plane (no support) whose points touch a cuboid's (at least
-    :data:`PIECE_MIN_BORDER` sqrt(its points) of them within a segmentation link) joins it
-    when the two are one box: their union, modeled again as one object, is a cuboid whose
-    surface holds the cuboid's points and the plane's each as well as their own models did
-    (:func:`_explains`). A flat object beside a box (a lying can's flat side, a book) is no
-    face of a box through both. ``result`` is updated in place: the cuboid becomes the
-    union's, the plane is gone.
-    """
-    boxes = [o for o in result.objects
-             if o.type == PrimitiveType.CUBOID and o.id not in supports]
-    pieces = [o for o in result.objects
-              if o.type == PrimitiveType.PLANE and o.id not in supports]
-    if not boxes or not pieces:
-        return labels
-    labels = labels.copy()
-    by_id = {o.id: o for o in result.objects}
-    rows = np.flatnonzero(labels >= 0)
-    order, ids, starts, ends = group_by_label(rows, labels[rows])
-    wanted = {o.id for o in boxes + pieces}
-    parts = {int(i): _Part(pts, order[a:b]) for i, a, b in zip(ids, starts, ends)
-             if int(i) in wanted}
-    gone: set[int] = set()
-    for box in sorted(boxes, key=lambda o: -o.point_count):
-        for piece in sorted(pieces, key=lambda o: -o.point_count):
-            own, mine = parts[box.id], parts[piece.id]
-            if piece.id in gone or not _touching(own, mine, params, noise):
-                continue
-            union = _Part(pts, np.concatenate([own.rows, mine.rows]))
-            labels[mine.rows] = box.id  # the scene as the union sees it (undone if refused)
-            view, null = _scene_context(pts, labels, params, supports, noise)
-            oparams = params if noise is None else object_params(params, noise,
-                                                                 *object_range(union.points))
-            orng = np.random.default_rng([params.seed, PIECE_STREAM, box.id, piece.id])
-            planes = tuple(v for key, v in supports.items() if key != box.id)
-            joined = model_object(union.points, box.id, oparams, orng,
-                                  estimate_spacing(union.points, orng), None, planes, view,
-                                  1.0 if noise is None else max(noise.scale, 1.0), null)
-            if joined.type != PrimitiveType.CUBOID or not all(
-                    _explains(joined, by_id[part_id], part.points, oparams)
-                    for part_id, part in ((box.id, own), (piece.id, mine))):
-                labels[mine.rows] = piece.id
-                continue
-            parts[box.id] = union
-            by_id[box.id] = dataclasses.replace(joined, point_count=len(union.rows))
-            gone.add(piece.id)
-    if gone:
-        result.objects = [by_id[o.id] for o in result.objects if o.id not in gone]
-    return labels
-
-
-class _Part:
-    """The rows (n,) of one object, their points (n, 3) [m], bounds and k-d tree (lazy)."""
-
-    def __init__(self, pts: NDArray[np.float64], rows: NDArray[np.int64]) -> None:
-        self.rows = rows
-        self.points = take_rows(pts, rows)
-        self.lo, self.hi = self.points.min(axis=0), self.points.max(axis=0)
-        self._tree: cKDTree | None = None
-
-    @property
-    def tree(self) -> cKDTree:
-        """Return the k-d tree of the points, built on first use."""
-        if self._tree is None:
-            self._tree = cKDTree(self.points)
-        return self._tree
-
-
-def _explains(joined: Primitive, alone: Primitive, points: NDArray[np.float64],
-              params: ModelingParams) -> bool:
-    """Tell whether the ``joined`` model explains a part's ``points`` as its own model did.
-
-    Its inlier ratio over them (within ``ransac_threshold``) must be at least
-    ``min_inlier_ratio`` and lose at most a sliver's share
-    (:data:`~geomodel_ros.core.model_graph.SLIVER_SHARE`) against ``alone``'s: a box
-    standing on a box whose top alone is seen fits one cuboid through both, which leaves
-    the lower box's top face off its surface.
-    """
-    thr = params.ransac_threshold
-    together = estimate_confidence(joined, points, thr).inlier_ratio
-    apart = estimate_confidence(alone, points, thr).inlier_ratio
-    return together >= params.min_inlier_ratio and together >= apart - SLIVER_SHARE
-
-
-def _touching(a: _Part, b: _Part, params: ModelingParams, noise: NoiseEstimate | None
-              ) -> bool:
-    """Tell whether the object ``b`` borders on ``a`` (:func:`_join_box_pieces`).
-
-    At least :data:`PIECE_MIN_BORDER` sqrt(its points) of ``b``'s points lie within a
-    segmentation link of ``a``'s (``seg_max_edge_factor`` ``seg_voxel_size``, resolved at
-    ``b``'s range with a noise estimate).
-    """
-    oparams = params if noise is None else object_params(params, noise,
-                                                         *object_range(b.points))
-    link = oparams.seg_max_edge_factor * oparams.seg_voxel_size
-    need = PIECE_MIN_BORDER * math.sqrt(len(b.rows))
-    near = b.points[np.all((b.points >= a.lo - link) & (b.points <= a.hi + link), axis=1)]
-    if len(near) < need:
-        return False
-    dist, _ = a.tree.query(near, distance_upper_bound=link)
-    return int(np.count_nonzero(np.isfinite(dist))) >= need
 
 
 def _contact_tolerance(o: Primitive, params: ModelingParams, noise: NoiseEstimate | None

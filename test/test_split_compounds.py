@@ -1,0 +1,190 @@
+"""A segment holding two bodies is split by their models (``compounds.split_compounds``).
+
+Hand-built scenes seen from a sensor at the origin (optical frame, y down): a box and a
+standing can in one segment come apart with the box's and the can's own sizes; objects
+segmented apart and a single noisy can stay as they are. The body test (``_in_body``) on
+exact primitives: a cup's inner wall, rim and floor belong to its body, a box beside it or
+under it does not. End to end on clutter scenes with exact per-point truth: segments that
+held a box and a can under Kinect-like noise are two objects; bowls and cups seen
+without noise (inner floor, rim) and a box whose cuboid fits badly stay one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from geomodel_ros.core.compounds import _in_body, split_compounds
+from geomodel_ros.core.modeling import model_objects, model_part, model_scene
+from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import Primitive, PrimitiveType
+from geomodel_ros.tools.synth.clutter import render_clutter
+from geomodel_ros.tools.synth.scenes import KINECT_REAL_NOISE
+from test_box_pieces import STEP, _box
+
+PARAMS = ModelingParams(noise_model="fixed")
+BOX = (0.2, 0.15, 0.2)  # the box's x, y, z extents [m]
+CORNER = np.array([0.0, 0.1, 0.9])  # its corner nearest the sensor [m]
+RADIUS, HEIGHT = 0.04, 0.12  # the can [m]
+
+
+def _can_side(center_x: float, center_z: float, y_top: float, y_bottom: float,
+              radius: float) -> np.ndarray:
+    """Sample the half of an upright cylinder's side that faces the sensor."""
+    ang = np.linspace(0.0, 2 * np.pi, int(2 * np.pi * radius / STEP), endpoint=False)
+    a, y = np.meshgrid(ang, np.arange(y_top, y_bottom, STEP))
+    a, y = a.ravel(), y.ravel()
+    pts = np.c_[center_x + radius * np.cos(a), y, center_z + radius * np.sin(a)]
+    normals = np.c_[np.cos(a), np.zeros_like(a), np.sin(a)]
+    return pts[np.einsum("ij,ij->i", normals, pts) < 0]
+
+
+def _disc(center_x: float, y: float, center_z: float, r_in: float, r_out: float
+          ) -> np.ndarray:
+    """Sample the flat ring r_in <= rho < r_out at height ``y`` round the vertical axis."""
+    g = np.arange(-r_out, r_out, STEP)
+    x, z = np.meshgrid(g, g)
+    rho = np.hypot(x, z)
+    keep = (rho < r_out) & (rho >= r_in)
+    return np.c_[center_x + x[keep], np.full(np.count_nonzero(keep), y), center_z + z[keep]]
+
+
+def _box_and_can() -> tuple[np.ndarray, np.ndarray]:
+    """Sample a box and a can on one floor, the can against the box's front face."""
+    front, top, left = _box(*CORNER, BOX)
+    floor_y = CORNER[1] + BOX[1]
+    cx, cz = CORNER[0] + 0.1, CORNER[2] - RADIUS
+    can = np.vstack([_can_side(cx, cz, floor_y - HEIGHT, floor_y, RADIUS),
+                     _disc(cx, floor_y - HEIGHT, cz, 0.0, RADIUS)])
+    # The front face's points behind the can are hidden from the sensor.
+    scale = CORNER[2] / cz
+    hidden = (np.abs(front[:, 0] - cx) < RADIUS * scale) & \
+        (front[:, 1] > (floor_y - HEIGHT) * scale)
+    return np.vstack([front[~hidden], top, left]), can
+
+
+def _split(pts: np.ndarray, labels: np.ndarray):
+    """Model ``pts`` with ``labels`` (fixed noise), then split; return labels and result."""
+    result = model_objects(pts, labels, PARAMS)
+    out = split_compounds(pts, labels, result, PARAMS, {}, None,
+                          model_part(pts, PARAMS, {}, None))
+    return out, result
+
+
+def test_a_can_against_a_box_in_one_segment_is_split_into_both():
+    box, can = _box_and_can()
+    pts = np.vstack([box, can])
+    labels = np.zeros(len(pts), dtype=np.int64)
+    out, result = _split(pts, labels)
+    types = sorted((o.type, o.id) for o in result.objects)
+    assert [t for t, _ in types] == [PrimitiveType.CUBOID, PrimitiveType.CYLINDER]
+    by_type = {o.type: o for o in result.objects}
+    cuboid, cylinder = by_type[PrimitiveType.CUBOID], by_type[PrimitiveType.CYLINDER]
+    assert sorted(cuboid.dimensions.values()) == pytest.approx(sorted(BOX), abs=2 * STEP)
+    assert cylinder.dimensions["radius"] == pytest.approx(RADIUS, abs=1e-3)
+    assert cylinder.dimensions["height"] == pytest.approx(HEIGHT, abs=2 * STEP)
+    # Every point goes with its own body; the new id is above the labels given.
+    assert np.all(out[:len(box)] == cuboid.id)
+    assert np.all(out[len(box):] == cylinder.id)
+    assert cylinder.id == 1 and cuboid.id == 0
+    assert (cuboid.point_count, cylinder.point_count) == (len(box), len(can))
+    assert np.all(labels == 0)  # the labels given are not changed in place
+
+
+def test_a_box_and_a_can_segmented_apart_stay_as_they_are():
+    box, can = _box_and_can()
+    pts = np.vstack([box, can])
+    labels = np.r_[np.zeros(len(box)), np.ones(len(can))].astype(np.int64)
+    before = model_objects(pts, labels, PARAMS)
+    out, result = _split(pts, labels)
+    assert np.array_equal(out, labels)
+    assert [(o.id, o.type, o.dimensions) for o in result.objects] == \
+        [(o.id, o.type, o.dimensions) for o in before.objects]
+
+
+def test_a_noisy_can_alone_is_not_split():
+    rng = np.random.default_rng(5)
+    can = np.vstack([_can_side(0.05, 0.7, 0.1, 0.1 + HEIGHT, RADIUS),
+                     _disc(0.05, 0.1, 0.7, 0.0, RADIUS)])
+    can = can + rng.normal(0.0, 0.0007, can.shape)
+    labels = np.zeros(len(can), dtype=np.int64)
+    out, result = _split(can, labels)
+    assert [o.type for o in result.objects] == [PrimitiveType.CYLINDER]
+    assert np.all(out == 0)
+
+
+# ------------------------------------------------------------------ the body test
+R, H, THR = 0.04, 0.1, 0.002  # an upright cylinder at the origin, axis +z [m]
+CYL = Primitive(0, PrimitiveType.CYLINDER, np.zeros(3), np.eye(3), {"radius": R, "height": H},
+                100, 0.0)
+
+
+def _ring(r_in: float, r_out: float, z: float) -> np.ndarray:
+    """Sample the flat ring r_in <= rho < r_out at height ``z`` round the axis."""
+    ring = _disc(0.0, z, 0.0, r_in, r_out)
+    return ring[:, [0, 2, 1]]  # (x, y = height, z) -> (x, z, height)
+
+
+def _wall(radius: float, z0: float, z1: float) -> np.ndarray:
+    """Sample the circle of ``radius`` round the axis between heights z0 and z1."""
+    ang = np.linspace(0.0, 2 * np.pi, 90, endpoint=False)
+    a, z = np.meshgrid(ang, np.linspace(z0, z1, 20))
+    return np.c_[radius * np.cos(a.ravel()), radius * np.sin(a.ravel()), z.ravel()]
+
+
+def test_a_cups_inner_wall_rim_and_floor_belong_to_its_body():
+    assert _in_body(CYL, _wall(R - 0.006, -0.03, H / 2), THR)  # inner wall, 6 mm deep
+    assert _in_body(CYL, _ring(R - 0.006, 1.15 * R, H / 2 + 0.002), THR)  # rim with a lip
+    assert _in_body(CYL, _ring(0.0, R - 0.006, H / 2 - 0.04), THR)  # inner floor
+
+
+def test_a_box_beside_or_under_a_can_is_no_part_of_its_body():
+    # The top face of a box the can stands on reaches 2.4 radii from the axis.
+    assert not _in_body(CYL, _ring(0.0, 2.4 * R, -H / 2), THR)
+    # A box face beside the can, outside its solid.
+    face = np.c_[np.full(400, R + 0.001), np.repeat(np.linspace(-0.05, 0.05, 20), 20),
+                 np.tile(np.linspace(-H / 2, H / 2, 20), 20)]
+    assert not _in_body(CYL, face, THR)
+    # A plane has no body.
+    plane = Primitive(1, PrimitiveType.PLANE, np.zeros(3), np.eye(3),
+                      {"length": 1.0, "width": 1.0}, 100, 0.0)
+    assert not _in_body(plane, _wall(R - 0.006, -0.03, H / 2), THR)
+
+
+# ------------------------------------------------------------------ end to end
+def _best_iou(seed: int, noise, gt: int) -> tuple[float, int]:
+    """IoU of clutter object ``gt`` with its best segment, and that segment's id."""
+    scene = render_clutter(seed, noise)
+    truth = scene.label_image.ravel()
+    labels, _ = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
+                            organized_shape=scene.label_image.shape)
+    own = labels[truth == gt]
+    best = int(np.bincount(own[own >= 0]).argmax())
+    inter = np.count_nonzero(own == best)
+    return inter / (np.count_nonzero(truth == gt) + np.count_nonzero(labels == best)
+                    - inter), best
+
+
+@pytest.mark.parametrize("seed, box, can", [(3, 6, 13), (26, 1, 12)])
+def test_kinect_real_segments_of_a_box_and_a_can_are_two_objects(seed, box, can):
+    # Before the split: one segment each, typed cylinder (seed 3) and cuboid (seed 26);
+    # box IoU 0.48 / 0.54, can 0.51 / 0.44.
+    iou_box, seg_box = _best_iou(seed, KINECT_REAL_NOISE, box)
+    iou_can, seg_can = _best_iou(seed, KINECT_REAL_NOISE, can)
+    assert seg_box != seg_can
+    assert iou_box >= 0.9 and iou_can >= 0.9
+
+
+@pytest.mark.parametrize("seed, gt", [(9, 9), (18, 10), (13, 2)])
+def test_noise_free_bowls_and_cups_stay_one_object(seed, gt):
+    # Their inner floor or rim lies off the fitted frustum / cylinder: a bowl's floor and
+    # a cup's rim, modeled apart, were planes beside the round body.
+    iou, _ = _best_iou(seed, None, gt)
+    assert iou >= 0.95
+
+
+def test_a_box_fitted_badly_is_not_taken_apart_into_its_faces():
+    # Noise-free seed 22: box 7's cuboid holds 74 % of its points; its two faces, modeled
+    # apart, are two planes that each explain their own part.
+    iou, _ = _best_iou(22, None, 7)
+    assert iou >= 0.95
