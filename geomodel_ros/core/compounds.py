@@ -198,11 +198,11 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     the segmentation's length) of at least ``seg_min_cluster_points`` lying off its model
     (beyond :data:`SPLIT_OFF_FACTOR` thresholds) may be two: the group is modeled on its
     own, then the two models are refitted in turns, each point handed to the nearer
-    surface (:func:`_two_models`). The segment is split when both parts are typed, each
-    model explains its own part (inlier ratio >= ``min_inlier_ratio``) and neither part
-    lies in the other's body (:func:`_one_body`: a cup's inner wall, a bowl's floor, a
-    can's rim are no objects of their own). The second part gets a new id (above every
-    label); ``result`` is updated in place.
+    surface (:func:`_two_models`). The segment is split when both parts are typed and not
+    both planes, each model explains its own part (inlier ratio >= ``min_inlier_ratio``)
+    and neither part lies in the other's body (:func:`_two_bodies`, :func:`_in_body`: a
+    cup's inner wall, a bowl's floor, a can's rim are no objects of their own). The second
+    part gets a new id (above every label); ``result`` is updated in place.
     """
     candidates = [o for o in result.objects if o.id not in supports and o.type not in (
         PrimitiveType.UNKNOWN, PrimitiveType.PLANE) and _may_hold_two(o, params)]
