@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from geomodel_ros.core.compounds import join_box_pieces
-from geomodel_ros.core.modeling import model_objects, model_part, model_scene
+from geomodel_ros.core.modeling import PartModeler, model_objects, model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import PrimitiveType
 from geomodel_ros.tools.synth.office import OFFICE_NAMES, office_scene
@@ -57,7 +57,7 @@ def _assert_apart(box, plane):
     pts, labels, result = _model([box, plane])
     assert [o.type for o in result.objects] == [PrimitiveType.CUBOID, PrimitiveType.PLANE]
     joined = join_box_pieces(pts, labels, result, PARAMS, {}, None,
-                             model_part(pts, PARAMS, {}, None))
+                             PartModeler(pts, PARAMS, {}, None))
     assert [o.id for o in result.objects] == [0, 1]
     assert np.array_equal(joined, labels)
 
@@ -68,7 +68,7 @@ def test_a_face_cut_off_a_box_joins_it():
     pts, labels, result = _model([np.vstack([top, left]), front])
     assert [o.type for o in result.objects] == [PrimitiveType.CUBOID, PrimitiveType.PLANE]
     joined = join_box_pieces(pts, labels, result, PARAMS, {}, None,
-                             model_part(pts, PARAMS, {}, None))
+                             PartModeler(pts, PARAMS, {}, None))
     assert [o.id for o in result.objects] == [0]
     box = result.objects[0]
     assert box.type == PrimitiveType.CUBOID

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from geomodel_ros.core.compounds import _in_body, split_compounds
-from geomodel_ros.core.modeling import model_objects, model_part, model_scene
+from geomodel_ros.core.modeling import PartModeler, model_objects, model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.tools.synth.clutter import render_clutter
@@ -67,7 +67,7 @@ def _split(pts: np.ndarray, labels: np.ndarray):
     """Model ``pts`` with ``labels`` (fixed noise), then split; return labels and result."""
     result = model_objects(pts, labels, PARAMS)
     out = split_compounds(pts, labels, result, PARAMS, {}, None,
-                          model_part(pts, PARAMS, {}, None))
+                          PartModeler(pts, PARAMS, {}, None))
     return out, result
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +28,9 @@ from geomodel_ros.core.model_graph import SLIVER_SHARE
 from geomodel_ros.core.noise import NoiseEstimate, object_params
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import ModelingResult, Primitive, PrimitiveType
+
+if TYPE_CHECKING:
+    from geomodel_ros.core.modeling import PartModeler
 
 __all__ = ["join_box_pieces", "split_compounds"]
 
@@ -67,12 +70,6 @@ INSIDE_DEPTH_FACTOR = 2.0
 CAP_SHARE = 0.9
 CAP_RIM = 0.25
 
-#: ``model(points (n, 3) [m], object id, random stream key, labels (N,) of the scene as
-#: the fit sees it) -> Primitive``: one object modeled as the modeling does
-#: (:func:`geomodel_ros.core.modeling.model_part`).
-ModelPart = Callable[[NDArray[np.float64], int, tuple[int, ...], NDArray[np.int64]], Primitive]
-
-
 class _Part:
     """The rows (n,) of one object, their points (n, 3) [m], bounds and k-d tree (lazy)."""
 
@@ -108,7 +105,7 @@ def _params_at(params: ModelingParams, noise: NoiseEstimate | None,
 
 def join_box_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
                     result: ModelingResult, params: ModelingParams,
-                    supports: dict[int, Plane], noise: NoiseEstimate | None, model: ModelPart
+                    supports: dict[int, Plane], noise: NoiseEstimate | None, model: PartModeler
                     ) -> NDArray[np.int64]:
     """Join the plane pieces of boxes to their boxes; return the labels (N,), a new array.
 
@@ -139,7 +136,8 @@ def join_box_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
                 continue
             union = _Part(pts, np.concatenate([own.rows, mine.rows]))
             labels[mine.rows] = box.id  # the scene as the union sees it (undone if refused)
-            joined = model(union.points, box.id, (PIECE_STREAM, box.id, piece.id), labels)
+            joined = model(union.points, box.id, (PIECE_STREAM, box.id, piece.id),
+                           model.context(labels))
             oparams = _params_at(params, noise, union.points)
             if joined.type != PrimitiveType.CUBOID or not all(
                     _explains(joined, by_id[part_id], part.points, oparams)
@@ -190,7 +188,7 @@ def _touching(a: _Part, b: _Part, params: ModelingParams, noise: NoiseEstimate |
 
 def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
                     result: ModelingResult, params: ModelingParams,
-                    supports: dict[int, Plane], noise: NoiseEstimate | None, model: ModelPart
+                    supports: dict[int, Plane], noise: NoiseEstimate | None, model: PartModeler
                     ) -> NDArray[np.int64]:
     """Split the segments that hold two bodies; return the labels (N,), a new array.
 
@@ -267,7 +265,7 @@ def _off_group(o: Primitive, points: NDArray[np.float64], oparams: ModelingParam
 
 def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], new_id: int,
                 labels: NDArray[np.int64], params: ModelingParams,
-                noise: NoiseEstimate | None, model: ModelPart
+                noise: NoiseEstimate | None, model: PartModeler
                 ) -> tuple[Primitive, Primitive, NDArray[np.bool_]] | None:
     """Model ``part`` (object ``o``) as two; return both models and the second's mask.
 
@@ -281,11 +279,11 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], new_id: int
     points, rows = part.points, part.rows
     scene = labels.copy()
 
-    def fit(mask: NDArray[np.bool_], oid: int, fit_no: int) -> Primitive:
-        return model(points[mask], oid, (SPLIT_STREAM, o.id, fit_no), scene)
+    def fit(mask: NDArray[np.bool_], oid: int, fit_no: int, context) -> Primitive:
+        return model(points[mask], oid, (SPLIT_STREAM, o.id, fit_no), context)
 
     scene[rows[group]] = new_id
-    second = fit(group, new_id, 0)
+    second = fit(group, new_id, 0, model.context(scene))
     first, in_second = o, group
     for k in range(SPLIT_ROUNDS):
         if second.type == PrimitiveType.UNKNOWN:
@@ -300,7 +298,8 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], new_id: int
         in_second = nearer
         scene[rows] = o.id
         scene[rows[in_second]] = new_id
-        first, second = parallel_map(lambda job: fit(*job), [
+        context = model.context(scene)
+        first, second = parallel_map(lambda job: fit(*job, context), [
             (~in_second, o.id, 1 + 2 * k), (in_second, new_id, 2 + 2 * k)])
         if first.type == PrimitiveType.UNKNOWN:
             return None

@@ -18,7 +18,7 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
-from typing import TYPE_CHECKING, Callable, NamedTuple, TypeVar
+from typing import Callable, NamedTuple, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,9 +41,6 @@ from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, ModelingResult, Primitive, PrimitiveType
 from geomodel_ros.core.resting import resting_objects
 from geomodel_ros.core.view import SceneView
-
-if TYPE_CHECKING:
-    from geomodel_ros.core.compounds import ModelPart
 
 __all__ = ["model_objects", "model_object", "model_scene", "estimate_spacing", "InputError"]
 
@@ -312,28 +309,36 @@ def parallel_map(fn: Callable[[T], R], items: list[T]) -> list[R]:
     return list(_worker_pool().map(fn, items))
 
 
-def model_part(pts: NDArray[np.float64], params: ModelingParams, supports: dict[int, Plane],
-               noise: NoiseEstimate | None) -> ModelPart:
-    """Return the modeling of one object of the scene ``pts`` (N, 3) [m], for a second look.
+class PartModeler:
+    """Models objects of the scene ``pts`` (N, 3) [m] once more, as :func:`model_scene` does.
 
-    The returned ``model(points (n, 3) [m], object id, key, labels (N,))`` models the
-    object as :func:`model_scene` does (its tolerances at its range, the scene's view and
-    slow errors as ``labels`` divide it, the other supports), from the random stream
-    ``[params.seed, *key]`` (:mod:`geomodel_ros.core.compounds`).
+    For :mod:`geomodel_ros.core.compounds`: :meth:`context` is the scene's view and slow
+    errors as a labelling (N,) divides it (built once per labelling), and a call models
+    one object's points with it (its tolerances at its range, the other supports) from the
+    random stream ``[params.seed, *key]``.
     """
-    correlation = 1.0 if noise is None else max(noise.scale, 1.0)
 
-    def model(points: NDArray[np.float64], object_id: int, key: tuple[int, ...],
-              labels: NDArray[np.int64]) -> Primitive:
-        view, null = _scene_context(pts, labels, params, supports, noise)
+    def __init__(self, pts: NDArray[np.float64], params: ModelingParams,
+                 supports: dict[int, Plane], noise: NoiseEstimate | None) -> None:
+        self.pts, self.params, self.supports, self.noise = pts, params, supports, noise
+        self.correlation = 1.0 if noise is None else max(noise.scale, 1.0)
+
+    def context(self, labels: NDArray[np.int64]
+                ) -> tuple[SceneView | None, SlowBendNull | None]:
+        """Return the scene's view and slow-error null as ``labels`` (N,) divide it."""
+        return _scene_context(self.pts, labels, self.params, self.supports, self.noise)
+
+    def __call__(self, points: NDArray[np.float64], object_id: int, key: tuple[int, ...],
+                 context: tuple[SceneView | None, SlowBendNull | None]) -> Primitive:
+        """Model ``points`` (n, 3) [m] as object ``object_id`` in ``context``."""
+        params, noise = self.params, self.noise
         oparams = params if noise is None else object_params(params, noise,
                                                              *object_range(points))
         rng = np.random.default_rng([params.seed, *key])
-        planes = tuple(v for k, v in supports.items() if k != object_id)
+        planes = tuple(v for k, v in self.supports.items() if k != object_id)
+        view, null = context
         return model_object(points, object_id, oparams, rng, estimate_spacing(points, rng),
-                            None, planes, view, correlation, null)
-
-    return model
+                            None, planes, view, self.correlation, null)
 
 
 def _scene_context(pts: NDArray[np.float64], lab: NDArray[np.int64], params: ModelingParams,
@@ -543,7 +548,7 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     t0 = time.perf_counter()
     result = _model_rows(pts, np.flatnonzero(seg.labels >= 0), seg.labels, None, params, rng,
                          seg.support_planes, t0, noise)
-    model = model_part(pts, params, seg.support_planes, noise)
+    model = PartModeler(pts, params, seg.support_planes, noise)
     labels = join_box_pieces(pts, seg.labels, result, params, seg.support_planes, noise, model)
     labels = split_compounds(pts, labels, result, params, seg.support_planes, noise, model)
     result.timing["modeling_s"] = time.perf_counter() - t0
