@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from rclpy.exceptions import ParameterException
 from rclpy.parameter import Parameter
+from sensor_msgs.msg import PointCloud2
 
 from geomodel_ros.core.errors import InputError
 from geomodel_ros.core.modeling import model_scene
@@ -23,6 +24,7 @@ from geomodel_ros.ros.frame_workers import MAX_WORKERS, ProcessModeler
 from geomodel_ros.ros.node import ModelerNode
 from geomodel_ros.ros.processing import process_cloud
 from geomodel_ros.tools.synth import render_scene
+from msg_adapters.pointcloud2 import cloud_to_xyz, xyz_to_cloud
 from ros_helpers import TIMEOUT, scene_cloud, wait_until
 from test_node import Harness
 
@@ -108,27 +110,43 @@ def test_a_closed_modeler_refuses_frames(scene_points):
 
 
 # --------------------------------------------------------------------------- the node
-class SlowFirst:
-    """Stand-in core: the first frame ends ``hold`` s after a later frame's modeling ended.
+def _frame(sec: int) -> PointCloud2:
+    """Return the tiny_box scene stamped ``sec`` s; frame 2 lacks one point, 1 is whole.
 
-    The first frame waits for the second to finish (at most ``timeout`` s, so that a node
-    that models one frame at a time still ends) and then ``hold`` s more: the order in
-    which the two end, and that the second waits at least ``hold`` s for its turn, hold
-    however slowly the machine runs.
+    The stand-in cores below tell the two frames apart by their point counts: with two
+    workers, either frame may reach the core first.
+    """
+    msg = scene_cloud("tiny_box", sec=sec)
+    if sec == 2:
+        xyz = cloud_to_xyz(msg, keep_organized=True)
+        first_valid = np.flatnonzero(np.isfinite(xyz).all(axis=-1).ravel())[0]
+        xyz.reshape(-1, 3)[first_valid] = np.nan
+        msg = xyz_to_cloud(xyz, msg.header)
+    return msg
+
+
+class SlowFirst:
+    """Stand-in core: frame 1 ends ``hold`` s after frame 2's modeling ended.
+
+    Frame 1 (the one with ``first_points`` valid points, whichever reaches the core first) waits
+    for frame 2 to finish (at most ``timeout`` s, so that a node that models one frame at a
+    time still ends) and then ``hold`` s more: the order in which the two end, and that
+    frame 2 waits at least ``hold`` s for its turn, hold however slowly the machine runs.
     """
 
     def __init__(self, hold: float, timeout: float = 15.0) -> None:
         self.hold = hold
         self.timeout = timeout
-        self.finished: list[int] = []  # stamps' seconds in the order modeling ended
+        self.first_points = len(cloud_to_xyz(_frame(1)))
+        self.finished: list[int] = []  # frames (1, 2) in the order their modeling ended
         self.lock = threading.Lock()
-        self.calls = 0
         self.later_done = threading.Event()
 
+    def is_first(self, points) -> bool:
+        return int(np.isfinite(points).all(axis=1).sum()) == self.first_points
+
     def __call__(self, points, params, *, organized_shape=None):
-        with self.lock:
-            self.calls += 1
-            first = self.calls == 1
+        first = self.is_first(points)
         if first:
             self.later_done.wait(self.timeout)
             time.sleep(self.hold)
@@ -144,8 +162,8 @@ def test_frames_modeled_at_once_are_published_in_arrival_order(context):
     core = SlowFirst(hold=1.0)
     h = Harness(context, core, {"workers": 2})
     try:
-        h.publish_and_wait_received(scene_cloud("tiny_box", sec=1))
-        h.publish_and_wait_received(scene_cloud("tiny_box", sec=2))
+        h.publish_and_wait_received(_frame(1))
+        h.publish_and_wait_received(_frame(2))
         h.objects.wait(2)
         wait_until(lambda: h.node.stats().processed == 2, "both frames to be processed")
         assert core.finished == [2, 1], "the second frame was not modeled while the first was"
@@ -209,10 +227,8 @@ class SlowFirstFails(SlowFirst):
     """Stand-in core: the first frame ends after the second (:class:`SlowFirst`), failing."""
 
     def __call__(self, points, params, *, organized_shape=None):
-        with self.lock:
-            first = self.calls == 0
         out = super().__call__(points, params, organized_shape=organized_shape)
-        if first:
+        if self.is_first(points):
             raise RuntimeError("injected core failure")
         return out
 
@@ -221,8 +237,8 @@ def test_a_frame_failing_after_a_later_one_was_modeled_does_not_hold_it(context,
     core = SlowFirstFails(hold=0.5)
     h = Harness(context, core, {"workers": 2})
     try:
-        h.publish_and_wait_received(scene_cloud("tiny_box", sec=1))
-        h.publish_and_wait_received(scene_cloud("tiny_box", sec=2))
+        h.publish_and_wait_received(_frame(1))
+        h.publish_and_wait_received(_frame(2))
         got = h.objects.wait(1)
         assert got.header.stamp.sec == 2
         wait_until(lambda: h.node.stats().failed == 1, "the first frame's failure to count")
