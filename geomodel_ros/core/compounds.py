@@ -69,6 +69,9 @@ INSIDE_DEPTH_FACTOR = 2.0
 #: a standing can reaches 2.4 radii (seed 25, kinect-real: 85 % within).
 CAP_SHARE = 0.9
 CAP_RIM = 0.25
+#: An ``unknown`` object (no model to leave points off) is split from the models of at
+#: most this many of its largest faces, tried in turn (:func:`_seeds`).
+FACE_SEEDS = 3
 
 class _Part:
     """The rows (n,) of one object, their points (n, 3) [m], bounds and k-d tree (lazy)."""
@@ -196,14 +199,17 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     the segmentation's length) of at least ``seg_min_cluster_points`` lying off its model
     (beyond :data:`SPLIT_OFF_FACTOR` thresholds) may be two: the group is modeled on its
     own, then the two models are refitted in turns, each point handed to the nearer
-    surface (:func:`_two_models`). The segment is split when both parts are typed and not
-    both planes, each model explains its own part (inlier ratio >= ``min_inlier_ratio``)
-    and neither part lies in the other's body (:func:`_two_bodies`, :func:`_in_body`: a
-    cup's inner wall, a bowl's floor, a can's rim are no objects of their own). The second
-    part gets a new id (above every label); ``result`` is updated in place.
+    surface (:func:`_two_models`). An ``unknown`` object (no support) has no model to
+    leave points off: the models of its largest faces (:data:`FACE_SEEDS`) take that
+    model's place in turn (two cans side by side whose crease the segmentation missed).
+    The segment is split when both parts are typed and not both planes, each model
+    explains its own part (inlier ratio >= ``min_inlier_ratio``) and neither part lies in
+    the other's body (:func:`_two_bodies`, :func:`_in_body`: a cup's inner wall, a bowl's
+    floor, a can's rim or lid are no objects of their own). The second part gets a new id
+    (above every label); ``result`` is updated in place.
     """
-    candidates = [o for o in result.objects if o.id not in supports and o.type not in (
-        PrimitiveType.UNKNOWN, PrimitiveType.PLANE) and _may_hold_two(o, params)]
+    candidates = [o for o in result.objects if o.id not in supports
+                  and o.type != PrimitiveType.PLANE and _may_hold_two(o, params)]
     if not candidates:
         return labels
     labels = labels.copy()
@@ -213,10 +219,11 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     added: list[Primitive] = []
     for o in candidates:
         part = parts[o.id]
-        group = _off_group(o, part.points, _params_at(params, noise, part.points))
-        if group is None:
-            continue
-        split = _two_models(o, part, group, next_id, labels, params, noise, model)
+        split = None
+        for group in _seeds(o, part.points, labels, params, noise, model):
+            split = _two_models(o, part, group, next_id, labels, params, noise, model)
+            if split is not None:
+                break
         if split is None:
             continue
         first, second, in_second = split
@@ -236,6 +243,8 @@ def _may_hold_two(o: Primitive, params: ModelingParams) -> bool:
     within one threshold, a wider set than the group's): the points outside it must reach
     OFF_PRETEST_SHARE of ``seg_min_cluster_points``.
     """
+    if o.type == PrimitiveType.UNKNOWN:
+        return o.point_count >= 2 * params.seg_min_cluster_points
     if o.confidence is None:
         return True
     return (1.0 - o.confidence.inlier_ratio) * o.point_count \
@@ -263,63 +272,128 @@ def _off_group(o: Primitive, points: NDArray[np.float64], oparams: ModelingParam
     return mask
 
 
+def _seeds(o: Primitive, points: NDArray[np.float64], labels: NDArray[np.int64],
+           params: ModelingParams, noise: NoiseEstimate | None, model: PartModeler
+           ) -> list[NDArray[np.bool_]]:
+    """Return the masks (n,) of ``points`` from which a second part is sought.
+
+    A typed object's group off its model (:func:`_off_group`); an ``unknown`` one's
+    largest faces (at most :data:`FACE_SEEDS`, each at least ``seg_min_cluster_points``),
+    whose models take the place of the object's (:func:`_two_models`).
+    """
+    oparams = _params_at(params, noise, points)
+    if o.type != PrimitiveType.UNKNOWN:
+        group = _off_group(o, points, oparams)
+        return [] if group is None else [group]
+    seeds = []
+    for face in model.faces(points, model.context(labels))[:FACE_SEEDS]:
+        if len(face) < oparams.seg_min_cluster_points:
+            break
+        mask = np.zeros(len(points), dtype=bool)
+        mask[face] = True
+        seeds.append(mask)
+    return seeds
+
+
 def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], new_id: int,
                 labels: NDArray[np.int64], params: ModelingParams,
                 noise: NoiseEstimate | None, model: PartModeler
                 ) -> tuple[Primitive, Primitive, NDArray[np.bool_]] | None:
     """Model ``part`` (object ``o``) as two; return both models and the second's mask.
 
-    ``group`` (n,) starts the second part, ``o``'s model the first. Each round hands every
-    point to the nearer of the two models and fits both again (:data:`SPLIT_ROUNDS`, until
-    fewer than :data:`SPLIT_SETTLED` change hands). None when a part falls below
-    ``seg_min_cluster_points``, is ``unknown``, or the two are not two bodies
-    (:func:`_two_bodies`).
+    ``group`` (n,) starts the second part, ``o``'s model the first. An ``unknown`` ``o``
+    has no model: ``group`` is then one of its faces (:func:`_seeds`), whose own model
+    takes ``o``'s place, and the group off that model (:func:`_off_group`) starts the
+    second part. Each round hands every point to the nearer of the two models and fits
+    both again (:data:`SPLIT_ROUNDS`, until fewer than :data:`SPLIT_SETTLED` change
+    hands, or until a refit is ``unknown``); the last pair of typed models fitted each to
+    its own part is kept. None when a part falls below ``seg_min_cluster_points``, no
+    such pair was fitted, or the two are not two bodies (:func:`_two_bodies`).
     """
     from geomodel_ros.core.modeling import parallel_map
     points, rows = part.points, part.rows
     scene = labels.copy()
 
-    def fit(mask: NDArray[np.bool_], oid: int, fit_no: int, context) -> Primitive:
-        return model(points[mask], oid, (SPLIT_STREAM, o.id, fit_no), context)
+    def fit_second(in_second: NDArray[np.bool_]) -> Primitive:
+        scene[rows] = o.id
+        scene[rows[in_second]] = new_id
+        return model(points[in_second], new_id, (SPLIT_STREAM, o.id, 0), model.context(scene))
 
-    scene[rows[group]] = new_id
-    second = fit(group, new_id, 0, model.context(scene))
-    first, in_second = o, group
-    for k in range(SPLIT_ROUNDS):
-        if second.type == PrimitiveType.UNKNOWN:
+    def fit_both(in_second: NDArray[np.bool_], k: int) -> list[Primitive]:
+        scene[rows] = o.id
+        scene[rows[in_second]] = new_id
+        context = model.context(scene)
+        return parallel_map(lambda job: model(points[job[0]], job[1], (
+            SPLIT_STREAM, o.id, job[2]), context), [
+            (~in_second, o.id, 1 + 2 * k), (in_second, new_id, 2 + 2 * k)])
+
+    if o.type == PrimitiveType.UNKNOWN:  # the face's model takes o's place
+        scene[rows] = new_id
+        scene[rows[group]] = o.id
+        first = model(points[group], o.id, (SPLIT_STREAM, o.id, 2 * SPLIT_ROUNDS + 1),
+                      model.context(scene))
+        if first.type == PrimitiveType.UNKNOWN:
             return None
+        group = _off_group(first, points, _params_at(params, noise, points))
+        if group is None:
+            return None
+        second = fit_second(group)
+    else:
+        first, second = o, fit_second(group)
+    in_second = group
+    kept = None  # the last pair of typed models fitted each to its own part
+    for k in range(SPLIT_ROUNDS):
+        if not _typed(first, second):
+            break
         nearer = surface_distance(second, points) < surface_distance(first, points)
         size = int(np.count_nonzero(nearer))
         if min(size, len(points) - size) < params.seg_min_cluster_points:
             return None
-        changed = int(np.count_nonzero(nearer != in_second))
-        if k and changed < SPLIT_SETTLED * len(points):
+        if k and np.count_nonzero(nearer != in_second) < SPLIT_SETTLED * len(points):
             break
         in_second = nearer
-        scene[rows] = o.id
-        scene[rows[in_second]] = new_id
-        context = model.context(scene)
-        first, second = parallel_map(lambda job: fit(*job, context), [
-            (~in_second, o.id, 1 + 2 * k), (in_second, new_id, 2 + 2 * k)])
-        if first.type == PrimitiveType.UNKNOWN:
-            return None
-    if second.type == PrimitiveType.UNKNOWN or not _two_bodies(
-            first, second, points, in_second, params, noise):
+        first, second = fit_both(in_second, k)
+        if _typed(first, second):
+            kept = first, second, in_second
+    if kept is None or not _two_bodies(*kept, points, params, noise):
         return None
-    return first, second, in_second
+    return kept
 
 
-def _two_bodies(first: Primitive, second: Primitive, points: NDArray[np.float64],
-                in_second: NDArray[np.bool_], params: ModelingParams,
+def _typed(*prims: Primitive) -> bool:
+    """Tell whether none of ``prims`` is ``unknown``."""
+    return all(p.type != PrimitiveType.UNKNOWN for p in prims)
+
+
+def _faces_of_a_box(first: Primitive, second: Primitive, angle_tolerance: float) -> bool:
+    """Tell whether two models may be faces of one box.
+
+    Two planes, or a plane and a cuboid one of whose faces the plane parallels (within
+    ``angle_tolerance`` [rad]).
+    """
+    kinds = {first.type, second.type}
+    if kinds == {PrimitiveType.PLANE}:
+        return True
+    if kinds != {PrimitiveType.PLANE, PrimitiveType.CUBOID}:
+        return False
+    plane, box = (first, second) if first.type == PrimitiveType.PLANE else (second, first)
+    return bool(np.max(np.abs(box.rotation.T @ plane.rotation[:, 2]))
+                >= math.cos(angle_tolerance))
+
+
+def _two_bodies(first: Primitive, second: Primitive, in_second: NDArray[np.bool_],
+                points: NDArray[np.float64], params: ModelingParams,
                 noise: NoiseEstimate | None) -> bool:
     """Tell whether two models of one segment's parts are two bodies.
 
-    Not both planes (two faces are a box's, whose cuboid fitted badly: noise-free clutter
-    seed 22, a box of inlier ratio 0.74, came apart into its two faces); each explains
-    its own part (inlier ratio within its ``ransac_threshold`` at least
-    ``min_inlier_ratio``) and neither part lies in the other's body (:func:`_in_body`).
+    Not faces of one box (:func:`_faces_of_a_box`: two planes are a box's whose cuboid
+    fitted badly, noise-free clutter seed 22, a box of inlier ratio 0.74, came apart into
+    its two faces; a box no model fitted, kinect-real seed 127, into a cuboid and a plane
+    along one of its faces); each explains its own part (inlier ratio within its
+    ``ransac_threshold`` at least ``min_inlier_ratio``) and neither part lies in the
+    other's body (:func:`_in_body`).
     """
-    if first.type == PrimitiveType.PLANE and second.type == PrimitiveType.PLANE:
+    if _faces_of_a_box(first, second, params.angle_tolerance):
         return False
     sides = ((first, points[~in_second]), (second, points[in_second]))
     tolerances = [_params_at(params, noise, p) for _, p in sides]
@@ -338,8 +412,10 @@ def _in_body(p: Primitive, points: NDArray[np.float64], threshold: float) -> boo
     """Tell whether ``points`` (n, 3) [m] belong to the body of the model ``p``.
 
     More than SLIVER_SHARE of them lie inside its solid, deeper than
-    :data:`INSIDE_DEPTH_FACTOR` ``threshold`` [m]; or, for a round body, at least
-    :data:`CAP_SHARE` lie within its outline widened by :data:`CAP_RIM` radii plus
+    :data:`INSIDE_DEPTH_FACTOR` ``threshold`` [m]; or at least :data:`CAP_SHARE` of them
+    lie on it: for a box within its solid grown by :data:`INSIDE_DEPTH_FACTOR`
+    ``threshold`` (a face of it: a can's side taken for a box leaves its lid on the box's
+    top), for a round body within its outline widened by :data:`CAP_RIM` radii plus
     ``threshold``, no farther than a radius beyond its ends (its cap, rim or inner floor).
     Planes have no body.
     """
@@ -354,7 +430,10 @@ def _in_body(p: Primitive, points: NDArray[np.float64], threshold: float) -> boo
     if p.type == PrimitiveType.CUBOID:
         half = 0.5 * np.array([p.dimensions[k] for k in ("length", "width", "height")])
         inside = np.all(np.abs(local) < half, axis=1)
-        return bool(np.mean(inside & deep) > SLIVER_SHARE)
+        if np.mean(inside & deep) > SLIVER_SHARE:
+            return True
+        on = np.all(np.abs(local) < half + INSIDE_DEPTH_FACTOR * threshold, axis=1)
+        return bool(np.mean(on) >= CAP_SHARE)
     outline = round_outline(p)
     if outline is None:
         return False

@@ -340,6 +340,17 @@ class PartModeler:
         return model_object(points, object_id, oparams, rng, estimate_spacing(points, rng),
                             None, planes, view, self.correlation, null)
 
+    def faces(self, points: NDArray[np.float64],
+              context: tuple[SceneView | None, SlowBendNull | None]) -> list[NDArray[np.int64]]:
+        """Return the faces the modeling finds on ``points`` (n, 3) [m], largest first.
+
+        Each as the indices of its points; the faces of :func:`model_object`.
+        """
+        oparams = self.params if self.noise is None else object_params(
+            self.params, self.noise, *object_range(points))
+        _, faces, _ = build_faces(points, oparams, None, self.correlation, context[1])
+        return sorted((f.points for f in faces), key=len, reverse=True)
+
 
 def _scene_context(pts: NDArray[np.float64], lab: NDArray[np.int64], params: ModelingParams,
                    supports: dict[int, Plane] | None, noise: NoiseEstimate | None
