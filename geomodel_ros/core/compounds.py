@@ -25,7 +25,7 @@ from geomodel_ros.core.confidence import estimate_confidence, round_outline, sur
 from geomodel_ros.core.fastmath import group_by_label, pair_components, take_rows
 from geomodel_ros.core.fitting.cloud import Plane
 from geomodel_ros.core.model_graph import SLIVER_SHARE
-from geomodel_ros.core.noise import NoiseEstimate, object_params
+from geomodel_ros.core.noise import NoiseEstimate, is_fragment, object_params
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import ModelingResult, Primitive, PrimitiveType
 
@@ -209,7 +209,7 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     (above every label); ``result`` is updated in place.
     """
     candidates = [o for o in result.objects if o.id not in supports
-                  and o.type != PrimitiveType.PLANE and _may_hold_two(o, params)]
+                  and o.type != PrimitiveType.PLANE and _may_hold_two(o, params, noise)]
     if not candidates:
         return labels
     labels = labels.copy()
@@ -236,15 +236,19 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     return labels
 
 
-def _may_hold_two(o: Primitive, params: ModelingParams) -> bool:
+def _may_hold_two(o: Primitive, params: ModelingParams, noise: NoiseEstimate | None
+                  ) -> bool:
     """Tell whether enough of ``o``'s points lie off its model for :func:`_off_group`.
 
     A pre-test on the confidence's inlier ratio (measured on about 2000 of the points,
     within one threshold, a wider set than the group's): the points outside it must reach
-    OFF_PRETEST_SHARE of ``seg_min_cluster_points``.
+    OFF_PRETEST_SHARE of ``seg_min_cluster_points``. An ``unknown`` object needs twice
+    ``seg_min_cluster_points`` and must be no fragment (too small to be an object, it is
+    taken out as noise: :func:`~geomodel_ros.core.noise.is_fragment`).
     """
     if o.type == PrimitiveType.UNKNOWN:
-        return o.point_count >= 2 * params.seg_min_cluster_points
+        return o.point_count >= 2 * params.seg_min_cluster_points and not is_fragment(
+            o.point_count, float(np.linalg.norm(o.center)), noise, params)
     if o.confidence is None:
         return True
     return (1.0 - o.confidence.inlier_ratio) * o.point_count \
