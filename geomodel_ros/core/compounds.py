@@ -202,7 +202,7 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     surface (:func:`_two_models`). An ``unknown`` object (no support) has no model to
     leave points off: the models of its largest faces (:data:`FACE_SEEDS`) take that
     model's place in turn (two cans side by side whose crease the segmentation missed).
-    The segment is split when both parts are typed and not both planes, each model
+    The segment is split when both parts are typed and not faces of one box, each model
     explains its own part (inlier ratio >= ``min_inlier_ratio``) and neither part lies in
     the other's body (:func:`_two_bodies`, :func:`_in_body`: a cup's inner wall, a bowl's
     floor, a can's rim or lid are no objects of their own). The second part gets a new id
@@ -318,24 +318,24 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], new_id: int
     points, rows = part.points, part.rows
     scene = labels.copy()
 
-    def fit_second(in_second: NDArray[np.bool_]) -> Primitive:
+    def context(in_second: NDArray[np.bool_]) -> tuple:
+        """Return the scene's context with ``part`` divided as ``in_second`` (n,) says."""
         scene[rows] = o.id
         scene[rows[in_second]] = new_id
-        return model(points[in_second], new_id, (SPLIT_STREAM, o.id, 0), model.context(scene))
+        return model.context(scene)
+
+    def fit_second(in_second: NDArray[np.bool_]) -> Primitive:
+        return model(points[in_second], new_id, (SPLIT_STREAM, o.id, 0), context(in_second))
 
     def fit_both(in_second: NDArray[np.bool_], k: int) -> list[Primitive]:
-        scene[rows] = o.id
-        scene[rows[in_second]] = new_id
-        context = model.context(scene)
+        both = context(in_second)
         return parallel_map(lambda job: model(points[job[0]], job[1], (
-            SPLIT_STREAM, o.id, job[2]), context), [
+            SPLIT_STREAM, o.id, job[2]), both), [
             (~in_second, o.id, 1 + 2 * k), (in_second, new_id, 2 + 2 * k)])
 
     if o.type == PrimitiveType.UNKNOWN:  # the face's model takes o's place
-        scene[rows] = new_id
-        scene[rows[group]] = o.id
         first = model(points[group], o.id, (SPLIT_STREAM, o.id, 2 * SPLIT_ROUNDS + 1),
-                      model.context(scene))
+                      context(~group))
         if first.type == PrimitiveType.UNKNOWN:
             return None
         group = _off_group(first, points, _params_at(params, noise, points))
