@@ -1,9 +1,10 @@
-"""A box's face cut off by the segmentation joins its box (``compounds.join_box_pieces``).
+"""A face cut off a body joins it (``compounds.join_pieces``).
 
-Hand-built boxes seen from a sensor at the origin: the expectations are the boxes' own
-dimensions, and what must not join (a flat object beside a box, a plane that does not touch
-it). End to end on the synthetic office seen through a Kinect-class camera, where the
-segmentation cuts faces off the boxes on the floor at 2-2.6 m.
+Hand-built boxes and cans seen from a sensor at the origin: the expectations are their own
+dimensions, and what must not join (a flat object beside a box or a can, a plane that does
+not touch it). End to end on the synthetic office seen through a Kinect-class camera, where
+the segmentation cuts faces off the boxes on the floor at 2-2.6 m, and on clutter under
+kinect-real noise, where it cuts lids and side facets off cans seen from 0.4-0.8 m.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geomodel_ros.core.compounds import join_box_pieces
+from geomodel_ros.core.compounds import join_pieces
 from geomodel_ros.core.modeling import PartModeler, model_objects, model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import PrimitiveType
@@ -56,7 +57,7 @@ def _assert_apart(box, plane):
     """Model ``box`` (a cuboid) and ``plane`` (a plane) apart; assert that they stay so."""
     pts, labels, result = _model([box, plane])
     assert [o.type for o in result.objects] == [PrimitiveType.CUBOID, PrimitiveType.PLANE]
-    joined = join_box_pieces(pts, labels, result, PARAMS, {}, None,
+    joined = join_pieces(pts, labels, result, PARAMS, {}, None,
                              PartModeler(pts, PARAMS, {}, None))
     assert [o.id for o in result.objects] == [0, 1]
     assert np.array_equal(joined, labels)
@@ -67,7 +68,7 @@ def test_a_face_cut_off_a_box_joins_it():
     # The segmentation gave the top and left faces one object and the front face another.
     pts, labels, result = _model([np.vstack([top, left]), front])
     assert [o.type for o in result.objects] == [PrimitiveType.CUBOID, PrimitiveType.PLANE]
-    joined = join_box_pieces(pts, labels, result, PARAMS, {}, None,
+    joined = join_pieces(pts, labels, result, PARAMS, {}, None,
                              PartModeler(pts, PARAMS, {}, None))
     assert [o.id for o in result.objects] == [0]
     box = result.objects[0]
@@ -137,3 +138,76 @@ def test_a_box_on_a_box_seen_by_its_top_stays_apart():
                             organized_shape=scene.label_image.shape)
     best = [np.bincount(labels[(truth == gt) & (labels >= 0)]).argmax() for gt in (3, 4)]
     assert best[0] != best[1]
+
+
+def _can(cx, cz, y_top, y_bottom, radius):
+    """Sample an upright can's side facing the sensor and its lid (sensor above the lid)."""
+    ang = np.linspace(0.0, 2 * np.pi, int(2 * np.pi * radius / STEP), endpoint=False)
+    a, y = np.meshgrid(ang, np.arange(y_top, y_bottom, STEP))
+    a, y = a.ravel(), y.ravel()
+    side = np.c_[cx + radius * np.cos(a), y, cz + radius * np.sin(a)]
+    side = side[np.einsum("ij,ij->i", np.c_[np.cos(a), 0 * a, np.sin(a)], side) < 0]
+    g = np.arange(-radius, radius, STEP)
+    x, z = np.meshgrid(g, g)
+    inside = np.hypot(x, z) < radius
+    lid = np.c_[cx + x[inside], np.full(np.count_nonzero(inside), y_top), cz + z[inside]]
+    return side, lid
+
+
+CAN = (0.04, 0.12)  # radius, height [m]
+
+
+def test_a_lid_cut_off_a_can_joins_it():
+    side, lid = _can(0.0, 0.8, 0.1, 0.1 + CAN[1], CAN[0])
+    pts, labels, result = _model([side, lid])
+    assert [o.type for o in result.objects] == [PrimitiveType.CYLINDER, PrimitiveType.PLANE]
+    joined = join_pieces(pts, labels, result, PARAMS, {}, None,
+                             PartModeler(pts, PARAMS, {}, None))
+    assert [o.id for o in result.objects] == [0]
+    can = result.objects[0]
+    assert can.type == PrimitiveType.CYLINDER and can.point_count == len(pts)
+    assert np.all(joined == 0)
+    assert can.dimensions["radius"] == pytest.approx(CAN[0], abs=1e-3)
+    assert can.dimensions["height"] == pytest.approx(CAN[1], abs=2 * STEP)
+
+
+def test_a_book_on_a_can_stays_apart():
+    side, _ = _can(0.0, 0.8, 0.1, 0.1 + CAN[1], CAN[0])
+    # A book of 0.2 x 0.2 m lying on the can's lid, hiding it: a plane touching the side
+    # along the rim, most of it beyond the can's outline.
+    book = _face((-0.1, 0.1 - STEP, 0.7), (0.2, 0, 0), (0, 0, 0.2), 67, 67)
+    pts, labels, result = _model([side, book])
+    assert [o.type for o in result.objects] == [PrimitiveType.CYLINDER, PrimitiveType.PLANE]
+    joined = join_pieces(pts, labels, result, PARAMS, {}, None,
+                             PartModeler(pts, PARAMS, {}, None))
+    assert [o.id for o in result.objects] == [0, 1]
+    assert np.array_equal(joined, labels)
+
+
+@pytest.mark.parametrize("seed,gt", [(24, 1), (56, 10), (37, 8)])
+def test_kinect_real_cans_keep_their_lids_and_facets(seed, gt):
+    # Segments of these cans: the side's cylinder and a plane of the lid (seeds 24, 37) or
+    # of a side facet (seed 56), each modeled apart.
+    scene = render_clutter(seed, KINECT_REAL_NOISE)
+    truth = scene.label_image.ravel()
+    labels, result = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
+                                 organized_shape=scene.label_image.shape)
+    own = labels[truth == gt]
+    best = np.bincount(own[own >= 0]).argmax()
+    assert np.mean(own == best) > 0.95
+    assert {o.id: o.type for o in result.objects}[best] == PrimitiveType.CYLINDER
+    assert np.mean(truth[labels == best] == gt) > 0.95
+
+
+def test_kinect_real_can_beside_a_bowl_stays_apart():
+    # Seed 46: a can seen as a plane (920 points) touches a bowl modeled as a wide frustum
+    # (r 123 mm) whose outline, widened by a quarter of its radius, holds the can; neither
+    # the union's model nor the bowl's explains the can's points.
+    scene = render_clutter(46, KINECT_REAL_NOISE)
+    truth = scene.label_image.ravel()
+    labels, _ = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
+                            organized_shape=scene.label_image.shape)
+    best = [np.bincount(labels[(truth == gt) & (labels >= 0)]).argmax() for gt in (2, 11)]
+    assert best[0] != best[1]
+    own = labels[truth == 11]
+    assert np.mean(own == best[1]) > 0.95

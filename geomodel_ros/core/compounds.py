@@ -1,11 +1,11 @@
 """One object or two: the models check the segmentation after the modeling.
 
 :func:`~geomodel_ros.core.modeling.model_scene` segments a frame and models each segment.
-Under noise the segmentation now and then cuts a face off a box, or keeps two touching
+Under noise the segmentation now and then cuts a face off a body, or keeps two touching
 bodies in one segment (a can against a box, a ball beside a bowl) when the crease between
 them is lost in the noise. The fitted models then show it, and both cases are decided by
 one rule: parts are one object when one model explains each of them as well as their own
-models do (:func:`join_box_pieces`), and two objects when each has a model of its own that
+models do (:func:`join_pieces`), and two objects when each has a model of its own that
 the other part's model does not explain and neither body lies in the other
 (:func:`split_compounds`). Labels a caller gives (:func:`~geomodel_ros.core.modeling.
 model_objects`) are never changed.
@@ -32,13 +32,16 @@ from geomodel_ros.core.primitives import ModelingResult, Primitive, PrimitiveTyp
 if TYPE_CHECKING:
     from geomodel_ros.core.modeling import PartModeler
 
-__all__ = ["join_box_pieces", "split_compounds"]
+__all__ = ["join_pieces", "split_compounds"]
 
-#: A plane piece joins a box (:func:`join_box_pieces`) across a border of at least this
-#: many of its points within a segmentation link of the box's points, times the square
+#: A plane piece joins a body (:func:`join_pieces`) across a border of at least this
+#: many of its points within a segmentation link of the body's points, times the square
 #: root of its points (the border of a face is about that long in points).
 PIECE_MIN_BORDER = 1.0
-#: Random stream of the boxes modeled again with their pieces (``[seed, this, box id,
+#: Bodies a plane piece may join: a box's face, a can's lid or a facet of its side.
+SOLID_TYPES = (PrimitiveType.CUBOID, PrimitiveType.CYLINDER, PrimitiveType.CONE,
+               PrimitiveType.FRUSTUM, PrimitiveType.SPHERE)
+#: Random stream of the bodies modeled again with their pieces (``[seed, this, body id,
 #: piece id]``): independent of the segmentation's, the modeling's and the noise's.
 PIECE_STREAM = 0x6A6F696E
 #: Random stream of the parts of a segment modeled apart (``[seed, this, object id, fit]``).
@@ -106,49 +109,56 @@ def _params_at(params: ModelingParams, noise: NoiseEstimate | None,
     return params if noise is None else object_params(params, noise, *object_range(points))
 
 
-def join_box_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
-                    result: ModelingResult, params: ModelingParams,
-                    supports: dict[int, Plane], noise: NoiseEstimate | None, model: PartModeler
-                    ) -> NDArray[np.int64]:
-    """Join the plane pieces of boxes to their boxes; return the labels (N,), a new array.
+def join_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
+                result: ModelingResult, params: ModelingParams,
+                supports: dict[int, Plane], noise: NoiseEstimate | None, model: PartModeler,
+                among: set[int] | None = None) -> NDArray[np.int64]:
+    """Join the plane pieces of bodies to their bodies; return the labels (N,), a new array.
 
-    Under noise the segmentation cuts a face off a box now and then (its border's links
-    vote concave by chance), and the face is reported as a plane of its own beside the
-    box's cuboid. A plane (no support) whose points touch a cuboid's (at least
+    Under noise the segmentation cuts a face off a body now and then (its border's links
+    vote concave by chance): a box's face, a can's lid or a facet of its side is then
+    reported as a plane of its own beside the body's model. A plane (no support) whose
+    points touch a body's (a cuboid, cylinder, cone, frustum or sphere; at least
     :data:`PIECE_MIN_BORDER` sqrt(its points) of them within a segmentation link) joins it
-    when the two are one box: their union, modeled again as one object (``model``), is a
-    cuboid whose surface holds the cuboid's points and the plane's each as well as their
-    own models did (:func:`_explains`). A flat object beside a box (a lying can's flat
-    side, a book) is no face of a box through both. ``result`` is updated in place: the
-    cuboid becomes the union's, the plane is gone.
+    when the two are one body: their union, modeled again as one object (``model``), is of
+    the body's type and its surface holds the body's points and the plane's each as well
+    as their own models did (:func:`_explains`); or, where that refit fails, the body's own
+    model holds the plane's points so (a lid on the can's capped solid). A flat object
+    beside a box or on a can (a lying can's flat side, a book) is no face of a body
+    through both. ``result`` is updated in place: the body's model becomes the union's,
+    the plane is gone. With ``among`` only the pairs with a body or a plane among those
+    ids are tried (the parts a split made: a box's face kept with another body in one
+    segment is a plane of its own once the body is split off).
     """
-    boxes = [o for o in result.objects
-             if o.type == PrimitiveType.CUBOID and o.id not in supports]
+    bodies = [o for o in result.objects if o.type in SOLID_TYPES and o.id not in supports]
     pieces = [o for o in result.objects
               if o.type == PrimitiveType.PLANE and o.id not in supports]
-    if not boxes or not pieces:
+    if not bodies or not pieces:
         return labels
     labels = labels.copy()
     by_id = {o.id: o for o in result.objects}
-    parts = _parts(pts, labels, {o.id for o in boxes + pieces})
+    parts = _parts(pts, labels, {o.id for o in bodies + pieces})
     gone: set[int] = set()
-    for box in sorted(boxes, key=lambda o: -o.point_count):
+    for body in sorted(bodies, key=lambda o: -o.point_count):
         for piece in sorted(pieces, key=lambda o: -o.point_count):
-            own, mine = parts[box.id], parts[piece.id]
-            if piece.id in gone or not _touching(own, mine, params, noise):
+            own, mine = parts[body.id], parts[piece.id]
+            if piece.id in gone or (among is not None and not {body.id, piece.id} & among) \
+                    or not _touching(own, mine, params, noise):
                 continue
             union = _Part(pts, np.concatenate([own.rows, mine.rows]))
-            labels[mine.rows] = box.id  # the scene as the union sees it (undone if refused)
-            joined = model(union.points, box.id, (PIECE_STREAM, box.id, piece.id),
+            labels[mine.rows] = body.id  # the scene as the union sees it (undone if refused)
+            joined = model(union.points, body.id, (PIECE_STREAM, body.id, piece.id),
                            model.context(labels))
             oparams = _params_at(params, noise, union.points)
-            if joined.type != PrimitiveType.CUBOID or not all(
+            if joined.type != body.type or not all(
                     _explains(joined, by_id[part_id], part.points, oparams)
-                    for part_id, part in ((box.id, own), (piece.id, mine))):
-                labels[mine.rows] = piece.id
-                continue
-            parts[box.id] = union
-            by_id[box.id] = dataclasses.replace(joined, point_count=len(union.rows))
+                    for part_id, part in ((body.id, own), (piece.id, mine))):
+                joined = by_id[body.id]  # the body's own model, its refit gone astray
+                if not _explains(joined, piece, mine.points, oparams):
+                    labels[mine.rows] = piece.id
+                    continue
+            parts[body.id] = union
+            by_id[body.id] = dataclasses.replace(joined, point_count=len(union.rows))
             gone.add(piece.id)
     if gone:
         result.objects = [by_id[o.id] for o in result.objects if o.id not in gone]
@@ -173,7 +183,7 @@ def _explains(joined: Primitive, alone: Primitive, points: NDArray[np.float64],
 
 def _touching(a: _Part, b: _Part, params: ModelingParams, noise: NoiseEstimate | None
               ) -> bool:
-    """Tell whether the object ``b`` borders on ``a`` (:func:`join_box_pieces`).
+    """Tell whether the object ``b`` borders on ``a`` (:func:`join_pieces`).
 
     At least :data:`PIECE_MIN_BORDER` sqrt(its points) of ``b``'s points lie within a
     segmentation link of ``a``'s (``seg_max_edge_factor`` ``seg_voxel_size``, resolved at
@@ -191,8 +201,8 @@ def _touching(a: _Part, b: _Part, params: ModelingParams, noise: NoiseEstimate |
 
 def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
                     result: ModelingResult, params: ModelingParams,
-                    supports: dict[int, Plane], noise: NoiseEstimate | None, model: PartModeler
-                    ) -> NDArray[np.int64]:
+                    supports: dict[int, Plane], noise: NoiseEstimate | None, model: PartModeler,
+                    changed: set[int] | None = None) -> NDArray[np.int64]:
     """Split the segments that hold two bodies; return the labels (N,), a new array.
 
     A typed object (no support, no plane) whose points include a linked group (links of
@@ -206,7 +216,8 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     explains its own part (inlier ratio >= ``min_inlier_ratio``) and neither part lies in
     the other's body (:func:`_two_bodies`, :func:`_in_body`: a cup's inner wall, a bowl's
     floor, a can's rim or lid are no objects of their own). The second part gets a new id
-    (above every label); ``result`` is updated in place.
+    (above every label); ``result`` is updated in place, and the ids of both parts of
+    every split are added to ``changed`` when given.
     """
     candidates = [o for o in result.objects if o.id not in supports
                   and o.type != PrimitiveType.PLANE and _may_hold_two(o, params, noise)]
@@ -230,6 +241,8 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
         labels[part.rows[in_second]] = next_id
         by_id[o.id] = dataclasses.replace(first, point_count=int(np.count_nonzero(~in_second)))
         added.append(dataclasses.replace(second, point_count=int(np.count_nonzero(in_second))))
+        if changed is not None:
+            changed.update((o.id, next_id))
         next_id += 1
     if added:
         result.objects = [by_id[o.id] for o in result.objects] + added

@@ -551,7 +551,7 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     ``t_noise`` [s]; fragments are taken out of the objects (:func:`_drop_fragments`).
     ``organized_shape`` (H, W) is handed to the segmentation.
     """
-    from geomodel_ros.core.compounds import join_box_pieces, split_compounds
+    from geomodel_ros.core.compounds import join_pieces, split_compounds
     from geomodel_ros.core.segmentation import segment_scene
 
     seg = segment_scene(pts, params, rng=rng, noise=noise, organized_shape=organized_shape)
@@ -560,8 +560,13 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     result = _model_rows(pts, np.flatnonzero(seg.labels >= 0), seg.labels, None, params, rng,
                          seg.support_planes, t0, noise)
     model = PartModeler(pts, params, seg.support_planes, noise)
-    labels = join_box_pieces(pts, seg.labels, result, params, seg.support_planes, noise, model)
-    labels = split_compounds(pts, labels, result, params, seg.support_planes, noise, model)
+    labels = join_pieces(pts, seg.labels, result, params, seg.support_planes, noise, model)
+    split: set[int] = set()  # the parts of the segments split (a box's face among them)
+    labels = split_compounds(pts, labels, result, params, seg.support_planes, noise, model,
+                             split)
+    if split:
+        labels = join_pieces(pts, labels, result, params, seg.support_planes, noise, model,
+                             among=split)
     result.timing["modeling_s"] = time.perf_counter() - t0
     labels = _drop_fragments(labels, result, params)
     result.timing.update(seg.timing)
