@@ -211,3 +211,18 @@ def test_kinect_real_can_beside_a_bowl_stays_apart():
     assert best[0] != best[1]
     own = labels[truth == 11]
     assert np.mean(own == best[1]) > 0.95
+
+
+@pytest.mark.parametrize("seed,gt", [(8, 10), (25, 2)])
+def test_kinect_real_box_face_left_by_a_split_joins_the_box(seed, gt):
+    # The box's face shared an `unknown` segment with a ball (seed 8) or a can (seed 25)
+    # until the split took that body out; the face, now a plane beside the box, joins it.
+    scene = render_clutter(seed, KINECT_REAL_NOISE)
+    truth = scene.label_image.ravel()
+    labels, result = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
+                                 organized_shape=scene.label_image.shape)
+    own = labels[truth == gt]
+    best = np.bincount(own[own >= 0]).argmax()
+    assert np.mean(own == best) > 0.95
+    assert {o.id: o.type for o in result.objects}[best] == PrimitiveType.CUBOID
+    assert np.mean(truth[labels == best] == gt) > 0.95
