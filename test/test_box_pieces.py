@@ -53,12 +53,38 @@ def _model(parts):
     return pts, labels, model_objects(pts, labels, PARAMS)
 
 
+def _join(pts, labels, result):
+    """Join the pieces of the objects ``result`` holds (fixed noise); return the labels."""
+    return join_pieces(pts, labels, result, PARAMS, {}, None,
+                       PartModeler(pts, PARAMS, {}, None))
+
+
+def _clutter(seed):
+    """Model kinect-real clutter scene ``seed``; return its truth and labels (N,), the result."""
+    scene = render_clutter(seed, KINECT_REAL_NOISE)
+    labels, result = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
+                                 organized_shape=scene.label_image.shape)
+    return scene.label_image.ravel(), labels, result
+
+
+def _assert_one(seed, gt, kind):
+    """Assert that clutter object ``gt`` of ``seed`` is one object of type ``kind``.
+
+    Over 95 % of its pixels in one segment, over 95 % of that segment its pixels.
+    """
+    truth, labels, result = _clutter(seed)
+    own = labels[truth == gt]
+    best = np.bincount(own[own >= 0]).argmax()
+    assert np.mean(own == best) > 0.95
+    assert {o.id: o.type for o in result.objects}[best] == kind
+    assert np.mean(truth[labels == best] == gt) > 0.95
+
+
 def _assert_apart(box, plane):
     """Model ``box`` (a cuboid) and ``plane`` (a plane) apart; assert that they stay so."""
     pts, labels, result = _model([box, plane])
     assert [o.type for o in result.objects] == [PrimitiveType.CUBOID, PrimitiveType.PLANE]
-    joined = join_pieces(pts, labels, result, PARAMS, {}, None,
-                             PartModeler(pts, PARAMS, {}, None))
+    joined = _join(pts, labels, result)
     assert [o.id for o in result.objects] == [0, 1]
     assert np.array_equal(joined, labels)
 
@@ -68,8 +94,7 @@ def test_a_face_cut_off_a_box_joins_it():
     # The segmentation gave the top and left faces one object and the front face another.
     pts, labels, result = _model([np.vstack([top, left]), front])
     assert [o.type for o in result.objects] == [PrimitiveType.CUBOID, PrimitiveType.PLANE]
-    joined = join_pieces(pts, labels, result, PARAMS, {}, None,
-                             PartModeler(pts, PARAMS, {}, None))
+    joined = _join(pts, labels, result)
     assert [o.id for o in result.objects] == [0]
     box = result.objects[0]
     assert box.type == PrimitiveType.CUBOID
@@ -132,10 +157,7 @@ def test_a_box_on_a_box_seen_by_its_top_stays_apart():
     # kinect-real clutter seed 114: box 4 (102 x 41 x 40 mm) stands on box 3 and only its
     # top is seen, a plane; one cuboid through both holds 96 % of the top's points and 80 %
     # of box 3's (its own cuboid: all of them), leaving box 3's top face off its surface.
-    scene = render_clutter(114, KINECT_REAL_NOISE)
-    truth = scene.label_image.ravel()
-    labels, _ = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
-                            organized_shape=scene.label_image.shape)
+    truth, labels, _ = _clutter(114)
     best = [np.bincount(labels[(truth == gt) & (labels >= 0)]).argmax() for gt in (3, 4)]
     assert best[0] != best[1]
 
@@ -161,8 +183,7 @@ def test_a_lid_cut_off_a_can_joins_it():
     side, lid = _can(0.0, 0.8, 0.1, 0.1 + CAN[1], CAN[0])
     pts, labels, result = _model([side, lid])
     assert [o.type for o in result.objects] == [PrimitiveType.CYLINDER, PrimitiveType.PLANE]
-    joined = join_pieces(pts, labels, result, PARAMS, {}, None,
-                             PartModeler(pts, PARAMS, {}, None))
+    joined = _join(pts, labels, result)
     assert [o.id for o in result.objects] == [0]
     can = result.objects[0]
     assert can.type == PrimitiveType.CYLINDER and can.point_count == len(pts)
@@ -178,8 +199,7 @@ def test_a_book_on_a_can_stays_apart():
     book = _face((-0.1, 0.1 - STEP, 0.7), (0.2, 0, 0), (0, 0, 0.2), 67, 67)
     pts, labels, result = _model([side, book])
     assert [o.type for o in result.objects] == [PrimitiveType.CYLINDER, PrimitiveType.PLANE]
-    joined = join_pieces(pts, labels, result, PARAMS, {}, None,
-                             PartModeler(pts, PARAMS, {}, None))
+    joined = _join(pts, labels, result)
     assert [o.id for o in result.objects] == [0, 1]
     assert np.array_equal(joined, labels)
 
@@ -188,25 +208,14 @@ def test_a_book_on_a_can_stays_apart():
 def test_kinect_real_cans_keep_their_lids_and_facets(seed, gt):
     # Segments of these cans: the side's cylinder and a plane of the lid (seeds 24, 37) or
     # of a side facet (seed 56), each modeled apart.
-    scene = render_clutter(seed, KINECT_REAL_NOISE)
-    truth = scene.label_image.ravel()
-    labels, result = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
-                                 organized_shape=scene.label_image.shape)
-    own = labels[truth == gt]
-    best = np.bincount(own[own >= 0]).argmax()
-    assert np.mean(own == best) > 0.95
-    assert {o.id: o.type for o in result.objects}[best] == PrimitiveType.CYLINDER
-    assert np.mean(truth[labels == best] == gt) > 0.95
+    _assert_one(seed, gt, PrimitiveType.CYLINDER)
 
 
 def test_kinect_real_can_beside_a_bowl_stays_apart():
     # Seed 46: a can seen as a plane (920 points) touches a bowl modeled as a wide frustum
     # (r 123 mm) whose outline, widened by a quarter of its radius, holds the can; neither
     # the union's model nor the bowl's explains the can's points.
-    scene = render_clutter(46, KINECT_REAL_NOISE)
-    truth = scene.label_image.ravel()
-    labels, _ = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
-                            organized_shape=scene.label_image.shape)
+    truth, labels, _ = _clutter(46)
     best = [np.bincount(labels[(truth == gt) & (labels >= 0)]).argmax() for gt in (2, 11)]
     assert best[0] != best[1]
     own = labels[truth == 11]
@@ -217,12 +226,4 @@ def test_kinect_real_can_beside_a_bowl_stays_apart():
 def test_kinect_real_box_face_left_by_a_split_joins_the_box(seed, gt):
     # The box's face shared an `unknown` segment with a ball (seed 8) or a can (seed 25)
     # until the split took that body out; the face, now a plane beside the box, joins it.
-    scene = render_clutter(seed, KINECT_REAL_NOISE)
-    truth = scene.label_image.ravel()
-    labels, result = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
-                                 organized_shape=scene.label_image.shape)
-    own = labels[truth == gt]
-    best = np.bincount(own[own >= 0]).argmax()
-    assert np.mean(own == best) > 0.95
-    assert {o.id: o.type for o in result.objects}[best] == PrimitiveType.CUBOID
-    assert np.mean(truth[labels == best] == gt) > 0.95
+    _assert_one(seed, gt, PrimitiveType.CUBOID)
