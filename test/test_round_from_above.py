@@ -190,6 +190,18 @@ def test_cans_in_clutter_that_a_box_fits_as_well_are_cylinders_by_their_lids(see
     assert "a disc end" in obj.reason
 
 
+@pytest.mark.parametrize("seed,gt_id", [(2, 10), (102, 1), (134, 5), (139, 8)])
+def test_cans_whose_round_rivals_refit_goes_astray_are_cylinders_of_their_size(seed, gt_id):
+    # kinect-real clutter: the round rival's first look beat the box, its refit on all the
+    # points (the lid among them, taken as curved) drew the side inwards and lost (seed 2:
+    # cost 0.186 against the box's 0.034); the first look's model competes instead.
+    scene = render_clutter(seed, KINECT_REAL_NOISE)
+    obj = _best(scene, gt_id)
+    assert obj.type == "cylinder", obj.reason
+    true_radius = scene.objects[gt_id].dimensions["radius"]
+    assert obj.dimensions["radius"] == pytest.approx(true_radius, abs=2.5 * MM)
+
+
 def test_an_inner_floor_is_the_cavity_and_a_lid_is_not():
     # A round solid about the z axis (centre 0.75 m from the sensor at the origin, either
     # axis sign). A lid at its near end (z = 0.71 m) faces the sensor from outside; a floor
