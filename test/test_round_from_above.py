@@ -181,20 +181,22 @@ def test_a_lid_seen_whole_is_a_disc_end_and_a_box_top_or_a_half_lid_is_not():
     assert not _disc_case(disc, r, normal=(1.0, 0.0, 0.0))  # a face along the axis
 
 
-@pytest.mark.parametrize("seed,gt_id", [(12, 5), (12, 7), (27, 7), (33, 4)])
+@pytest.mark.parametrize("seed,gt_id", [(12, 5), (12, 7), (27, 7)])
 def test_cans_in_clutter_that_a_box_fits_as_well_are_cylinders_by_their_lids(seed, gt_id):
     # kinect-real clutter: the cylinder's cost was lower, but not beyond the noise (t
-    # 0.6-2.0 over blocks), and the box was kept.
+    # 0.6-2.0 over blocks), and the box was kept. (Seed 33's can, the fourth such, now
+    # wins beyond the noise with its first look: below.)
     obj = _best(render_clutter(seed, KINECT_REAL_NOISE), gt_id)
     assert obj.type == "cylinder", obj.reason
     assert "a disc end" in obj.reason
 
 
-@pytest.mark.parametrize("seed,gt_id", [(2, 10), (102, 1), (134, 5), (139, 8)])
+@pytest.mark.parametrize("seed,gt_id", [(2, 10), (33, 4), (102, 1), (134, 5), (139, 8)])
 def test_cans_whose_round_rivals_refit_goes_astray_are_cylinders_of_their_size(seed, gt_id):
     # kinect-real clutter: the round rival's first look beat the box, its refit on all the
     # points (the lid among them, taken as curved) drew the side inwards and lost (seed 2:
-    # cost 0.186 against the box's 0.034); the first look's model competes instead.
+    # cost 0.186 against the box's 0.034; seed 33: r 23.4 mm, a tie decided by the lid,
+    # against the first look's 24.9, true 26.8); the first look's model competes instead.
     scene = render_clutter(seed, KINECT_REAL_NOISE)
     obj = _best(scene, gt_id)
     assert obj.type == "cylinder", obj.reason

@@ -727,7 +727,8 @@ def thinned(cloud: ObjectCloud, target: int = RIVAL_FIT_POINTS) -> ObjectCloud:
 
 
 def round_rival(cloud: ObjectCloud, box: Primitive
-                ) -> tuple[Attempt, Primitive, NDArray[np.int64], NDArray[np.float64]] | None:
+                ) -> tuple[Attempt, Primitive, NDArray[np.int64], NDArray[np.float64],
+                           NDArray[np.float64]] | None:
     """Return the round model of all of the object's faces taken as curved, or None.
 
     Its candidates come from the curvatures of about :data:`RIVAL_FIT_POINTS` working
@@ -739,8 +740,8 @@ def round_rival(cloud: ObjectCloud, box: Primitive
     when the refit's mean cost is higher: taken as curved, a can's lid draws the refit's
     side inwards, kinect-real clutter seed 2's lying can r 37.8 -> 34.3 mm, true 38.7), and
     returned with its attempt, the compared points' blocks
-    (:func:`~.paired_cost.spread_blocks`) and the box's :func:`truncated_costs` on them
-    (computed once, for the first look and the verdict).
+    (:func:`~.paired_cost.spread_blocks`), the box's :func:`truncated_costs` on them
+    (computed once, for the first look and the verdict) and the returned model's.
     """
     attempt = all_faces_curved(cloud, "all faces taken as curved", RIVAL_FIT_POINTS)
     if attempt is None:
@@ -748,16 +749,16 @@ def round_rival(cloud: ObjectCloud, box: Primitive
     cheap, _ = fit_first(thinned(attempt.cloud), attempt.decision)
     if cheap is None:
         return None
-    c_box = truncated_costs(box, cloud)
-    c_cheap = np.mean(truncated_costs(cheap, cloud))
-    if c_cheap > np.mean(c_box):
+    c_box, c_cheap = truncated_costs(box, cloud), truncated_costs(cheap, cloud)
+    if np.mean(c_cheap) > np.mean(c_box):
         return None
     rnd, _ = fit_first(attempt.cloud, attempt.decision)
     if rnd is None:
         return None
-    if np.mean(truncated_costs(rnd, cloud)) > c_cheap:
-        rnd = cheap  # the refit went astray (drawn to a flat end seen with the side)
-    return attempt, rnd, spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)), c_box
+    c_round = truncated_costs(rnd, cloud)
+    if np.mean(c_round) > np.mean(c_cheap):  # the refit went astray (a flat end seen with
+        rnd, c_round = cheap, c_cheap        # the side drew it)
+    return attempt, rnd, spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)), c_box, c_round
 
 
 def disc_end(cloud: ObjectCloud, cylinder: Primitive) -> bool:
@@ -805,8 +806,7 @@ def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary
     found = round_rival(cloud, prim)
     if found is None:
         return prim, faces
-    attempt, rnd, blocks, c_box = found
-    c_round = truncated_costs(rnd, cloud)
+    attempt, rnd, blocks, c_box, c_round = found
     lower, stat = lower_beyond_noise(c_round, c_box, blocks)
     disc = not lower and np.mean(c_round) < np.mean(c_box) and disc_end(cloud, rnd)
     verdict = "replaces" if lower or disc else "does not replace"
