@@ -12,10 +12,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from geomodel_ros.core.compounds import join_pieces
+from geomodel_ros.core.compounds import _may_extend, join_pieces
 from geomodel_ros.core.modeling import PartModeler, model_objects, model_scene
 from geomodel_ros.core.params import ModelingParams
-from geomodel_ros.core.primitives import PrimitiveType
+from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.tools.synth.office import OFFICE_NAMES, office_scene
 from geomodel_ros.tools.synth.clutter import render_clutter
 from geomodel_ros.tools.synth.scenes import KINECT_CLASS_NOISE, KINECT_REAL_NOISE
@@ -227,3 +227,41 @@ def test_kinect_real_box_face_left_by_a_split_joins_the_box(seed, gt):
     # The box's face shared an `unknown` segment with a ball (seed 8) or a can (seed 25)
     # until the split took that body out; the face, now a plane beside the box, joins it.
     _assert_one(seed, gt, PrimitiveType.CUBOID)
+
+
+def _prim(kind, center, z_axis, **dims):
+    """Return a primitive of ``kind`` at ``center`` whose z axis is ``z_axis`` (unit, 3)."""
+    z = np.asarray(z_axis, dtype=float)
+    x = np.cross(z, [0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    return Primitive(0, kind, np.asarray(center, dtype=float), np.c_[x, np.cross(z, x), z],
+                     dims, 0, 0.0)
+
+
+def test_only_ends_and_facets_along_the_side_may_extend_a_round_body():
+    # An upright can (axis along y), r 40 mm, 120 mm high, centred at (0, 0.16, 0.8).
+    can = _prim(PrimitiveType.CYLINDER, (0.0, 0.16, 0.8), (0.0, 1.0, 0.0),
+                radius=CAN[0], height=CAN[1])
+    side, lid = _can(0.0, 0.8, 0.1, 0.1 + CAN[1], CAN[0])
+    up = (0.0, 1.0, 0.0)
+    lid_plane = _prim(PrimitiveType.PLANE, lid.mean(axis=0), up, length=0.08, width=0.08)
+    assert _may_extend(can, lid_plane, lid, PARAMS)
+    # A lid 5 cm above the can's top is still an end the refit may move to.
+    assert _may_extend(can, lid_plane, lid - np.array([0.0, 0.05, 0.0]), PARAMS)
+    # The side's front strip (|x| < 15 mm), seen as a plane facing the sensor, and the
+    # same strip 5 cm below the can (the side extended past its end).
+    strip = side[np.abs(side[:, 0]) < 0.015]
+    facet = _prim(PrimitiveType.PLANE, strip.mean(axis=0), (0.0, 0.0, -1.0),
+                  length=0.03, width=0.12)
+    assert _may_extend(can, facet, strip, PARAMS)
+    assert _may_extend(can, facet, strip + np.array([0.0, 0.05, 0.0]), PARAMS)
+    # A box's front face beside the can (x 0.04-0.14 m, in front of the can's axis): its
+    # points lie off the side's surface, and its normal is across the axis.
+    face = _face((CAN[0], 0.1, 0.8 - CAN[0]), (0.1, 0, 0), (0, CAN[1], 0), 34, 41)
+    box_face = _prim(PrimitiveType.PLANE, face.mean(axis=0), (0.0, 0.0, -1.0),
+                     length=0.1, width=0.12)
+    assert not _may_extend(can, box_face, face, PARAMS)
+    # A box's face may widen the box: no pre-test for cuboids.
+    box = _prim(PrimitiveType.CUBOID, (0.0, 0.16, 0.9), up, length=0.1, width=0.1,
+                height=0.12)
+    assert _may_extend(box, box_face, face, PARAMS)

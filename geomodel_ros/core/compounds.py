@@ -140,16 +140,20 @@ def join_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
     parts = _parts(pts, labels, {o.id for o in bodies + pieces})
     gone: set[int] = set()
     for body in sorted(bodies, key=lambda o: -o.point_count):
+        # The tolerances at the body's range, for a round body's pre-test (_may_extend).
+        at_body = params if round_outline(body) is None else \
+            _params_at(params, noise, parts[body.id].points)
         for piece in sorted(pieces, key=lambda o: -o.point_count):
             own, mine = parts[body.id], parts[piece.id]
             if piece.id in gone or (among is not None and not {body.id, piece.id} & among) \
+                    or not _may_extend(by_id[body.id], piece, mine.points, at_body) \
                     or not _touching(own, mine, params, noise):
                 continue
             union = _Part(pts, np.concatenate([own.rows, mine.rows]))
+            oparams = _params_at(params, noise, union.points)
             labels[mine.rows] = body.id  # the scene as the union sees it (undone if refused)
             joined = model(union.points, body.id, (PIECE_STREAM, body.id, piece.id),
                            model.context(labels))
-            oparams = _params_at(params, noise, union.points)
             if joined.type != body.type or not all(
                     _explains(joined, by_id[part_id], part.points, oparams)
                     for part_id, part in ((body.id, own), (piece.id, mine))):
@@ -163,6 +167,32 @@ def join_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
     if gone:
         result.objects = [by_id[o.id] for o in result.objects if o.id not in gone]
     return labels
+
+
+def _may_extend(body: Primitive, piece: Primitive, points: NDArray[np.float64],
+                params: ModelingParams) -> bool:
+    """Tell whether the union of a round ``body`` and a plane ``piece`` may be one body.
+
+    A pre-test before the union's refit (:func:`join_pieces`): a round body's side fixes
+    its axis and radius, so a model of its type through both can hold the plane's
+    ``points`` (n, 3) only as an end (the plane's normal within ``angle_tolerance`` of the
+    axis: a lid) or on its surface: ``min_inlier_ratio`` of the points within
+    :data:`SPLIT_OFF_FACTOR` ``ransac_threshold`` of the side, extended past its ends (a
+    facet), or of the body's capped solid (a piece of its rim). Boxes and spheres pass (a
+    box's face may widen the box).
+    """
+    outline = round_outline(body)
+    if outline is None:
+        return True
+    axis = body.rotation[:, 2]
+    if abs(float(piece.rotation[:, 2] @ axis)) >= math.cos(params.angle_tolerance):
+        return True
+    _, radius_at, _ = outline
+    local = (points - body.center) @ body.rotation
+    band = SPLIT_OFF_FACTOR * params.ransac_threshold
+    near = (np.abs(np.hypot(local[:, 0], local[:, 1]) - radius_at(local[:, 2])) <= band) \
+        | (surface_distance(body, points) <= band)
+    return bool(np.mean(near) >= params.min_inlier_ratio)
 
 
 def _explains(joined: Primitive, alone: Primitive, points: NDArray[np.float64],
