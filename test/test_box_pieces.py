@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from geomodel_ros.core.compounds import _may_extend, join_pieces
+from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.modeling import PartModeler, model_objects, model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
@@ -162,18 +163,30 @@ def test_a_box_on_a_box_seen_by_its_top_stays_apart():
     assert best[0] != best[1]
 
 
-def _can(cx, cz, y_top, y_bottom, radius):
-    """Sample an upright can's side facing the sensor and its lid (sensor above the lid)."""
+def _can_side(center_x: float, center_z: float, y_top: float, y_bottom: float,
+              radius: float) -> np.ndarray:
+    """Sample the half of an upright cylinder's side that faces the sensor."""
     ang = np.linspace(0.0, 2 * np.pi, int(2 * np.pi * radius / STEP), endpoint=False)
     a, y = np.meshgrid(ang, np.arange(y_top, y_bottom, STEP))
     a, y = a.ravel(), y.ravel()
-    side = np.c_[cx + radius * np.cos(a), y, cz + radius * np.sin(a)]
-    side = side[np.einsum("ij,ij->i", np.c_[np.cos(a), 0 * a, np.sin(a)], side) < 0]
-    g = np.arange(-radius, radius, STEP)
+    pts = np.c_[center_x + radius * np.cos(a), y, center_z + radius * np.sin(a)]
+    normals = np.c_[np.cos(a), np.zeros_like(a), np.sin(a)]
+    return pts[np.einsum("ij,ij->i", normals, pts) < 0]
+
+
+def _disc(center_x: float, y: float, center_z: float, r_in: float, r_out: float
+          ) -> np.ndarray:
+    """Sample the flat ring r_in <= rho < r_out at height ``y`` round the vertical axis."""
+    g = np.arange(-r_out, r_out, STEP)
     x, z = np.meshgrid(g, g)
-    inside = np.hypot(x, z) < radius
-    lid = np.c_[cx + x[inside], np.full(np.count_nonzero(inside), y_top), cz + z[inside]]
-    return side, lid
+    rho = np.hypot(x, z)
+    keep = (rho < r_out) & (rho >= r_in)
+    return np.c_[center_x + x[keep], np.full(np.count_nonzero(keep), y), center_z + z[keep]]
+
+
+def _can(cx, cz, y_top, y_bottom, radius):
+    """Sample an upright can's side facing the sensor and its lid (sensor above the lid)."""
+    return _can_side(cx, cz, y_top, y_bottom, radius), _disc(cx, y_top, cz, 0.0, radius)
 
 
 CAN = (0.04, 0.12)  # radius, height [m]
@@ -231,11 +244,8 @@ def test_kinect_real_box_face_left_by_a_split_joins_the_box(seed, gt):
 
 def _prim(kind, center, z_axis, **dims):
     """Return a primitive of ``kind`` at ``center`` whose z axis is ``z_axis`` (unit, 3)."""
-    z = np.asarray(z_axis, dtype=float)
-    x = np.cross(z, [0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0])
-    x /= np.linalg.norm(x)
-    return Primitive(0, kind, np.asarray(center, dtype=float), np.c_[x, np.cross(z, x), z],
-                     dims, 0, 0.0)
+    return Primitive(0, kind, np.asarray(center, dtype=float),
+                     frame_with_z(np.asarray(z_axis, dtype=float)), dims, 0, 0.0)
 
 
 def test_only_ends_and_facets_along_the_side_may_extend_a_round_body():

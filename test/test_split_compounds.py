@@ -23,33 +23,12 @@ from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.tools.synth import render_scene
 from geomodel_ros.tools.synth.clutter import render_clutter
 from geomodel_ros.tools.synth.scenes import KINECT_REAL_NOISE
-from test_box_pieces import STEP, _box
+from test_box_pieces import STEP, _box, _can_side, _disc
 
 PARAMS = ModelingParams(noise_model="fixed")
 BOX = (0.2, 0.15, 0.2)  # the box's x, y, z extents [m]
 CORNER = np.array([0.0, 0.1, 0.9])  # its corner nearest the sensor [m]
 RADIUS, HEIGHT = 0.04, 0.12  # the can [m]
-
-
-def _can_side(center_x: float, center_z: float, y_top: float, y_bottom: float,
-              radius: float) -> np.ndarray:
-    """Sample the half of an upright cylinder's side that faces the sensor."""
-    ang = np.linspace(0.0, 2 * np.pi, int(2 * np.pi * radius / STEP), endpoint=False)
-    a, y = np.meshgrid(ang, np.arange(y_top, y_bottom, STEP))
-    a, y = a.ravel(), y.ravel()
-    pts = np.c_[center_x + radius * np.cos(a), y, center_z + radius * np.sin(a)]
-    normals = np.c_[np.cos(a), np.zeros_like(a), np.sin(a)]
-    return pts[np.einsum("ij,ij->i", normals, pts) < 0]
-
-
-def _disc(center_x: float, y: float, center_z: float, r_in: float, r_out: float
-          ) -> np.ndarray:
-    """Sample the flat ring r_in <= rho < r_out at height ``y`` round the vertical axis."""
-    g = np.arange(-r_out, r_out, STEP)
-    x, z = np.meshgrid(g, g)
-    rho = np.hypot(x, z)
-    keep = (rho < r_out) & (rho >= r_in)
-    return np.c_[center_x + x[keep], np.full(np.count_nonzero(keep), y), center_z + z[keep]]
 
 
 def _box_and_can() -> tuple[np.ndarray, np.ndarray]:
