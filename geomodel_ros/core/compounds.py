@@ -353,9 +353,12 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], new_id: int
     takes ``o``'s place, and the group off that model (:func:`_off_group`) starts the
     second part. Each round hands every point to the nearer of the two models and fits
     both again (:data:`SPLIT_ROUNDS`, until fewer than :data:`SPLIT_SETTLED` change
-    hands, or until a refit is ``unknown``); the last pair of typed models fitted each to
-    its own part is kept. None when a part falls below ``seg_min_cluster_points``, no
-    such pair was fitted, or the two are not two bodies (:func:`_two_bodies`).
+    hands); a part whose refit is ``unknown`` (it still holds some of the other body:
+    a bowl's part a third of the ball beside it) keeps its last model for the next
+    hand-off. The last pair of typed models fitted each to its own part is kept. None
+    when the second part's first model is ``unknown``, a part falls below
+    ``seg_min_cluster_points``, no such pair was fitted, or the two are not two bodies
+    (:func:`_two_bodies`).
     """
     from geomodel_ros.core.modeling import parallel_map
     points, rows = part.points, part.rows
@@ -389,9 +392,9 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], new_id: int
         first, second = o, fit_second(group)
     in_second = group
     kept = None  # the last pair of typed models fitted each to its own part
+    if not _typed(second):
+        return None
     for k in range(SPLIT_ROUNDS):
-        if not _typed(first, second):
-            break
         nearer = surface_distance(second, points) < surface_distance(first, points)
         size = int(np.count_nonzero(nearer))
         if min(size, len(points) - size) < params.seg_min_cluster_points:
@@ -399,9 +402,13 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], new_id: int
         if k and np.count_nonzero(nearer != in_second) < SPLIT_SETTLED * len(points):
             break
         in_second = nearer
-        first, second = fit_both(in_second, k)
-        if _typed(first, second):
-            kept = first, second, in_second
+        refit = fit_both(in_second, k)
+        if _typed(*refit):
+            kept = (*refit, in_second)
+        # A part's refit that fails (it still holds some of the other body's points)
+        # leaves the part its last model for the next round's hand-off.
+        first, second = (new if _typed(new) else old
+                         for new, old in zip(refit, (first, second)))
     if kept is None or not _two_bodies(*kept, points, params, noise):
         return None
     return kept
