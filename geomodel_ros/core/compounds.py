@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 from numpy.typing import NDArray
@@ -72,8 +72,9 @@ INSIDE_DEPTH_FACTOR = 2.0
 #: a standing can reaches 2.4 radii (seed 25, kinect-real: 85 % within).
 CAP_SHARE = 0.9
 CAP_RIM = 0.25
-#: An ``unknown`` object (no model to leave points off) is split from the models of at
-#: most this many of its largest faces, tried in turn (:func:`_seeds`).
+#: An ``unknown`` object (no model to leave points off), or a typed one whose group off
+#: its model gives no split, is split from the models of at most this many of its
+#: largest faces, tried in turn (:func:`_seeds`).
 FACE_SEEDS = 3
 
 class _Part:
@@ -242,7 +243,10 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     surface (:func:`_two_models`). An ``unknown`` object (no support) has no model to
     leave points off: the models of its largest faces (:data:`FACE_SEEDS`) take that
     model's place in turn (two cans side by side whose crease the segmentation missed).
-    The segment is split when both parts are typed and not faces of one box, each model
+    So do they for a typed object when its group gives no split, or it has none: the
+    model of the whole may hold both bodies within its band (a box and a lying can as
+    one cone, kinect-real clutter seed 32). The segment is split when both parts are
+    typed and neither faces of one box nor bands of one round body's side, each model
     explains its own part (inlier ratio >= ``min_inlier_ratio``) and neither part lies in
     the other's body (:func:`_two_bodies`, :func:`_in_body`: a cup's inner wall, a bowl's
     floor, a can's rim or lid are no objects of their own). The second part gets a new id
@@ -261,8 +265,9 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     for o in candidates:
         part = parts[o.id]
         split = None
-        for group in _seeds(o, part.points, labels, params, noise, model):
-            split = _two_models(o, part, group, next_id, labels, params, noise, model)
+        for group, face in _seeds(o, part.points, labels, params, noise, model):
+            split = _two_models(o, part, group, face, next_id, labels, params, noise,
+                                model)
             if split is not None:
                 break
         if split is None:
@@ -321,44 +326,43 @@ def _off_group(o: Primitive, points: NDArray[np.float64], oparams: ModelingParam
 
 def _seeds(o: Primitive, points: NDArray[np.float64], labels: NDArray[np.int64],
            params: ModelingParams, noise: NoiseEstimate | None, model: PartModeler
-           ) -> list[NDArray[np.bool_]]:
-    """Return the masks (n,) of ``points`` from which a second part is sought.
+           ) -> Iterator[tuple[NDArray[np.bool_], bool]]:
+    """Yield the masks (n,) of ``points`` from which a second part is sought.
 
-    A typed object's group off its model (:func:`_off_group`); an ``unknown`` one's
-    largest faces (at most :data:`FACE_SEEDS`, each at least ``seg_min_cluster_points``),
-    whose models take the place of the object's (:func:`_two_models`).
+    With each, whether it is a face. A typed object's group off its model
+    (:func:`_off_group`) first; then the object's largest faces (at most
+    :data:`FACE_SEEDS`, each at least ``seg_min_cluster_points``), whose models take the
+    place of the object's (:func:`_two_models`). The faces are found only when asked.
     """
     oparams = _params_at(params, noise, points)
     if o.type != PrimitiveType.UNKNOWN:
         group = _off_group(o, points, oparams)
-        return [] if group is None else [group]
-    seeds = []
+        if group is not None:
+            yield group, False
     for face in model.faces(points, model.context(labels))[:FACE_SEEDS]:
         if len(face) < oparams.seg_min_cluster_points:
             break
         mask = np.zeros(len(points), dtype=bool)
         mask[face] = True
-        seeds.append(mask)
-    return seeds
+        yield mask, True
 
 
-def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], new_id: int,
-                labels: NDArray[np.int64], params: ModelingParams,
+def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], face: bool,
+                new_id: int, labels: NDArray[np.int64], params: ModelingParams,
                 noise: NoiseEstimate | None, model: PartModeler
                 ) -> tuple[Primitive, Primitive, NDArray[np.bool_]] | None:
     """Model ``part`` (object ``o``) as two; return both models and the second's mask.
 
-    ``group`` (n,) starts the second part, ``o``'s model the first. An ``unknown`` ``o``
-    has no model: ``group`` is then one of its faces (:func:`_seeds`), whose own model
-    takes ``o``'s place, and the group off that model (:func:`_off_group`) starts the
-    second part. Each round hands every point to the nearer of the two models and fits
-    both again (:data:`SPLIT_ROUNDS`, until fewer than :data:`SPLIT_SETTLED` change
-    hands); a part whose refit is ``unknown`` (it still holds some of the other body:
-    a bowl's part a third of the ball beside it) keeps its last model for the next
-    hand-off. The last pair of typed models fitted each to its own part is kept. None
-    when the second part's first model is ``unknown``, a part falls below
-    ``seg_min_cluster_points``, no such pair was fitted, or the two are not two bodies
-    (:func:`_two_bodies`).
+    ``group`` (n,) starts the second part, ``o``'s model the first. With ``face``,
+    ``group`` is one of the part's faces (:func:`_seeds`) whose own model takes ``o``'s
+    place, and the group off that model (:func:`_off_group`) starts the second part.
+    Each round hands every point to the nearer of the two models and fits both again
+    (:data:`SPLIT_ROUNDS`, until fewer than :data:`SPLIT_SETTLED` change hands); a part
+    whose refit is ``unknown`` (it still holds some of the other body: a bowl's part a
+    third of the ball beside it) keeps its last model for the next hand-off. The last
+    pair of typed models fitted each to its own part is kept. None when the second
+    part's first model is ``unknown``, a part falls below ``seg_min_cluster_points``, no
+    such pair was fitted, or the two are not two bodies (:func:`_two_bodies`).
     """
     from geomodel_ros.core.modeling import parallel_map
     points, rows = part.points, part.rows
@@ -379,7 +383,7 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], new_id: int
             SPLIT_STREAM, o.id, job[2]), both), [
             (~in_second, o.id, 1 + 2 * k), (in_second, new_id, 2 + 2 * k)])
 
-    if o.type == PrimitiveType.UNKNOWN:  # the face's model takes o's place
+    if face:  # the face's model takes o's place
         first = model(points[group], o.id, (SPLIT_STREAM, o.id, 2 * SPLIT_ROUNDS + 1),
                       context(~group))
         if first.type == PrimitiveType.UNKNOWN:
@@ -435,6 +439,27 @@ def _faces_of_a_box(first: Primitive, second: Primitive, angle_tolerance: float)
                 >= math.cos(angle_tolerance))
 
 
+def _bands_of_a_round_body(first: Primitive, second: Primitive, angle_tolerance: float
+                           ) -> bool:
+    """Tell whether two round models may be bands of one round body's side.
+
+    Both cylinders, cones or frustums whose axes are parallel (within ``angle_tolerance``
+    [rad]) and one line: each centre within half the smaller largest radius of the other's
+    axis (a cup's wall, taken apart at a face border, is a frustum below a cylinder on
+    its axis). Round bodies side by side stand at least the sum of their radii apart.
+    """
+    outlines = [round_outline(p) for p in (first, second)]
+    if any(o is None for o in outlines):  # no solid of revolution about an axis
+        return False
+    a, b = first.rotation[:, 2], second.rotation[:, 2]
+    if abs(float(a @ b)) < math.cos(angle_tolerance):
+        return False
+    reach = 0.5 * min(o[2] for o in outlines)
+    off = second.center - first.center
+    return bool(np.linalg.norm(off - (off @ a) * a) <= reach
+                and np.linalg.norm(off - (off @ b) * b) <= reach)
+
+
 def _two_bodies(first: Primitive, second: Primitive, in_second: NDArray[np.bool_],
                 points: NDArray[np.float64], params: ModelingParams,
                 noise: NoiseEstimate | None) -> bool:
@@ -443,11 +468,14 @@ def _two_bodies(first: Primitive, second: Primitive, in_second: NDArray[np.bool_
     Not faces of one box (:func:`_faces_of_a_box`: two planes are a box's whose cuboid
     fitted badly, noise-free clutter seed 22, a box of inlier ratio 0.74, came apart into
     its two faces; a box no model fitted, kinect-real seed 127, into a cuboid and a plane
-    along one of its faces); each explains its own part (inlier ratio within its
+    along one of its faces), nor bands of one round body's side
+    (:func:`_bands_of_a_round_body`: noise-free seed 13's cup from the models of its
+    faces, a frustum below a cylinder); each explains its own part (inlier ratio within its
     ``ransac_threshold`` at least ``min_inlier_ratio``) and neither part lies in the
     other's body (:func:`_in_body`).
     """
-    if _faces_of_a_box(first, second, params.angle_tolerance):
+    if _faces_of_a_box(first, second, params.angle_tolerance) or \
+            _bands_of_a_round_body(first, second, params.angle_tolerance):
         return False
     sides = ((first, points[~in_second]), (second, points[in_second]))
     tolerances = [_params_at(params, noise, p) for _, p in sides]
