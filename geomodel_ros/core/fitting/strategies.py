@@ -63,6 +63,9 @@ __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_stra
            "prefer_box",
            "prefer_round", "round_rival", "thinned", "all_faces_curved", "as_curved"]
 
+#: Principal curvatures are fitted as quadrics (six terms) over at least this many
+#: neighbours of each working point.
+MIN_CURVATURE_NEIGHBOURS = 6
 #: Parallel planar faces whose offsets differ by at most this many RANSAC thresholds are
 #: one plane (the band within which a plane's own points scatter).
 COPLANAR_FACTOR = 3
@@ -687,9 +690,12 @@ def all_faces_curved(cloud: ObjectCloud, note: str, target: int | None = None
     """Return the attempt of the whole object's curvature candidates, every face curved.
 
     None when the principal curvatures of the object's working points (every k-th, about
-    ``target`` of them, when given) propose no primitive. ``note`` starts the attempt's
-    note (the curvature reason follows).
+    ``target`` of them, when given) propose no primitive, or when the working points have
+    no neighbour lists to fit them from (a support plane's, built without a search).
+    ``note`` starts the attempt's note (the curvature reason follows).
     """
+    if cloud.wc.neighbors.shape[1] < MIN_CURVATURE_NEIGHBOURS:
+        return None
     which = np.zeros(len(cloud.wc.points), dtype=bool)
     which[::_every(len(which), target)] = True
     decision = _curved_decision(cloud, which)
