@@ -114,7 +114,7 @@ def test_kinect_real_cones_seen_as_facets_are_cones(seed, gt, radius, height):
 @pytest.mark.parametrize("distance, yaw", [(3.5, 0.0), (4.0, 20.0)])
 def test_pieces_of_a_far_wall_are_not_taken_for_round_bodies(distance, yaw):
     # What must not happen: the kinect-real office (bench_office, seed 2) at 3.5-4 m.
-    # Pieces of the walls 1.1-1.4 band widths thick came out as a cone (r 254 mm) and a
+    # Pieces of the walls 1.1-1.4 thresholds thick came out as a cone (r 254 mm) and a
     # cylinder (r 80 mm). No round object may hold mostly wall points.
     scene = office_scene(distance, yaw, KINECT_REAL_NOISE, rng=2)
     truth = scene.label_image.ravel()

@@ -974,8 +974,8 @@ class CurvedMajorityAfterAll:
         ``ransac_threshold`` either side of it (as a box must be thicker than a
         threshold, :func:`~.verify.check_thickness`): a plane explains such points as
         well as any bend. Pieces of walls at 3.5-4 m under kinect-real noise, 1.1-1.4
-        band widths thick, took cones and cylinders of 80-330 mm radius; the small round
-        bodies this serves are 2-4 band widths thick.
+        thresholds thick, took cones and cylinders of 80-254 mm radius; the small round
+        bodies this serves are 2.4-4 thresholds thick.
         """
         if _mostly_curved_mixed(situation):
             return True
