@@ -51,7 +51,7 @@ from geomodel_ros.core.model_graph import (BETWEEN_BOUNDS, NO_CURVATURE, FaceInf
                                            GraphDecision, curvature_candidates, decide_type)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
-from geomodel_ros.core.ransac import CylinderModel
+from geomodel_ros.core.ransac import CylinderModel, fit_plane_svd
 from geomodel_ros.core.surface_type import face_feature, principal_curvatures
 
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
@@ -994,10 +994,8 @@ class CurvedMajorityAfterAll:
 
 
 def _thickness(points: NDArray[np.float64]) -> float:
-    """Extent [m] of ``points`` (n, 3) along their least principal direction."""
-    centred = points - centroid(points)
-    _, vecs = np.linalg.eigh(centred.T @ centred)
-    return float(np.ptp(centred @ vecs[:, 0]))
+    """Extent [m] of ``points`` (n, 3) along the normal of their least-squares plane."""
+    return float(np.ptp(points @ fit_plane_svd(points).normal))
 
 
 #: The strategies in the order they are tried.
