@@ -1196,9 +1196,65 @@ def contained_floors(points: NDArray[np.float64], normals: NDArray[np.float64],
     return np.concatenate(taken), np.concatenate(owner)
 
 
+def own_floors(points: NDArray[np.float64], normals: NDArray[np.float64],
+               comp: NDArray[np.int64], valid: NDArray[np.bool_], plane: PlaneModel,
+               stand: float, noise: NoiseEstimate | None = None) -> NDArray[np.int64]:
+    """Find the points of open containers that are their own floor in a support's band.
+
+    A container whose floor never left it (the floor, a few millimetres above the
+    support, was linked to its wall rather than to the support) still holds it in the
+    support's band, where the contact rims' claim would take it from the container at a
+    real sensor's noise (kinect-real clutter: a cup or bowl lost 20-40 % of its points,
+    its whole floor). The test of :func:`contained_floors` on the container's own points:
+    each segment that stands on the plane (lowest point within ``stand`` [m]) and whose
+    points higher than ``stand`` (its wall, without the floor) are a wall of revolution
+    (:func:`_round_footprint`); its points up to ``stand`` high that are seen through the
+    wall's opening (the ray from the sensor crosses the rim's height inside the rim's
+    circle, narrowed by :func:`_noise_reach`) are its floor. A solid closed on top has no
+    point seen through its top's circle that low, and the support and the wall's own foot
+    lie outside it.
+
+    Parameters
+    ----------
+    points, normals : (M, 3) float64 arrays
+        Working cloud [m] (sensor at the origin) and its unit normals.
+    comp : (M,) int64 array
+        Segment (object) id of every working point.
+    valid : (M,) bool array
+        Points of the objects.
+    plane : PlaneModel
+        The support's plane.
+    stand : float
+        Height [m] of the support's band with its voxel (as in :func:`contained_floors`).
+    noise : NoiseEstimate, optional
+
+    Returns
+    -------
+    (F,) int64 array
+        The floors' working points.
+    """
+    n, d = plane.normal, plane.d
+    if d < 0:  # normal towards the sensor (at the origin): its height is d
+        n, d = -n, -d
+    basis = np.column_stack(perpendicular_basis(n))
+    height = points @ n + d
+    walls = _standing_walls(points, normals, comp, valid & (height > stand), n, d, basis,
+                            stand, noise, valid & (height <= stand))
+    found = []
+    for _, i, center, rim, opening in walls:
+        low = np.flatnonzero(valid & (comp == i) & (height <= stand))
+        lp = take_rows(points, low)
+        scale = (d - rim) / (d - height[low])
+        seen = (lp @ basis[:, 0] * scale - center[0]) ** 2 \
+            + (lp @ basis[:, 1] * scale - center[1]) ** 2 <= opening * opening
+        found.append(low[seen])
+    return np.concatenate(found) if found else np.zeros(0, dtype=np.int64)
+
+
 def _standing_walls(points: NDArray[np.float64], normals: NDArray[np.float64],
                     comp: NDArray[np.int64], valid: NDArray[np.bool_], n: NDArray[np.float64],
-                    d: float, basis: NDArray[np.float64], stand: float, noise
+                    d: float, basis: NDArray[np.float64], stand: float, noise,
+                    feet: NDArray[np.bool_] | None = None
                     ) -> list[tuple[int, int, NDArray[np.float64], float, float]]:
     """Return the round walls standing on the plane n . x + d = 0 (normal to the sensor).
 
@@ -1206,15 +1262,18 @@ def _standing_walls(points: NDArray[np.float64], normals: NDArray[np.float64],
     :data:`CONTAINED_MIN_POINTS` whose lowest point lies within ``stand`` [m] of the plane
     and whose footprint in ``basis`` (3, 2) is a wall of revolution
     (:func:`_round_footprint`): (points, segment id, the wall's centre (2,), the rim's
-    height [m], the opening's radius [m] narrowed by :func:`_noise_reach`).
+    height [m], the opening's radius [m] narrowed by :func:`_noise_reach`). With ``feet``
+    (M,) a segment also stands when any of its points there does (the wall is then
+    ``valid``, the foot is not).
     """
     walls = []
+    standing = None if feet is None else set(np.unique(comp[feet]).tolist())
     for i, m in segment_members(comp, valid).items():
         if len(m) < CONTAINED_MIN_POINTS:
             continue
         pts = take_rows(points, m)
         height = pts @ n + d
-        if height.min() > stand:
+        if height.min() > stand and (standing is None or i not in standing):
             continue
         wall = _round_footprint(pts @ basis, take_rows(normals, m) @ basis, height)
         if wall is not None:

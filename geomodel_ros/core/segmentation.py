@@ -46,7 +46,7 @@ from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, group_by_label, knn_amo
                                         take_rows)
 from geomodel_ros.core.noise import K_SUPPORT, NoiseEstimate, disparity_step, resolve_params
 from geomodel_ros.core.joins import (contained_floors, join_contained_parts, join_occluded_parts,
-                                     join_terraces, merge_patches)
+                                     join_terraces, merge_patches, own_floors)
 from geomodel_ros.core.mixed_pixels import mixed_rows
 from geomodel_ros.core.organized import GridCloud, grid_cloud
 from geomodel_ros.core.params import ModelingParams
@@ -359,7 +359,10 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
         open container that a support took goes back to the container
         (:func:`geomodel_ros.core.joins.contained_floors`).
     floors : (M,) bool array, optional
-        Set in place where a working point is such a floor.
+        Set in place where a working point is such a floor, or the floor of an open
+        container that stayed in the container's segment
+        (:func:`geomodel_ros.core.joins.own_floors`; either way, in the support's band,
+        no support may claim it).
 
     Returns
     -------
@@ -387,6 +390,11 @@ def _working_labels(wp: NDArray[np.float64], wn: NDArray[np.float64], counts: ND
                                    noise, first)
             if floors is not None:
                 floors[taken] = True
+        if floors is not None:
+            stand = params.seg_plane_threshold + params.seg_voxel_size
+            for sid, sel in enumerate(supports):
+                plane = first if sid == 0 else fit_plane_svd(take_rows(wp, sel))
+                floors[own_floors(wp, wn, comp, comp_ok, plane, stand, noise)] = True
     if supports and links is not None:
         continued_supports(wp, counts, comp, comp_ok, wlabel, supports, links,
                            SUPPORT_LINK_VOXELS * params.seg_voxel_size, noise, params)
@@ -542,7 +550,8 @@ def _claim_contact_rims(p: NDArray[np.float64], labels: NDArray[np.int64], n_sup
     included), so under a real sensor's noise it reaches 10-14 mm up every object's wall
     (kinect-real clutter: a cone, cup or bowl lost 20-36 % of its points to the desk).
     The points ``floors`` (F,) (a container's floor seen through its opening, taken back
-    from a support by :func:`_return_floors`) are never claimed.
+    from a support by :func:`_return_floors` or kept by the container itself,
+    :func:`geomodel_ros.core.joins.own_floors`) are never claimed.
 
     Returns
     -------
