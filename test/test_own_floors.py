@@ -22,7 +22,7 @@ from geomodel_ros.core.ransac import PlaneModel
 from geomodel_ros.core.segmentation import segment_scene
 from geomodel_ros.tools.synth.clutter import render_clutter
 from geomodel_ros.tools.synth.scenes import KINECT_REAL_NOISE
-from test_container_floor import BAND, FOOT, STEP, _bowl_scene, _can_sides, _grid, _ray_at
+from test_container_floor import BAND, STEP, _bowl_scene, _can_sides, _grid, _ray_at
 
 DESK = 0.8
 PLANE = PlaneModel(np.array([0.0, 0.0, 1.0]), DESK)
