@@ -182,32 +182,50 @@ def test_a_lid_seen_whole_is_a_disc_end_and_a_box_top_or_a_half_lid_is_not():
 
 
 @pytest.mark.parametrize("seed,gt_id", [(12, 5), (12, 7), (27, 7)])
-def test_cans_in_clutter_that_a_box_fits_as_well_are_cylinders_by_their_lids(seed, gt_id):
+def test_cans_in_clutter_that_a_box_fits_as_well_are_cylinders_of_their_size(seed, gt_id):
     # kinect-real clutter: the cylinder's cost was lower, but not beyond the noise (t
-    # 0.6-2.0 over blocks), and the box was kept. (Seed 33's can, the fourth such, now
-    # wins beyond the noise with its first look: below.)
-    obj = _best(render_clutter(seed, KINECT_REAL_NOISE), gt_id)
+    # 0.6-2.0 over blocks), and the box was kept; then the lid, a disc end of the
+    # cylinder, decided (r 26.7, 27.0, 29.2 mm, true 30.5, 29.3, 32.4: the lid, taken as
+    # curved, drew the refit's side inwards). With the lid left out of the refit the
+    # cylinder wins beyond the noise (t 4.8-5.4) at r 30.4, 28.9, 30.4 mm. (Seed 33's
+    # can, the fourth such, wins beyond the noise with its first look: below.)
+    scene = render_clutter(seed, KINECT_REAL_NOISE)
+    obj = _best(scene, gt_id)
     assert obj.type == "cylinder", obj.reason
-    assert "a disc end" in obj.reason
+    truth = scene.objects[gt_id].dimensions
+    assert obj.dimensions["radius"] == pytest.approx(truth["radius"], abs=2.5 * MM)
+    assert obj.dimensions["height"] == pytest.approx(truth["height"], abs=5.0 * MM)
 
 
-@pytest.mark.parametrize("seed,gt_id,tolerance", [
-    (2, 10, 2.5 * MM), (33, 4, 2.5 * MM), (102, 1, 2.5 * MM),
-    # The first look draws this can's side inwards too (its thinned points hold the lid):
-    # over the RANSAC seeds 0-5 (`seed`) its radius is 33.1-35.9 mm, true 36.4.
-    (134, 5, 3.5 * MM),
-    (139, 8, 2.5 * MM)])
-def test_cans_whose_round_rivals_refit_goes_astray_are_cylinders_of_their_size(seed, gt_id,
-                                                                             tolerance):
+@pytest.mark.parametrize("seed,gt_id", [(2, 10), (33, 4), (102, 1), (134, 5), (139, 8)])
+def test_cans_whose_round_rivals_refit_goes_astray_are_cylinders_of_their_size(seed, gt_id):
     # kinect-real clutter: the round rival's first look beat the box, its refit on all the
     # points (the lid among them, taken as curved) drew the side inwards and lost (seed 2:
     # cost 0.186 against the box's 0.034; seed 33: r 23.4 mm, a tie decided by the lid,
     # against the first look's 24.9, true 26.8); the first look's model competes instead.
+    # The refit leaves the lid out now (seed 134: r 33.1 -> 35.2 mm, true 36.4).
     scene = render_clutter(seed, KINECT_REAL_NOISE)
     obj = _best(scene, gt_id)
     assert obj.type == "cylinder", obj.reason
     true_radius = scene.objects[gt_id].dimensions["radius"]
-    assert obj.dimensions["radius"] == pytest.approx(true_radius, abs=tolerance)
+    assert obj.dimensions["radius"] == pytest.approx(true_radius, abs=2.5 * MM)
+
+
+@pytest.mark.parametrize("noise,seed,gt_id", [
+    (KINECT_REAL_NOISE, 7, 12), (KINECT_REAL_NOISE, 45, 11), (KINECT_REAL_NOISE, 100, 1),
+    (KINECT_REAL_NOISE, 137, 10), (KINECT_NOISE, 53, 9)])
+def test_lying_cans_whose_ends_are_left_out_of_the_round_refit_are_cylinders(noise, seed,
+                                                                             gt_id):
+    # Lying cans at 0.7-1.2 m whose side the box beat while the round rival's refit took
+    # their flat ends as curved (cuboids before, r 25-36 mm); with the ends kept planar
+    # the refit finds the side (radius within 1.0 mm, length within 6 mm).
+    scene = render_clutter(seed, noise)
+    assert scene.kinds[gt_id] == "lying_can"
+    obj = _best(scene, gt_id)
+    assert obj.type == "cylinder", obj.reason
+    truth = scene.objects[gt_id].dimensions
+    assert obj.dimensions["radius"] == pytest.approx(truth["radius"], abs=2.0 * MM)
+    assert obj.dimensions["height"] == pytest.approx(truth["height"], abs=8.0 * MM)
 
 
 def test_an_inner_floor_is_the_cavity_and_a_lid_is_not():

@@ -758,13 +758,33 @@ def round_rival(cloud: ObjectCloud, box: Primitive
     c_box, c_cheap = truncated_costs(box, cloud), truncated_costs(cheap, cloud)
     if np.mean(c_cheap) > np.mean(c_box):
         return None
-    rnd, _ = fit_first(attempt.cloud, attempt.decision)
+    rnd, _ = fit_first(_without_ends(cloud, attempt.cloud, cheap), attempt.decision)
     if rnd is None:
         return None
     c_round = truncated_costs(rnd, cloud)
     if np.mean(c_round) > np.mean(c_cheap):  # the refit went astray (a flat end seen with
         rnd, c_round = cheap, c_cheap        # the side drew it)
     return attempt, rnd, spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)), c_box, c_round
+
+
+def _without_ends(cloud: ObjectCloud, curved: ObjectCloud, first: Primitive) -> ObjectCloud:
+    """Return ``curved`` (``cloud`` with every face taken as curved) with its ends planar.
+
+    The ends are ``cloud``'s planar faces across the axis of the first look ``first`` (a
+    cylinder, cone or frustum; :func:`~.axial.across_axis`): taken as curved, a can's lid
+    lies in the side's band near its rim, inside it, and draws the side's refit inwards;
+    kept planar, it is no side point and may close the side's end.
+    """
+    if first.type not in (PrimitiveType.CYLINDER, PrimitiveType.CONE,
+                          PrimitiveType.FRUSTUM):
+        return curved
+    ends = {id(f) for f in across_axis(cloud, first.rotation[:, 2])}
+    if not ends:
+        return curved
+    faces = [f if id(f) in ends else g for f, g in zip(cloud.faces, curved.faces)]
+    if all(f.info.planar for f in faces):
+        return curved
+    return dataclasses.replace(curved, faces=faces)
 
 
 def disc_end(cloud: ObjectCloud, cylinder: Primitive) -> bool:
