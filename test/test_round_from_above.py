@@ -213,14 +213,16 @@ def test_cans_whose_round_rivals_refit_goes_astray_are_cylinders_of_their_size(s
 
 @pytest.mark.parametrize("noise,seed,gt_id", [
     (KINECT_REAL_NOISE, 7, 12), (KINECT_REAL_NOISE, 45, 11), (KINECT_REAL_NOISE, 100, 1),
-    (KINECT_REAL_NOISE, 137, 10), (KINECT_NOISE, 53, 9)])
-def test_lying_cans_whose_ends_are_left_out_of_the_round_refit_are_cylinders(noise, seed,
-                                                                             gt_id):
-    # Lying cans at 0.7-1.2 m whose side the box beat while the round rival's refit took
-    # their flat ends as curved (cuboids before, r 25-36 mm); with the ends kept planar
-    # the refit finds the side (radius within 1.0 mm, length within 6 mm).
+    (KINECT_REAL_NOISE, 137, 10), (KINECT_NOISE, 53, 9),
+    # ... and whose first look lost to the box with its ends and wins without them:
+    (KINECT_REAL_NOISE, 15, 11), (KINECT_REAL_NOISE, 27, 1), (KINECT_REAL_NOISE, 30, 1),
+    (KINECT_REAL_NOISE, 47, 2), (KINECT_REAL_NOISE, 52, 1), (KINECT_REAL_NOISE, 58, 11)])
+def test_cans_whose_ends_are_left_out_of_the_round_rival_are_cylinders(noise, seed, gt_id):
+    # Cans at 0.7-1.2 m, most of them lying, whose side the box beat while the round
+    # rival took their flat ends as curved (cuboids before, r 23-36 mm); with the ends
+    # kept planar the rival finds the side (radius within 1.3 mm, length within 6 mm).
     scene = render_clutter(seed, noise)
-    assert scene.kinds[gt_id] == "lying_can"
+    assert scene.kinds[gt_id] in ("can", "lying_can")
     obj = _best(scene, gt_id)
     assert obj.type == "cylinder", obj.reason
     truth = scene.objects[gt_id].dimensions
