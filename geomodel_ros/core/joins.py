@@ -1174,15 +1174,11 @@ def contained_floors(points: NDArray[np.float64], normals: NDArray[np.float64],
         return empty, empty
     sp = take_rows(points, support)
     sh = sp @ n + d
-    # The sensor's foot is the plane's origin: the ray from a point meets the rim's height
-    # at the point's own coordinates scaled by (d - rim) / (d - h).
     sx, sy = sp @ basis[:, 0], sp @ basis[:, 1]
     free = np.ones(len(support), dtype=bool)
     taken, owner = [], []
     for _, i, center, rim, opening in sorted(walls, key=lambda w: (-w[0], w[1])):
-        scale = (d - rim) / (d - sh)
-        seen = free & (sh < rim) & ((sx * scale - center[0]) ** 2
-                                    + (sy * scale - center[1]) ** 2 <= opening * opening)
+        seen = free & (sh < rim) & _through_opening(sx, sy, sh, d, center, rim, opening)
         cand = support[seen]
         if not len(cand):
             continue
@@ -1244,11 +1240,24 @@ def own_floors(points: NDArray[np.float64], normals: NDArray[np.float64],
     for _, i, center, rim, opening in walls:
         low = np.flatnonzero(valid & (comp == i) & (height <= stand))
         lp = take_rows(points, low)
-        scale = (d - rim) / (d - height[low])
-        seen = (lp @ basis[:, 0] * scale - center[0]) ** 2 \
-            + (lp @ basis[:, 1] * scale - center[1]) ** 2 <= opening * opening
-        found.append(low[seen])
+        found.append(low[_through_opening(lp @ basis[:, 0], lp @ basis[:, 1], height[low], d,
+                                          center, rim, opening)])
     return np.concatenate(found) if found else np.zeros(0, dtype=np.int64)
+
+
+def _through_opening(x: NDArray[np.float64], y: NDArray[np.float64], h: NDArray[np.float64],
+                     d: float, center: NDArray[np.float64], rim: float, opening: float
+                     ) -> NDArray[np.bool_]:
+    """Tell which points are seen through a round opening: their ray crosses it.
+
+    ``x``, ``y`` (P,) [m] are the points in the support plane's coordinates, ``h`` (P,)
+    [m] their heights above it, ``d`` [m] the sensor's height (the sensor's foot is the
+    plane's origin): the ray from a point meets the rim's height ``rim`` [m] at the point's
+    own coordinates scaled by (d - rim) / (d - h), and that must lie within ``opening``
+    [m] of the opening's ``center`` (2,).
+    """
+    scale = (d - rim) / (d - h)
+    return (x * scale - center[0]) ** 2 + (y * scale - center[1]) ** 2 <= opening * opening
 
 
 def _standing_walls(points: NDArray[np.float64], normals: NDArray[np.float64],
