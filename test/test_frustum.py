@@ -138,13 +138,17 @@ def test_frustum_unit_sizes_a_cone_side_that_stops_short_of_its_apex():
     assert tuple(prim.dimensions) == DIMENSION_NAMES[PrimitiveType.FRUSTUM]
 
 
-@pytest.mark.parametrize(("points", "reason"), [
-    (cone_points, "frustum rejected: its points reach 0 mm from the apex of a 70 mm cone "
-                  "(a cone)"),
-    (cylinder_points, "frustum half-angle 0.2 deg too small"),
+@pytest.mark.parametrize(("points", "noise_model", "reason"), [
+    (cone_points, "auto", "frustum rejected: its points reach 0 mm from the apex of a 70 mm "
+                          "cone (a cone)"),
+    # Under a measured noise the side's own taper test, else the least half-angle.
+    (cylinder_points, "auto", "frustum rejected: its side's least-squares taper 0.0 mm is "
+                              "within 0.0 mm (a cylinder)"),
+    (cylinder_points, "fixed", "frustum half-angle 0.2 deg too small"),
 ])
-def test_frustum_unit_rejects_a_full_cone_and_a_cylinder(points, reason):
-    out = fit("frustum", cloud_of(points()))
+def test_frustum_unit_rejects_a_full_cone_and_a_cylinder(points, noise_model, reason):
+    params = replace(ModelingParams(), noise_model=noise_model)
+    out = fit("frustum", cloud_of(points(), params))
     assert out == Rejected(PrimitiveType.FRUSTUM, reason)
 
 
@@ -155,7 +159,7 @@ def test_the_frustum_is_tried_only_after_a_cone_that_stops_short_of_its_apex():
     assert prim is not None and prim.type == "frustum"
     assert reasons == ["cone rejected: its points stop 42 mm short of the apex (a frustum)",
                        "frustum verified"]
-    # A cylinder: the cone's half-angle check would reject the frustum too; not tried.
+    # A cylinder: the cone is too narrow, and the cylinder, tried before the frustum, fits.
     prim, reasons = fit_first(cloud_of(cylinder_points()), decision)
     assert prim is not None and prim.type == "cylinder"
     assert len(reasons) == 2 and reasons[0].startswith("cone half-angle")

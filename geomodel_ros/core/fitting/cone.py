@@ -20,12 +20,14 @@ from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.core.ransac import ConeBatch, ConeModel, HypothesisTest
 
-__all__ = ["MAX_CONE_HALF_ANGLE", "cone_hypothesis_ok", "cone_hypotheses_ok", "cone_test",
-           "fit_cone"]
+__all__ = ["MAX_CONE_HALF_ANGLE", "CONE_TOO_NARROW", "least_half_angle", "cone_hypothesis_ok",
+           "cone_hypotheses_ok", "cone_test", "fit_cone"]
 
 CONE = PrimitiveType.CONE
 #: RANSAC takes no cone hypothesis flatter than this half-angle [rad] (80 deg).
 MAX_CONE_HALF_ANGLE = 1.4
+#: End of the reason of a side rejected as narrower than the least half-angle.
+CONE_TOO_NARROW = "too small"
 
 
 def cone_hypothesis_ok(model: ConeModel, params: ModelingParams,
@@ -55,10 +57,23 @@ def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | 
     checked = verified_side(task, side, prior, kind, side.model.apex)
     if isinstance(checked, Rejected):
         return checked
-    if side.model.half_angle < task.cloud.params.min_cone_half_angle:
+    if side.model.half_angle < least_half_angle(task.cloud.params, kind):
         return Rejected(kind, f"{kind} half-angle {math.degrees(side.model.half_angle):.1f} deg "
-                              "too small")
+                              f"{CONE_TOO_NARROW}")
     return checked
+
+
+def least_half_angle(params: ModelingParams, kind: PrimitiveType) -> float:
+    """Return the least half-angle [rad] of a side accepted as ``kind`` (cone or frustum).
+
+    ``min_cone_half_angle``, except for a frustum under a measured noise (``noise_model =
+    auto``): its taper is then judged against the noise by the frustum unit itself
+    (:func:`~.frustum.taper_minimum`), which leaves a side whose taper is within the noise
+    to the cylinder and accepts a slightly tapered cup that no cylinder holds.
+    """
+    if kind is PrimitiveType.FRUSTUM and params.noise_model == "auto":
+        return 0.0
+    return params.min_cone_half_angle
 
 
 def fit_cone_side(task: FitTask, kind: PrimitiveType

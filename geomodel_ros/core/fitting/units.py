@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from typing import Mapping, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fitting.cloud import ObjectCloud
-from geomodel_ros.core.fitting.cone import fit_cone
+from geomodel_ros.core.fitting.cone import CONE_TOO_NARROW, fit_cone, least_half_angle
 from geomodel_ros.core.fitting.cuboid import fit_cuboid
 from geomodel_ros.core.fitting.cylinder import fit_cylinder
 from geomodel_ros.core.fitting.frustum import fit_frustum
@@ -17,9 +18,13 @@ from geomodel_ros.core.fitting.result import (FitOutcome, FitTask, Fitted, Rejec
                                               is_finite_primitive)
 from geomodel_ros.core.fitting.sphere import fit_sphere
 from geomodel_ros.core.model_graph import GraphDecision
+from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 
-__all__ = ["FittingUnit", "FITTING_UNITS", "fit_first"]
+__all__ = ["FittingUnit", "FITTING_UNITS", "fit_first", "narrow_frustum"]
+
+CYLINDER = PrimitiveType.CYLINDER
+FRUSTUM = PrimitiveType.FRUSTUM
 
 
 class FittingUnit(Protocol):
@@ -50,10 +55,18 @@ NUMERICAL_FAILURES = (np.linalg.LinAlgError, ValueError, FloatingPointError)
 CONE_SHORT_OF_APEX = "(a frustum)"
 
 
-def _skipped(kind: PrimitiveType, cone: Rejected | None) -> bool:
-    """Whether ``kind`` is not worth trying after the task's cone rejection ``cone``."""
-    return kind is PrimitiveType.FRUSTUM and cone is not None and \
-        not cone.reason.endswith(CONE_SHORT_OF_APEX)
+def _skipped(kind: PrimitiveType, cone: Rejected | None, params: ModelingParams) -> bool:
+    """Whether ``kind`` is not worth trying after the task's cone rejection ``cone``.
+
+    A cone rejected as too narrow leaves the frustum its own taper test where the frustum
+    has no least half-angle (:func:`~.cone.least_half_angle`).
+    """
+    if kind is not PrimitiveType.FRUSTUM or cone is None:
+        return False
+    if cone.reason.endswith(CONE_SHORT_OF_APEX):
+        return False
+    return not (cone.reason.endswith(CONE_TOO_NARROW)
+                and least_half_angle(params, kind) < params.min_cone_half_angle)
 
 
 def fit_first(cloud: ObjectCloud, decision: GraphDecision,
@@ -64,15 +77,21 @@ def fit_first(cloud: ObjectCloud, decision: GraphDecision,
 
     Returns that primitive (None if none fits) and the reason of every attempt; every
     rejection is also appended to ``rejected`` when given. A frustum after a cone
-    rejected for anything but stopping short of its apex is not tried
-    (:data:`CONE_SHORT_OF_APEX`).
+    rejected for anything but stopping short of its apex (or, where the frustum has no
+    least half-angle, being too narrow) is not tried (:data:`CONE_SHORT_OF_APEX`). A
+    side that tapers by less than ``min_cone_half_angle`` is a cylinder wherever a
+    cylinder holds it: after a cone rejected as that narrow, the frustum is tried after
+    the cylinder, and a frustum fitted that narrow (:func:`narrow_frustum`) is taken only
+    once the cylinder is rejected.
     """
     task = FitTask(cloud, decision.main_face, decision.axis_of_face, axis_prior)
     reasons = []
+    order = [PrimitiveType(name) for name in decision.candidates]
     cone: Rejected | None = None
-    for name in decision.candidates:
-        kind = PrimitiveType(name)
-        if _skipped(kind, cone):
+    held: Primitive | None = None
+    while order:
+        kind = order.pop(0)
+        if _skipped(kind, cone, cloud.params) or (held is not None and kind is not CYLINDER):
             continue
         try:
             outcome = FITTING_UNITS[kind](task)
@@ -80,9 +99,27 @@ def fit_first(cloud: ObjectCloud, decision: GraphDecision,
             outcome = Rejected(kind, f"{kind}: numerical failure ({exc})")
         reasons.append(outcome.reason)
         if isinstance(outcome, Fitted) and is_finite_primitive(outcome.primitive):
+            if held is None and CYLINDER in order and \
+                    narrow_frustum(outcome.primitive, cloud.params):
+                held = outcome.primitive
+                reasons.append("narrower than the least cone half-angle: the cylinder first")
+                continue
             return outcome.primitive, reasons
         if rejected is not None and isinstance(outcome, Rejected):
             rejected.append(outcome)
         if kind is PrimitiveType.CONE and isinstance(outcome, Rejected):
             cone = outcome
-    return None, reasons
+            if outcome.reason.endswith(CONE_TOO_NARROW) and FRUSTUM in order and \
+                    CYLINDER in order and order.index(FRUSTUM) < order.index(CYLINDER):
+                order.remove(FRUSTUM)
+                order.insert(order.index(CYLINDER) + 1, FRUSTUM)
+    return held, reasons
+
+
+def narrow_frustum(prim: Primitive, params: ModelingParams) -> bool:
+    """Whether ``prim`` is a frustum whose half-angle is below ``min_cone_half_angle``."""
+    if prim.type is not PrimitiveType.FRUSTUM:
+        return False
+    d = prim.dimensions
+    taper = d["radius"] - d["top_radius"]
+    return math.atan2(taper, d["height"]) < params.min_cone_half_angle
