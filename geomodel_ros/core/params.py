@@ -160,7 +160,9 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("max_radius", 2.0, "m", 0.0, 1000.0,
               "Largest accepted cylinder, cone or sphere radius."),
     ParamSpec("min_cone_half_angle", 0.05, "rad", 0.0, 1.5,
-              "Cone fits with a smaller half-angle are cylinders."),
+              "Cone fits with a smaller half-angle are cylinders (with noise_model auto a "
+              "frustum that narrow is kept where no cylinder fits: its taper is judged "
+              "against the measured noise)."),
     ParamSpec("min_arc", 0.785, "rad", 0.0, 6.2832,
               "Smallest arc a cylinder's or cone's points must span around its axis (a "
               "shallow arc of a noisy surface fits any large radius; such objects are "
