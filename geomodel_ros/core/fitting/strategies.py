@@ -32,8 +32,10 @@ from typing import Protocol, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import ConvexHull, QhullError
 
 from geomodel_ros.core.fastmath import centroid
+from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
                                              bends_beyond_noise)
 from geomodel_ros.core.confidence import surface_distance, surface_normals
@@ -817,6 +819,78 @@ def disc_end(cloud: ObjectCloud, cylinder: Primitive) -> bool:
     return arc >= 2.0 * math.pi - params.min_arc
 
 
+def _circle_2d(uv: NDArray[np.float64]) -> tuple[NDArray[np.float64], float] | None:
+    """Least-squares circle (Kasa) through 2-D points (k, 2): centre (2,) and radius."""
+    if len(uv) < 3:
+        return None
+    a = np.column_stack([2.0 * uv, np.ones(len(uv))])
+    sol, *_ = np.linalg.lstsq(a, np.einsum("ij,ij->i", uv, uv), rcond=None)
+    r2 = sol[2] + sol[0] ** 2 + sol[1] ** 2
+    return (sol[:2], math.sqrt(r2)) if r2 > 0 else None
+
+
+def _rectangle_distance(rim: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distances [m] of a convex outline's vertices (m, 2) to its least-area rectangle.
+
+    The rectangle of least area holding the outline has a side along one of the
+    outline's edges (rotating calipers); ``rim`` are the vertices of a convex hull in
+    order. Each vertex's distance to that rectangle's sides (the nearest one).
+    """
+    edges = np.roll(rim, -1, axis=0) - rim
+    lengths = np.linalg.norm(edges, axis=1)
+    keep = lengths > 0
+    u = edges[keep] / lengths[keep, None]                 # (E, 2) side directions
+    a, b = rim @ u.T, rim @ np.column_stack([-u[:, 1], u[:, 0]]).T  # (m, E) coordinates
+    lo_a, hi_a, lo_b, hi_b = a.min(axis=0), a.max(axis=0), b.min(axis=0), b.max(axis=0)
+    best = int(np.argmin((hi_a - lo_a) * (hi_b - lo_b)))
+    return np.minimum.reduce([a[:, best] - lo_a[best], hi_a[best] - a[:, best],
+                              b[:, best] - lo_b[best], hi_b[best] - b[:, best]])
+
+
+def disc_cylinder(cloud: ObjectCloud, box: Primitive) -> Primitive | None:
+    """Return the cylinder whose end is a planar face of the object seen as a disc, or None.
+
+    Each planar face across one of the box's axes (largest first) is taken as a can's
+    lid: the circle through its outline (the convex hull of its points in its plane,
+    least squares) with the box's extent along that axis. The first face whose outline
+    lies nearer that circle than the least-area rectangle round it (median distances of
+    the hull's vertices, :func:`_rectangle_distance`) and that is a disc end of its
+    cylinder, all round (:func:`disc_end`), gives it.
+    """
+    cos_tol = math.cos(cloud.params.angle_tolerance)
+    for face in sorted((f for f in cloud.faces if f.info.planar), key=lambda f: -f.info.size):
+        n = face.info.normal
+        cos = np.abs(box.rotation.T @ n)
+        k = int(np.argmax(cos))
+        if cos[k] < cos_tol:
+            continue
+        pts = cloud.points[face.points]
+        frame = frame_with_z(n)
+        c0 = centroid(pts)
+        uv = (pts - c0) @ frame[:, :2]
+        try:
+            hull = ConvexHull(uv)
+        except (QhullError, ValueError):
+            continue
+        circle = _circle_2d(uv[hull.vertices])
+        if circle is None:
+            continue
+        centre2, radius = circle
+        rim = uv[hull.vertices]
+        if np.median(np.abs(np.linalg.norm(rim - centre2, axis=1) - radius)) >= \
+                np.median(_rectangle_distance(rim)):
+            continue  # the outline follows a rectangle, not the circle
+        length = box.dimensions[("length", "width", "height")[k]]
+        axis = box.rotation[:, k] * (1.0 if box.rotation[:, k] @ n < 0 else -1.0)
+        top = c0 + frame[:, :2] @ centre2
+        cyl = Primitive(cloud.oid, PrimitiveType.CYLINDER, top + axis * length / 2.0,
+                        frame_with_z(-axis), {"radius": float(radius), "height": float(length)},
+                        len(cloud.points), 0.0)
+        if disc_end(cloud, cyl):
+            return cyl
+    return None
+
+
 def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
                  reasons: list[str]) -> tuple[Primitive, tuple[FaceSummary, ...]]:
     """Return the cuboid ``prim`` or the round model of the whole object, whichever costs less.
@@ -834,26 +908,47 @@ def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary
     may fit a box's points about as well; a real box's edges do not fit a round model
     where the shape shows (its cost stays far above the box's). Within the noise the flat
     end decides: a round rival that is a cylinder, costs less on average and has a disc
-    end (:func:`disc_end`) replaces the box too. Only with ``noise_model = auto`` (``fixed``
-    keeps the previous strategies exactly). The comparison is added to ``reasons``.
+    end (:func:`disc_end`) replaces the box too. A box that no round rival replaces meets
+    the cylinder of its disc face, if it has one (:func:`_prefer_disc_cylinder`). Only with
+    ``noise_model = auto`` (``fixed`` keeps the previous strategies exactly). The
+    comparisons are added to ``reasons``.
     """
     cloud = situation.cloud
     if prim.type is not PrimitiveType.CUBOID or cloud.params.noise_model != "auto":
         return prim, faces
     found = round_rival(cloud, prim)
-    if found is None:
-        return prim, faces
-    attempt, rnd, blocks, c_box, c_round = found
-    lower, stat = lower_beyond_noise(c_round, c_box, blocks)
-    disc = not lower and np.mean(c_round) < np.mean(c_box) and disc_end(cloud, rnd)
-    verdict = "replaces" if lower or disc else "does not replace"
-    reasons.append(f"{attempt.note}; {rnd.type} (cost {np.mean(c_round):.3f}) {verdict} "
-                   f"cuboid (cost {np.mean(c_box):.3f}, t = {stat:.1f}"
-                   f"{', a disc end' if disc else ''})")
-    lower = lower or disc
-    if lower:
-        return rnd, tuple(f.summary for f in attempt.cloud.faces)
-    return prim, faces
+    if found is not None:
+        attempt, rnd, blocks, c_box, c_round = found
+        lower, stat = lower_beyond_noise(c_round, c_box, blocks)
+        disc = not lower and np.mean(c_round) < np.mean(c_box) and disc_end(cloud, rnd)
+        verdict = "replaces" if lower or disc else "does not replace"
+        reasons.append(f"{attempt.note}; {rnd.type} (cost {np.mean(c_round):.3f}) {verdict} "
+                       f"cuboid (cost {np.mean(c_box):.3f}, t = {stat:.1f}"
+                       f"{', a disc end' if disc else ''})")
+        if lower or disc:
+            return rnd, tuple(f.summary for f in attempt.cloud.faces)
+    return _prefer_disc_cylinder(cloud, prim, faces, reasons)
+
+
+def _prefer_disc_cylinder(cloud: ObjectCloud, box: Primitive, faces: tuple[FaceSummary, ...],
+                          reasons: list[str]) -> tuple[Primitive, tuple[FaceSummary, ...]]:
+    """Return the cylinder of the box's disc face (:func:`disc_cylinder`) if it costs less.
+
+    A can seen mostly by its lid, its side a few grazing slivers (or facets that pass as
+    planar), gives no round fit, and the box round the lid verifies. The lid's outline
+    is the can's circle: the cylinder of that circle, as long as the box along its axis,
+    replaces the box when its mean :func:`truncated_costs` over the object's points are
+    lower (a real box's top whose outline the noise band lets pass as a disc keeps its
+    box: its sides and corners cost the cylinder far more).
+    """
+    disc = disc_cylinder(cloud, box)
+    if disc is None:
+        return box, faces
+    c_box, c_disc = np.mean(truncated_costs(box, cloud)), np.mean(truncated_costs(disc, cloud))
+    verdict = "replaces" if c_disc < c_box else "does not replace"
+    reasons.append(f"the cylinder of its disc face (cost {c_disc:.3f}) {verdict} cuboid "
+                   f"(cost {c_box:.3f})")
+    return (disc, faces) if c_disc < c_box else (box, faces)
 
 
 class BoxOfFlatCores:
