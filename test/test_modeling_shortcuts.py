@@ -15,8 +15,10 @@ from geomodel_ros.core import obb, ransac
 from geomodel_ros.core.fitting import measure
 from geomodel_ros.core.fitting.cloud import _grouped
 from geomodel_ros.core.geometry import perpendicular_basis
-from geomodel_ros.core.modeling import estimate_spacing
+from geomodel_ros.core.modeling import estimate_spacing, model_scene
+from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.ransac import ConeModel, CylinderModel, PlaneModel, refine
+from geomodel_ros.tools.synth.clutter import render_clutter
 
 
 def _plain_small_end_groups(vals):
@@ -180,6 +182,32 @@ def test_spacing_is_the_median_nearest_neighbour_distance():
     d2[np.arange(500), np.arange(500)] = math.inf
     want = float(np.median(np.sqrt(d2.min(axis=1))))
     assert estimate_spacing(points, rng) == pytest.approx(want, rel=1e-12)
+
+
+def test_spacing_looks_past_exact_duplicates():
+    # The 2 mm grid of the test above with every point three times (a cloud merged with
+    # itself twice): the nearest other position is still 2 mm away.
+    g = np.arange(30) * 0.002
+    x, y = np.meshgrid(g, g)
+    points = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, 0.7)])
+    tripled = np.repeat(points, 3, axis=0)
+    got = estimate_spacing(tripled, np.random.default_rng(0), max_points=len(tripled))
+    assert got == pytest.approx(0.002, rel=1e-12)
+    # One position only: no spacing.
+    assert estimate_spacing(np.tile([[0.1, 0.2, 0.7]], (50, 1)), np.random.default_rng(0)) \
+        == 0.0
+
+
+def test_a_frame_merged_with_itself_is_modeled_as_the_frame():
+    # Every point of a clutter frame twice: the point spacing was 0, and the occlusion
+    # test of a box's completion divided by it (ZeroDivisionError); now the same objects.
+    scene = render_clutter(3)
+    points = scene.organized.reshape(-1, 3)
+    points = points[np.isfinite(points).all(axis=1)]
+    _, once = model_scene(points, ModelingParams(), rng=0)
+    _, twice = model_scene(np.repeat(points, 2, axis=0), ModelingParams(), rng=0)
+    assert sorted(str(o.type) for o in twice.objects) == \
+        sorted(str(o.type) for o in once.objects)
 
 
 def test_points_grouped_by_face_in_input_order():

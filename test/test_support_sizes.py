@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import functools
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from geomodel_ros.core.fitting.completion import CircleSection, Extension, RectangleSection
+from geomodel_ros.core.fitting.completion import (CircleSection, Extension, RectangleSection,
+                                                  hidden_extension)
 from geomodel_ros.core.modeling import estimate_spacing, model_object, model_objects, model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.view import SceneView
@@ -349,3 +351,12 @@ def test_objects_message_and_labels_say_which_dimensions_were_completed():
               if m.ns == LABEL_NAMESPACE}
     assert labels == {3: "cuboid l=80.0 w=60.0 h=100.0* mm, confidence 0.81",
                       4: "cylinder r=30.0 h=100.0 mm, confidence 0.81"}
+
+
+def test_no_hidden_extension_is_judged_without_a_point_spacing():
+    # Every point a duplicate: the spacing is 0 and the rays' angular cells would be too;
+    # without a cell there is no evidence, and nothing is completed.
+    ext = SimpleNamespace(probes=lambda: np.array([[0.0, 0.0, 1.0]]))
+    cloud = SimpleNamespace(view=object(), center=np.array([0.0, 0.0, 1.0]), spacing=0.0,
+                            params=ModelingParams())
+    assert hidden_extension(cloud, ext) is False

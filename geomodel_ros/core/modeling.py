@@ -57,6 +57,9 @@ MIN_WORKING_POINTS = 6
 #: from the nearest neighbours of SPACING_QUERIES of them.
 SPACING_SAMPLE = 2000
 SPACING_QUERIES = 500
+#: Exact duplicates of a point that :func:`estimate_spacing` looks past to its nearest
+#: other position.
+SPACING_DUPLICATES = 8
 #: An object's range (for its noise-dependent tolerances) is the median over about this
 #: many of its points.
 OBJECT_RANGE_SAMPLE = 1000
@@ -230,7 +233,9 @@ def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
 
     Large sets are estimated from a random subset: on a surface the nearest-neighbour
     distance scales with 1 / sqrt(density), so the subset's median is scaled by
-    sqrt(subset / n).
+    sqrt(subset / n). A point's spacing is the distance to its nearest other position:
+    exact duplicates (a cloud merged with itself) are looked through, up to
+    SPACING_DUPLICATES of them; 0.0 only when every queried point has more.
     """
     n = len(points)
     if n < 2:
@@ -241,8 +246,20 @@ def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
     # whatever the tree), and the 22 objects of four test frames (osd_learn, scene3) took
     # 12.7 instead of 13.8 ms.
     tree = cKDTree(sub, balanced_tree=False, compact_nodes=False)
-    d, _ = tree.query(sub[: min(len(sub), queries)], k=2)
-    return float(np.median(d[:, 1]) * math.sqrt(len(sub) / n))
+    q = sub[: min(len(sub), queries)]
+    d, _ = tree.query(q, k=2)
+    d = d[:, 1]
+    same = np.flatnonzero(d == 0.0)
+    if len(same):
+        k = min(len(sub), SPACING_DUPLICATES + 2)
+        far, _ = tree.query(q[same], k=k)
+        first = np.argmax(far > 0.0, axis=1)
+        d[same] = np.where(far[np.arange(len(same)), first] > 0.0,
+                           far[np.arange(len(same)), first], np.nan)
+        d = d[np.isfinite(d)]
+        if len(d) == 0:
+            return 0.0
+    return float(np.median(d) * math.sqrt(len(sub) / n))
 
 
 def object_range(points: NDArray[np.float64]) -> tuple[float, float]:

@@ -272,6 +272,8 @@ def hidden_extension(cloud: ObjectCloud, ext: Extension) -> bool:
         return False
     rng = float(np.linalg.norm(cloud.center))
     cell = CELL_SPACINGS * cloud.spacing / max(rng, np.finfo(float).tiny)
+    if not cell > 0.0:  # no point spacing known (every point a duplicate): no evidence
+        return False
     contact = SUPPORT_END_FACTOR * cloud.params.seg_plane_threshold
     # The look-up also covers the outline at the observed end, grown by the contact
     # tolerance (where a ledge would be), and returns the points in the range band of
