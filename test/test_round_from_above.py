@@ -19,6 +19,7 @@ cases are hand-built.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -201,15 +202,15 @@ LID_BOX = Primitive(0, "cuboid", np.array([0.0, 0.0, 0.75]), np.eye(3),
                     {"length": 0.07, "width": 0.07, "height": 0.1}, 1000, 0.0)
 
 
-def _disc_cylinder_of(face_xy: np.ndarray, normal=(0.0, 0.0, -1.0)):
-    """disc_cylinder of one planar face (points at z = 0.7 m) and LID_BOX."""
+def _disc_cylinder_of(face_xy: np.ndarray, normal=(0.0, 0.0, -1.0), box=LID_BOX):
+    """disc_cylinder of one planar face (points at z = 0.7 m) and ``box``."""
     points = _cap(face_xy)
     face = SimpleNamespace(info=SimpleNamespace(planar=True, normal=np.array(normal),
                                                 size=len(points)),
                            points=np.arange(len(points)))
     cloud = SimpleNamespace(oid=3, points=points, faces=[face], spacing=0.002,
                             params=ModelingParams(ransac_threshold=0.001))
-    return disc_cylinder(cloud, LID_BOX)
+    return disc_cylinder(cloud, box)
 
 
 def test_the_cylinder_of_a_disc_face_is_the_lids_circle_as_long_as_the_box():
@@ -220,6 +221,11 @@ def test_the_cylinder_of_a_disc_face_is_the_lids_circle_as_long_as_the_box():
     # The outline's points lie within one grid step (2 mm) inside the circle.
     assert r - 0.002 < cyl.dimensions["radius"] <= r + 1e-9
     assert cyl.dimensions["height"] == pytest.approx(0.1, abs=1e-12)
+    assert cyl.completed == () and 0.0 <= cyl.rmse < 0.002
+    # The box's depth completed down to a support: so is the cylinder's height.
+    done = _disc_cylinder_of(g[np.hypot(g[:, 0], g[:, 1]) <= r],
+                             box=dataclasses.replace(LID_BOX, completed=("height",)))
+    assert done.completed == ("height",)
     # Axis along the lid's normal, centre halfway down the box from the lid's centre.
     assert abs(cyl.rotation[2, 2]) == pytest.approx(1.0, abs=1e-9)
     np.testing.assert_allclose(cyl.center, [0.0, 0.0, 0.75], atol=1e-4)
@@ -250,6 +256,8 @@ def test_cans_seen_by_their_lids_are_the_cylinders_of_the_lids(noise, seed, gt_i
     truth = scene.objects[gt_id].dimensions
     assert obj.dimensions["radius"] == pytest.approx(truth["radius"], abs=2.0 * MM)
     assert obj.dimensions["height"] == pytest.approx(truth["height"], abs=3.0 * MM)
+    # The rmse of its points about it, not a fit's placeholder: within the noise.
+    assert 0.0 < obj.rmse < 3.0 * MM
 
 
 def test_a_box_whose_top_is_near_a_disc_in_the_noise_stays_a_box():

@@ -253,9 +253,8 @@ def estimate_spacing(points: NDArray[np.float64], rng: np.random.Generator,
     if len(same):
         k = min(len(sub), SPACING_DUPLICATES + 2)
         far, _ = tree.query(q[same], k=k)
-        first = np.argmax(far > 0.0, axis=1)
-        d[same] = np.where(far[np.arange(len(same)), first] > 0.0,
-                           far[np.arange(len(same)), first], np.nan)
+        other = far[np.arange(len(same)), np.argmax(far > 0.0, axis=1)]
+        d[same] = np.where(other > 0.0, other, np.nan)
         d = d[np.isfinite(d)]
         if len(d) == 0:
             return 0.0

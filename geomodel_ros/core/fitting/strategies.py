@@ -852,7 +852,8 @@ def disc_cylinder(cloud: ObjectCloud, box: Primitive) -> Primitive | None:
 
     Each planar face across one of the box's axes (largest first) is taken as a can's
     lid: the circle through its outline (the convex hull of its points in its plane,
-    least squares) with the box's extent along that axis. The first face whose outline
+    least squares) with the box's extent along that axis (completed where the box's was,
+    its rmse over the object's points). The first face whose outline
     lies nearer that circle than the least-area rectangle round it (median distances of
     the hull's vertices, :func:`_rectangle_distance`) and that is a disc end of its
     cylinder, all round (:func:`disc_end`), gives it.
@@ -880,14 +881,17 @@ def disc_cylinder(cloud: ObjectCloud, box: Primitive) -> Primitive | None:
         if np.median(np.abs(np.linalg.norm(rim - centre2, axis=1) - radius)) >= \
                 np.median(_rectangle_distance(rim)):
             continue  # the outline follows a rectangle, not the circle
-        length = box.dimensions[("length", "width", "height")[k]]
+        name = ("length", "width", "height")[k]
+        length = box.dimensions[name]
         axis = box.rotation[:, k] * (1.0 if box.rotation[:, k] @ n < 0 else -1.0)
         top = c0 + frame[:, :2] @ centre2
         cyl = Primitive(cloud.oid, PrimitiveType.CYLINDER, top + axis * length / 2.0,
                         frame_with_z(-axis), {"radius": float(radius), "height": float(length)},
-                        len(cloud.points), 0.0)
+                        len(cloud.points), 0.0,
+                        completed=("height",) if name in box.completed else ())
         if disc_end(cloud, cyl):
-            return cyl
+            d = surface_distance(cyl, cloud.points)
+            return dataclasses.replace(cyl, rmse=float(np.sqrt(np.mean(d * d))))
     return None
 
 
