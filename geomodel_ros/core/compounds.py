@@ -400,7 +400,7 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], face: bool,
         first, second = o, fit_second(group)
     in_second = group
     kept = None  # the last pair of typed models fitted each to its own part
-    if not _typed(second):
+    if not _typed(second) or _one_body(first, second, params.angle_tolerance):
         return None
     for k in range(SPLIT_ROUNDS):
         nearer = surface_distance(second, points) < surface_distance(first, points)
@@ -425,6 +425,18 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], face: bool,
 def _typed(*prims: Primitive) -> bool:
     """Tell whether none of ``prims`` is ``unknown``."""
     return all(p.type != PrimitiveType.UNKNOWN for p in prims)
+
+
+def _one_body(first: Primitive, second: Primitive, angle_tolerance: float) -> bool:
+    """Tell whether two models are faces of one box or bands of one round body's side.
+
+    (:func:`_faces_of_a_box`, :func:`_bands_of_a_round_body`.) Such a pair is no split
+    (:func:`_two_bodies`); when the hand-off starts from one, there is no second body to
+    hand points to, and its refits (2-6 fits of a part, 100-800 ms on osd_learn's cans)
+    are not made.
+    """
+    return _faces_of_a_box(first, second, angle_tolerance) or \
+        _bands_of_a_round_body(first, second, angle_tolerance)
 
 
 def _faces_of_a_box(first: Primitive, second: Primitive, angle_tolerance: float) -> bool:
@@ -478,8 +490,7 @@ def _two_bodies(first: Primitive, second: Primitive, in_second: NDArray[np.bool_
     ``ransac_threshold`` at least ``min_inlier_ratio``) and neither part lies in the
     other's body (:func:`_in_body`).
     """
-    if _faces_of_a_box(first, second, params.angle_tolerance) or \
-            _bands_of_a_round_body(first, second, params.angle_tolerance):
+    if _one_body(first, second, params.angle_tolerance):
         return False
     sides = ((first, points[~in_second]), (second, points[in_second]))
     tolerances = [_params_at(params, noise, p) for _, p in sides]
