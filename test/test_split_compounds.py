@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from geomodel_ros.core.compounds import (_bands_of_a_round_body, _faces_of_a_box, _in_body,
-                                         split_compounds)
+                                         _Part, _two_models, split_compounds)
 from geomodel_ros.core.modeling import PartModeler, model_objects, model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
@@ -231,6 +231,44 @@ def test_coaxial_round_parts_are_bands_of_one_body():
     ball = _prim(PrimitiveType.SPHERE, (0.0, 0.0, 0.09), (0.0, 0.0, 1.0), radius=0.03)
     assert not _bands_of_a_round_body(low, box, tol)
     assert not _bands_of_a_round_body(ball, low, tol)
+
+
+class _CountingModeler:
+    """Stands for a PartModeler: every part is modeled as ``second``; calls are counted."""
+
+    def __init__(self, second: Primitive) -> None:
+        self.second, self.calls = second, 0
+
+    def context(self, _labels):
+        return None, None
+
+    def __call__(self, _points, _object_id, _key, _context):
+        self.calls += 1
+        return self.second
+
+
+@pytest.mark.parametrize("offset, one_body", [(0.0, True), (0.005, True), (0.06, False)])
+def test_the_hand_off_starts_only_from_two_bodies(offset, one_body):
+    # A can (r 40 mm, axis along y) modeled as a cylinder 8 mm too thin, its lid starting
+    # the second part, which is modeled as a cylinder round the upper half of the side.
+    # On the can's axis (within half a radius) that is a band of the same side: there is
+    # no second body to hand points to, and no part is refitted (one model made). 60 mm
+    # off the axis it is another body: the side's points nearer to it are handed over and
+    # both parts refitted (two more models); the refits give the same pair, no split.
+    side, lid = _can_side(0.0, 0.9, 0.0, HEIGHT, RADIUS), _disc(0.0, 0.0, 0.9, 0.0, RADIUS)
+    pts = np.vstack([side, lid])
+    whole = _prim(PrimitiveType.CYLINDER, (0.0, HEIGHT / 2, 0.9), (0.0, 1.0, 0.0),
+                  radius=0.8 * RADIUS, height=HEIGHT)
+    upper = _prim(PrimitiveType.CYLINDER, (offset, 0.75 * HEIGHT, 0.9), (0.0, 1.0, 0.0),
+                  radius=RADIUS, height=HEIGHT / 2)
+    assert _bands_of_a_round_body(whole, upper, PARAMS.angle_tolerance) == one_body
+    group = np.zeros(len(pts), dtype=bool)
+    group[len(side):] = True
+    modeler = _CountingModeler(upper)
+    out = _two_models(whole, _Part(pts, np.arange(len(pts))), group, False, 1,
+                      np.zeros(len(pts), dtype=np.int64), PARAMS, None, modeler)
+    assert out is None
+    assert modeler.calls == (1 if one_body else 3)
 
 
 # ------------------------------------------------------------------ end to end
