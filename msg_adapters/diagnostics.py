@@ -13,7 +13,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from .header import time_from_ns
 
-__all__ = ["LEVELS", "diagnostics_message", "noise_values", "read_status_values"]
+__all__ = ["LEVELS", "diagnostics_message", "noise_values", "sensor_values",
+           "read_status_values"]
 
 #: Level names -> ``DiagnosticStatus`` level bytes.
 LEVELS: Final[Mapping[str, bytes]] = {"ok": DiagnosticStatus.OK,
@@ -77,6 +78,18 @@ def noise_values(noise: Any, fragments: int) -> dict[str, str]:
                   "noise_samples": str(int(noise.samples))}
     values["fragments"] = str(int(fragments))
     return values
+
+
+def sensor_values(sensor: Any) -> dict[str, str]:
+    """Key/value of the camera recovered from an organized cloud's grid, for a status report.
+
+    ``sensor_origin_m``: the camera's centre "x y z" [m] in the cloud's frame, when the
+    cloud was not in the camera's optical frame
+    (:class:`geomodel_ros.core.viewpoint.SensorPose`); no key when ``sensor`` is None.
+    """
+    if sensor is None:
+        return {}
+    return {"sensor_origin_m": " ".join(f"{v:.4f}" for v in sensor.center)}
 
 
 def read_status_values(msg: DiagnosticArray, hardware_suffix: str) -> dict[str, str] | None:

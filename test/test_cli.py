@@ -75,7 +75,8 @@ def test_model_writes_json_and_ply(scene_files, capsys):
     assert (code, err) == (0, "")
     assert out.startswith("2 objects (1 cuboid, 1 plane) in ")
     result = json.loads(out_json.read_text())
-    assert set(result) == {"objects", "noise", "fragments", "timing"}
+    assert set(result) == {"objects", "noise", "sensor", "fragments", "timing"}
+    assert result["sensor"] is None  # a cloud in its sensor's frame
     assert {"modeling_s", "load_s", "reconstruction_s", "total_s"} <= set(result["timing"])
     assert [(o["id"], o["type"]) for o in result["objects"]] == [(0, "plane"), (1, "cuboid")]
     for o in result["objects"]:

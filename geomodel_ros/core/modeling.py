@@ -41,6 +41,7 @@ from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, ModelingResult, Primitive, PrimitiveType
 from geomodel_ros.core.resting import resting_objects
 from geomodel_ros.core.view import SceneView
+from geomodel_ros.core.viewpoint import grid_sensor_pose
 
 __all__ = ["model_objects", "model_object", "model_scene", "estimate_spacing", "InputError"]
 
@@ -499,7 +500,12 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
     # (measured: a (300000, 3) x (3,) product each 50 ms kept a second core busy
     # throughout), which takes half of a 2-core machine from the rest of the frame.
     with single_threaded_blas():
-        return _model_scene(pts, params, rng, organized_shape)
+        pose = grid_sensor_pose(pts, organized_shape) if organized_shape is not None \
+            and params.viewpoint == "auto" else None
+        if pose is None:
+            return _model_scene(pts, params, rng, organized_shape)
+        labels, result = _model_scene(pose.to_sensor(pts), params, rng, organized_shape)
+        return labels, pose.result_to_input(result)
 
 
 def _model_scene(pts: NDArray[np.float64], params: ModelingParams, rng: np.random.Generator,

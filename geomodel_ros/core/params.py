@@ -211,6 +211,14 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "unknown fragments out of the objects; fixed: use every value exactly as given.",
               choices=("auto", "fixed")),
     # --- organized clouds -----------------------------------------------------------------
+    ParamSpec("viewpoint", "auto", "", None, None,
+              "Where the sensor is. auto: an organized cloud whose pixel grid is a pinhole "
+              "camera's image but whose frame is not that camera's optical frame (a cloud "
+              "transformed into a robot's base frame) is modeled in the camera's frame, "
+              "recovered from the grid, and its objects are returned in the cloud's frame; "
+              "every other cloud as origin. origin: the cloud's origin is the sensor (as "
+              "camera drivers publish it).",
+              choices=("auto", "origin")),
     ParamSpec("mixed_pixel_filter", False, "", None, None,
               "Leave out the mixed pixels of organized clouds before segmenting: returns "
               "between two surfaces at a depth edge (time-of-flight cameras' flying pixels, "
@@ -309,6 +317,7 @@ class ModelingParams:
     noise_model: str = "auto"
 
     # --- organized clouds -----------------------------------------------------------------
+    viewpoint: str = "auto"
     mixed_pixel_filter: bool = False
     decimation: int = 1
     organized_fast_path: bool = False

@@ -209,7 +209,10 @@ class ModelingResult:
     frame's :class:`~geomodel_ros.core.noise.NoiseEstimate` (None with ``noise_model =
     fixed``); ``fragments`` counts the segments left out of ``objects`` as too small to be
     an object (their points are labelled -1); ``supported`` maps each support's id to the
-    ids of the objects resting on it (:mod:`geomodel_ros.core.resting`).
+    ids of the objects resting on it (:mod:`geomodel_ros.core.resting`). ``sensor`` is the
+    camera recovered from an organized cloud's pixel grid when the cloud was not in that
+    camera's optical frame (:class:`~geomodel_ros.core.viewpoint.SensorPose`; everything
+    else is then in the cloud's own frame), else None.
     """
 
     objects: list[Primitive]
@@ -218,10 +221,12 @@ class ModelingResult:
     noise: Any = None
     fragments: int = 0
     supported: dict[int, list[int]] = field(default_factory=dict)
+    sensor: Any = None
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (the CLI's output schema)."""
         return {"objects": [o.to_dict() for o in self.objects],
                 "noise": None if self.noise is None else self.noise.to_dict(),
+                "sensor": None if self.sensor is None else self.sensor.to_dict(),
                 "fragments": int(self.fragments),
                 "timing": {k: float(v) for k, v in self.timing.items()}}

@@ -31,7 +31,7 @@ from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.core.reconstruction import reconstruct
 from geomodel_ros.core.tracking import Tracker, TrackerConfig
 
-from msg_adapters.diagnostics import noise_values
+from msg_adapters.diagnostics import noise_values, sensor_values
 from msg_adapters.interfaces import MarkerArray, PointCloud2
 from msg_adapters.markers import (primitives_to_markers, reconstruction_cloud, segments_cloud,
                                   tracked_markers)
@@ -133,7 +133,8 @@ class FrameResult:
         Ids the tracker retired in this frame (empty without tracking).
     diagnostics : dict[str, str]
         The frame's noise estimate and fragment count as ``/diagnostics`` key/values
-        (:func:`msg_adapters.diagnostics.noise_values`).
+        (:func:`msg_adapters.diagnostics.noise_values`), and the camera's centre when it
+        was recovered from the cloud's grid (:func:`msg_adapters.diagnostics.sensor_values`).
     """
 
     markers: MarkerArray
@@ -308,7 +309,8 @@ def finish_frame(frame: ModeledFrame, params: ModelingParams, *, segments: bool 
                        result=result, labels=frame.labels, valid_points=frame.valid_points,
                        timing=timing, objects=objects_msg, tracked=list(shown),
                        deleted_ids=deleted,
-                       diagnostics=noise_values(result.noise, result.fragments))
+                       diagnostics=noise_values(result.noise, result.fragments)
+                       | sensor_values(result.sensor))
 
 
 def _count_finite(points: NDArray[np.floating]) -> int:
