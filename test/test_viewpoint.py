@@ -168,3 +168,31 @@ def test_the_json_and_the_diagnostics_carry_the_camera(frame):
     assert sensor_values(None) == {}
     _, own = model_scene(pts.reshape(*shape, 3), ModelingParams())
     assert own.to_dict()["sensor"] is None
+
+
+def test_the_node_models_a_cloud_in_the_robots_frame_and_answers_in_it(frame):
+    from geomodel_ros.ros.processing import process_cloud
+    from msg_adapters.header import make_header
+    from msg_adapters.pointcloud2 import xyz_to_cloud
+
+    _, pts, shape = frame
+    _, own = model_scene(pts.reshape(*shape, 3), ModelingParams())
+    msg = xyz_to_cloud(_to_base(pts).astype(np.float32).reshape(*shape, 3),
+                       make_header("base_link", 7))
+    out = process_cloud(msg, ModelingParams(), segments=False, reconstruction=True)
+    assert out.diagnostics["sensor_origin_m"] == "0.3000 -0.2000 1.2500"
+    assert out.markers.markers[-1].header.frame_id == "base_link"
+    types = sorted(o.type.value for o in out.result.objects)
+    assert types == sorted(o.type.value for o in own.objects)
+    # The desk (the largest object) in the base frame: its plane through the moved points.
+    desk = max(out.result.objects, key=lambda o: o.point_count)
+    own_desk = max(own.objects, key=lambda o: o.point_count)
+    np.testing.assert_allclose(desk.center, _to_base(own_desk.center[None])[0], atol=2e-3)
+    # The reconstruction is the camera frame's, moved into the base frame.
+    from geomodel_ros.core.reconstruction import reconstruct
+    from msg_adapters.pointcloud2 import cloud_to_xyz
+
+    recon = cloud_to_xyz(out.reconstruction)
+    expected, _ = reconstruct(own.objects, ModelingParams().reconstruction_spacing)
+    assert len(recon) == pytest.approx(len(expected), rel=0.01)
+    np.testing.assert_allclose(recon.mean(axis=0), _to_base(expected).mean(axis=0), atol=2e-3)
