@@ -38,7 +38,9 @@ def _gt(scene, oid):
 
 
 def _check_schema(d: dict) -> None:
-    assert set(d) == {"objects", "noise", "fragments", "timing"}
+    assert set(d) == {"objects", "noise", "sensor", "fragments", "timing"}
+    assert d["sensor"] is None or (len(d["sensor"]["center"]) == 3 and all(
+        math.isfinite(v) for v in d["sensor"]["center"]))
     assert d["noise"] is None or all(math.isfinite(v) for v in d["noise"].values())
     assert all(isinstance(v, float) and v >= 0 for v in d["timing"].values())
     for o in d["objects"]:
