@@ -463,7 +463,11 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
     points : (N, 3) or (H, W, 3) float array [m]
         Scene cloud in the sensor frame (non-finite rows and rows farther than
         ``params.max_range`` from the origin allowed, labelled -1); an (H, W, 3) array is an
-        organized cloud (its rows row-major). With more than
+        organized cloud (its rows row-major). With ``params.viewpoint = auto`` an organized
+        cloud in another frame is modeled in its camera's frame, recovered from the pixel
+        grid (:func:`~geomodel_ros.core.viewpoint.grid_sensor_pose`), and the objects and
+        support planes are returned in the cloud's frame (``result.sensor`` says where the
+        camera was). With more than
         ``params.max_points`` of the others, the scene is averaged on a voxel grid first
         (:func:`geomodel_ros.core.input.downsample`) and segmented at that voxel; every
         row then gets the label of its voxel, sizes are exact to that voxel, and point
