@@ -196,3 +196,33 @@ def test_the_node_models_a_cloud_in_the_robots_frame_and_answers_in_it(frame):
     expected, _ = reconstruct(own.objects, ModelingParams().reconstruction_spacing)
     assert len(recon) == pytest.approx(len(expected), rel=0.01)
     np.testing.assert_allclose(recon.mean(axis=0), _to_base(expected).mean(axis=0), atol=2e-3)
+
+
+def test_garbage_rows_neither_hide_the_camera_nor_raise(frame):
+    # A driver's garbage among the returns of a moved frame: rows at 1e300 and 1e308 m
+    # (finite), infinities, NaN. The camera comes from the rest; nothing overflows into a
+    # warning (errors here) and the garbage rows belong to no object.
+    import warnings
+
+    _, pts, shape = frame
+    moved = _to_base(pts)
+    moved[::97] = 1e300
+    moved[1::89] = [1e308, -1e308, 1e308]
+    moved[2::83] = np.inf
+    moved[3::79] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pose = grid_sensor_pose(moved, shape)
+        assert pose is not None and np.abs(pose.center - CAMERA_IN_BASE).max() < 1e-9
+        labels, result = model_scene(moved.reshape(*shape, 3), ModelingParams())
+    assert result.sensor is not None
+    assert np.all(labels[::97] == -1) and np.all(labels[1::89] == -1)
+    assert sum(o.type.value != "unknown" for o in result.objects) >= 10
+    # The same garbage in the camera's own frame (the hidden ends' view of the returns
+    # squared 1e300 into an overflow warning before).
+    own = pts.copy()
+    own[::97] = 1e300
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        labels, result = model_scene(own.reshape(*shape, 3), ModelingParams())
+    assert result.sensor is None and np.all(labels[::97] == -1)

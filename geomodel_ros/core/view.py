@@ -142,8 +142,9 @@ class SceneView:
         NaN range, which no test accepts.
         """
         cols = np.ascontiguousarray(self.points.T)
-        r = np.sqrt(cols[0] * cols[0] + cols[1] * cols[1] + cols[2] * cols[2])
-        with np.errstate(invalid="ignore"):
+        # Huge finite rows (a driver's garbage, 1e300 m) overflow to an infinite range.
+        with np.errstate(over="ignore", invalid="ignore"):
+            r = np.sqrt(cols[0] * cols[0] + cols[1] * cols[1] + cols[2] * cols[2])
             r[r > self.max_range] = np.nan
         return cols, r
 

@@ -56,6 +56,9 @@ MIN_SECOND_SINGULAR: Final = 1e-9
 #: Fewest finite pixels to fit a camera to (six points determine one; many more make
 #: the fit a check).
 MIN_GRID_PIXELS: Final = 100
+#: Coordinates [m] beyond which a row is no measurement (a driver's garbage, 1e300): left
+#: out of the fit, whose products would overflow; a map frame's points lie far within.
+MAX_COORDINATE: Final = 1e9
 
 
 @dataclass(frozen=True)
@@ -83,8 +86,13 @@ class SensorPose:
                 "reprojection_rms_px": float(self.rms_px)}
 
     def to_sensor(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Return ``points`` (N, 3) [m] in the camera's optical frame (non-finite rows stay so)."""
-        return (points - self.center) @ self.rotation.T
+        """Return ``points`` (N, 3) [m] in the camera's optical frame.
+
+        Non-finite rows stay non-finite; rows so large that they overflow become so (the
+        modeling's input gates leave both out).
+        """
+        with np.errstate(over="ignore", invalid="ignore"):
+            return (points - self.center) @ self.rotation.T
 
     def to_input(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
         """Return ``points`` (N, 3) [m] of the camera's optical frame in the cloud's frame."""
@@ -131,28 +139,38 @@ def grid_sensor_pose(points: NDArray[np.float64], shape: tuple[int, int]
     pts = np.asarray(points).reshape(h * w, 3)
     # Every k-th pixel, then its returns: a frame with few returns is sampled finer.
     rows = np.arange(0, h * w, max(1, h * w // GRID_SAMPLE))
-    rows = rows[np.isfinite(pts[rows]).all(axis=1)]
+    rows = rows[_measured(pts[rows])]
     if len(rows) < GRID_SAMPLE // 4:
-        rows = np.flatnonzero(np.isfinite(pts).all(axis=1))
+        rows = np.flatnonzero(_measured(pts))
         rows = rows[:: max(1, len(rows) // GRID_SAMPLE)]
     if len(rows) < MIN_GRID_PIXELS:
         return None
     x = pts[rows].astype(np.float64)
     uv = np.column_stack([rows % w, rows // w]).astype(np.float64)
-    camera = _dlt(x, uv)
-    if camera is None:
+    try:
+        with np.errstate(all="ignore"):
+            camera = _dlt(x, uv)
+            if camera is None or not np.isfinite(camera).all():
+                return None
+            rms = _reprojection_rms(camera, x, uv)
+            if not rms <= MAX_REPROJECTION_PX:
+                return None
+            pose = _decompose(camera)
+    except np.linalg.LinAlgError:  # a degenerate sample (e.g. every point the same)
         return None
-    rms = _reprojection_rms(camera, x, uv)
-    if not rms <= MAX_REPROJECTION_PX:
-        return None
-    pose = _decompose(camera)
-    if pose is None:
+    if pose is None or not np.isfinite(pose[1]).all():
         return None
     rotation, center = pose
     turned = math.acos(max(-1.0, min(1.0, (np.trace(rotation) - 1.0) / 2.0)))
     if np.linalg.norm(center) <= ORIGIN_TOLERANCE and turned <= ORIGIN_TOLERANCE:
         return None
     return SensorPose(rotation, center, float(rms))
+
+
+def _measured(points: NDArray) -> NDArray[np.bool_]:
+    """Rows (n,) of ``points`` (n, 3) that may be measurements: finite, within MAX_COORDINATE."""
+    with np.errstate(invalid="ignore"):
+        return np.all(np.abs(points) <= MAX_COORDINATE, axis=1)
 
 
 def _normaliser(p: NDArray[np.float64]) -> NDArray[np.float64]:
