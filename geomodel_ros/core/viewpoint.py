@@ -206,8 +206,7 @@ def _reprojection_rms(camera: NDArray[np.float64], x: NDArray[np.float64],
                       uv: NDArray[np.float64]) -> float:
     """RMS distance [px] between ``uv`` (n, 2) and the projections of ``x`` (n, 3)."""
     proj = np.column_stack([x, np.ones(len(x))]) @ camera.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        err = proj[:, :2] / proj[:, 2:3] - uv
+    err = proj[:, :2] / proj[:, 2:3] - uv  # a point at the camera's centre: inf, no fit
     return float(np.sqrt(np.mean(np.sum(err * err, axis=1))))
 
 
@@ -219,16 +218,15 @@ def _decompose(camera: NDArray[np.float64]
     front of the camera: positive depth).
     """
     m = camera[:, :3]
-    if abs(np.linalg.det(m)) < 1e-300:
+    det = np.linalg.det(m)
+    if abs(det) < 1e-300:
         return None
-    if np.linalg.det(m) < 0.0:
+    if det < 0.0:  # P is known up to sign: with det M > 0, K R has det R = +1
         camera, m = -camera, -m
     k, r = rq(m)
     signs = np.sign(np.diag(k))
     if np.any(signs == 0):
         return None
     r = signs[:, None] * r  # K D D R with D = diag(signs): K D has a positive diagonal
-    if np.linalg.det(r) < 0.0:
-        return None
     center = -np.linalg.solve(m, camera[:, 3])
     return r, center
