@@ -247,28 +247,40 @@ class _CountingModeler:
         return self.second
 
 
-@pytest.mark.parametrize("offset, one_body", [(0.0, True), (0.005, True), (0.06, False)])
-def test_the_hand_off_starts_only_from_two_bodies(offset, one_body):
-    # A can (r 40 mm, axis along y) modeled as a cylinder 8 mm too thin, its lid starting
-    # the second part, which is modeled as a cylinder round the upper half of the side.
-    # On the can's axis (within half a radius) that is a band of the same side: there is
-    # no second body to hand points to, and no part is refitted (one model made). 60 mm
-    # off the axis it is another body: the side's points nearer to it are handed over and
-    # both parts refitted (two more models); the refits give the same pair, no split.
+@pytest.mark.parametrize("case, calls", [("band on the axis", 1), ("band 5 mm off", 1),
+                                         ("lid", 1), ("another can", 3)])
+def test_the_hand_off_starts_only_from_two_bodies(case, calls):
+    # A can (r 40 mm, axis along y) modeled as its cylinder, and a second can 150 mm to its
+    # side in the same segment. The second part starts from the other can's side or from
+    # the first can's lid, and its first model is given here. A band of the first can's
+    # side (a cylinder round its upper half, on its axis within half a radius) is the same
+    # body, and so is the lid, which lies on the can's end: there is no second body to
+    # hand points to, and no part is refitted (one model made). The other can's cylinder
+    # is another body: the points nearer to it are handed over and both parts refitted
+    # (two more models); the refits give the same pair, no split.
     side, lid = _can_side(0.0, 0.9, 0.0, HEIGHT, RADIUS), _disc(0.0, 0.0, 0.9, 0.0, RADIUS)
-    pts = np.vstack([side, lid])
+    other = _can_side(0.15, 0.9, 0.0, HEIGHT, RADIUS)
+    pts = np.vstack([side, lid, other])
     whole = _prim(PrimitiveType.CYLINDER, (0.0, HEIGHT / 2, 0.9), (0.0, 1.0, 0.0),
-                  radius=0.8 * RADIUS, height=HEIGHT)
-    upper = _prim(PrimitiveType.CYLINDER, (offset, 0.75 * HEIGHT, 0.9), (0.0, 1.0, 0.0),
-                  radius=RADIUS, height=HEIGHT / 2)
-    assert _bands_of_a_round_body(whole, upper, PARAMS.angle_tolerance) == one_body
+                  radius=RADIUS, height=HEIGHT)
     group = np.zeros(len(pts), dtype=bool)
-    group[len(side):] = True
-    modeler = _CountingModeler(upper)
+    if case == "lid":
+        group[len(side):len(side) + len(lid)] = True
+        second = _prim(PrimitiveType.PLANE, lid.mean(axis=0), (0.0, -1.0, 0.0),
+                       length=2 * RADIUS, width=2 * RADIUS)
+    else:
+        group[len(side) + len(lid):] = True
+        x = {"band on the axis": 0.0, "band 5 mm off": 0.005, "another can": 0.15}[case]
+        y, height = (0.75 * HEIGHT, HEIGHT / 2) if x < 0.1 else (HEIGHT / 2, HEIGHT)
+        second = _prim(PrimitiveType.CYLINDER, (x, y, 0.9), (0.0, 1.0, 0.0),
+                       radius=RADIUS, height=height)
+    assert _bands_of_a_round_body(whole, second, PARAMS.angle_tolerance) == case.startswith(
+        "band")
+    modeler = _CountingModeler(second)
     out = _two_models(whole, _Part(pts, np.arange(len(pts))), group, False, 1,
                       np.zeros(len(pts), dtype=np.int64), PARAMS, None, modeler)
     assert out is None
-    assert modeler.calls == (1 if one_body else 3)
+    assert modeler.calls == calls
 
 
 # ------------------------------------------------------------------ end to end

@@ -400,7 +400,8 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], face: bool,
         first, second = o, fit_second(group)
     in_second = group
     kept = None  # the last pair of typed models fitted each to its own part
-    if not _typed(second) or _one_body(first, second, params.angle_tolerance):
+    if not _typed(second) or _one_body(first, second, params.angle_tolerance) \
+            or _part_in_body(first, second, in_second, points, params, noise):
         return None
     for k in range(SPLIT_ROUNDS):
         nearer = surface_distance(second, points) < surface_distance(first, points)
@@ -498,11 +499,22 @@ def _two_bodies(first: Primitive, second: Primitive, in_second: NDArray[np.bool_
         if estimate_confidence(prim, own, tol.ransac_threshold).inlier_ratio \
                 < params.min_inlier_ratio:
             return False
-    for (prim, _), (_, other), tol in ((sides[0], sides[1], tolerances[1]),
-                                       (sides[1], sides[0], tolerances[0])):
-        if _in_body(prim, other, tol.ransac_threshold):
-            return False
-    return True
+    return not _part_in_body(first, second, in_second, points, params, noise)
+
+
+def _part_in_body(first: Primitive, second: Primitive, in_second: NDArray[np.bool_],
+                  points: NDArray[np.float64], params: ModelingParams,
+                  noise: NoiseEstimate | None) -> bool:
+    """Tell whether either part of ``points`` lies in the other part's model's body.
+
+    ``in_second`` (n,) marks ``second``'s part, the rest is ``first``'s (:func:`_in_body`,
+    within the ``ransac_threshold`` at the part's range): a can's lid, rim or inner floor
+    is no body of its own.
+    """
+    for prim, other in ((first, points[in_second]), (second, points[~in_second])):
+        if _in_body(prim, other, _params_at(params, noise, other).ransac_threshold):
+            return True
+    return False
 
 
 def _in_body(p: Primitive, points: NDArray[np.float64], threshold: float) -> bool:
