@@ -41,7 +41,7 @@ from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, ModelingResult, Primitive, PrimitiveType
 from geomodel_ros.core.resting import resting_objects
 from geomodel_ros.core.view import SceneView
-from geomodel_ros.core.viewpoint import grid_sensor_pose
+from geomodel_ros.core.viewpoint import SensorPose, grid_sensor_pose
 
 __all__ = ["model_objects", "model_object", "model_scene", "estimate_spacing", "InputError"]
 
@@ -454,7 +454,8 @@ def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArr
 
 def model_scene(points: NDArray, params: ModelingParams | None = None, *,
                 organized_shape: tuple[int, int] | None = None,
-                rng: np.random.Generator | int | None = None
+                rng: np.random.Generator | int | None = None,
+                sensor: SensorPose | None = None
                 ) -> tuple[NDArray[np.int64], ModelingResult]:
     """Segment a raw scene cloud, then model every segment.
 
@@ -479,6 +480,12 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
         and every pixel gets a sample's label (:mod:`geomodel_ros.core.decimation`);
         an object's point count is then the number of pixels that carry its label.
     rng : Generator, seed or None
+    sensor : SensorPose, optional
+        Where the sensor is in the cloud's frame, when the caller knows it (a robot's
+        transforms: :meth:`~geomodel_ros.core.viewpoint.SensorPose.from_transform`). The
+        cloud is modeled in the sensor's optical frame and the results are returned in
+        the cloud's frame, as for a camera recovered from the grid, which it replaces;
+        for unorganized clouds, which carry no grid, it is the only way.
 
     Returns
     -------
@@ -504,8 +511,8 @@ def model_scene(points: NDArray, params: ModelingParams | None = None, *,
     # (measured: a (300000, 3) x (3,) product each 50 ms kept a second core busy
     # throughout), which takes half of a 2-core machine from the rest of the frame.
     with single_threaded_blas():
-        pose = grid_sensor_pose(pts, organized_shape) if organized_shape is not None \
-            and params.viewpoint == "auto" else None
+        pose = sensor if sensor is not None else grid_sensor_pose(pts, organized_shape) \
+            if organized_shape is not None and params.viewpoint == "auto" else None
         if pose is None:
             return _model_scene(pts, params, rng, organized_shape)
         labels, result = _model_scene(pose.to_sensor(pts), params, rng, organized_shape)

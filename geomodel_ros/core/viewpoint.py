@@ -26,8 +26,9 @@ from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import rq
+from scipy.spatial.transform import Rotation
 
 from geomodel_ros.core.primitives import ModelingResult, Primitive
 
@@ -69,21 +70,43 @@ class SensorPose:
     ----------
     rotation : (3, 3) float64, from the cloud's frame to the camera's optical frame
     center : (3,) float64 [m], the camera's centre in the cloud's frame
-    rms_px : float, RMS reprojection error of the fit [px]
+    rms_px : float or None, RMS reprojection error of the grid's fit [px] (None: the pose
+        was given, :meth:`from_transform`)
     """
 
     rotation: NDArray[np.float64]
     center: NDArray[np.float64]
-    rms_px: float = 0.0
+    rms_px: float | None = None
+
+    @classmethod
+    def from_transform(cls, translation: ArrayLike, quaternion: ArrayLike) -> SensorPose:
+        """Make the pose of the sensor's optical frame in the cloud's frame, as tf2 gives it.
+
+        ``translation`` (x, y, z) [m] and ``quaternion`` (x, y, z, w) of the transform
+        from the optical frame to the cloud's (``lookup_transform(cloud_frame,
+        sensor_frame, ...)``: ``p_cloud = R p_sensor + t``). The quaternion is
+        normalised. Raises ValueError for values that are not finite or a zero quaternion.
+        """
+        t = np.asarray(translation, dtype=np.float64).reshape(-1)
+        q = np.asarray(quaternion, dtype=np.float64).reshape(-1)
+        if t.shape != (3,) or q.shape != (4,):
+            raise ValueError(f"a sensor pose needs 3 translation and 4 quaternion values, "
+                             f"got {t.size} and {q.size}")
+        if not (np.isfinite(t).all() and np.isfinite(q).all()):
+            raise ValueError("the sensor's pose is not finite")
+        if not np.linalg.norm(q) > 1e-9:
+            raise ValueError("the sensor's rotation is a zero quaternion")
+        r = Rotation.from_quat(q).as_matrix()  # scalar last, as ROS; normalised
+        return cls(r.T, t.copy())
 
     def to_dict(self) -> dict:
         """JSON-ready: the camera's centre [m], optical axes (columns x, y, z), fit [px].
 
-        Centre and axes are in the cloud's frame.
+        Centre and axes are in the cloud's frame; the fit is null for a given pose.
         """
         return {"center": [float(v) for v in self.center],
                 "rotation": [[float(v) for v in row] for row in self.rotation.T],
-                "reprojection_rms_px": float(self.rms_px)}
+                "reprojection_rms_px": None if self.rms_px is None else float(self.rms_px)}
 
     def to_sensor(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
         """Return ``points`` (N, 3) [m] in the camera's optical frame.

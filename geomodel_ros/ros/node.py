@@ -11,8 +11,10 @@ Run it as::
 Topics (names relative to the node, so ``-r`` and namespaces work):
 
 * ``points`` (sensor_msgs/PointCloud2, subscribed with ``input: points``, the default):
-  the scene in any frame; with ``reproject_along_rays`` the frame must be the sensor's
-  (sensor at the origin).
+  the scene in any frame. The modeling works in the sensor's frame: an organized cloud
+  in another frame gives its camera itself (``viewpoint``); for an unorganized one
+  (filtered, cropped, voxelised) in another frame, ``sensor_frame`` names the sensor's
+  optical frame, whose pose at the cloud's stamp the node looks up with tf2.
 * ``depth/image_raw`` (sensor_msgs/Image, subscribed with ``input: depth``): a depth image,
   ``16UC1`` millimetres (0 = no return) or ``32FC1`` metres (NaN, inf, 0 = no return),
   rectified/registered (lens distortion is not applied); the node back-projects it into
@@ -91,9 +93,11 @@ from rclpy.exceptions import InvalidHandle, ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.logging import get_logger
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.time import Time as RosTime
 from std_srvs.srv import Trigger
 
 from geomodel_ros.ros.frame_workers import MAX_WORKERS, ProcessModeler
@@ -106,6 +110,7 @@ from geomodel_ros.core.fastmath import retain_freed_memory
 from geomodel_ros.core.params import PARAMETERS, ModelingParams, ParameterError, ParamSpec
 from geomodel_ros.core.tracking import TRACKER_PARAMETERS, TrackerConfig
 from geomodel_ros.core.modeling import model_scene as core_model_scene
+from geomodel_ros.core.viewpoint import SensorPose
 
 from msg_adapters.depth_image import DepthImageError, depth_to_scene
 from msg_adapters.diagnostics import diagnostics_message
@@ -122,6 +127,9 @@ __all__ = ["ModelerNode", "NODE_PARAMETERS", "NODE_NUMERIC_PARAMETERS", "TRACKIN
 WARN_THROTTLE_S = 5.0
 #: How long ``destroy_node`` waits for a frame in progress [s].
 WORKER_JOIN_TIMEOUT_S = 5.0
+#: Longest wait of a frame for its sensor's transform (``sensor_frame``) [s]: a transform
+#: published at a moving sensor's rate arrives within this after the frame's stamp.
+TF_TIMEOUT_S = 0.2
 #: History depth of ``~/objects`` (reliable): a planner that is briefly slow still gets the
 #: last few frames' objects.
 OBJECTS_QOS_DEPTH = 10
@@ -160,6 +168,14 @@ NODE_PARAMETERS: tuple[_NodeParam, ...] = (
                "'points') or depth (sensor_msgs/Image on 'depth/image_raw' with "
                "sensor_msgs/CameraInfo on 'depth/camera_info'); read at start.",
                read_only=True, constraints="one of: " + ", ".join(INPUTS)),
+    _NodeParam("sensor_frame", "", "The sensor's optical frame (z forward, as the camera "
+               "driver publishes its clouds in), for clouds in another frame: the node "
+               "looks up its pose in the cloud's frame at the cloud's stamp with tf2 "
+               "(tf2_ros) and models the cloud from there; a frame without that transform "
+               "within TF_TIMEOUT_S is skipped (counted as failed). Needed for unorganized "
+               "clouds in a robot's frame; organized ones give their camera themselves "
+               "(viewpoint). Empty: clouds are taken as seen from their frame's origin. "
+               "Read at start.", read_only=True),
     _NodeParam("workers", 1, "Frames modeled at once, each in its own worker process (1: in "
                "the node's process). More workers raise the processed rate on a multi-core "
                "computer (up to about one per core), not the speed of one frame; each holds "
@@ -205,6 +221,7 @@ class NodeOptions:
     qos_depth: int
     qos_reliability: str
     input: str
+    sensor_frame: str
     workers: int
     publish_segments: bool
     publish_reconstruction: bool
@@ -388,6 +405,11 @@ class ModelerNode(Node):
     model_scene : SceneModeler
         The scene modeling run on every frame (default: the core's ``model_scene``); tests
         and benchmarks pass a stand-in.
+    transforms : object, optional
+        Where ``sensor_frame``'s pose is looked up: anything with ``tf2_ros.Buffer``'s
+        ``lookup_transform(target_frame, source_frame, time, timeout)`` (default: a
+        ``tf2_ros`` Buffer filled by its TransformListener, made only when
+        ``sensor_frame`` is set).
     **kwargs
         Passed to :class:`rclpy.node.Node` (``context``, ``cli_args``, ``namespace``,
         ``parameter_overrides``, ...).
@@ -396,13 +418,15 @@ class ModelerNode(Node):
     ------
     ParameterError
         If the initial parameters (overrides, params file) are inconsistent, e.g.
-        ``min_radius >= max_radius``, or ``qos_reliability`` is not allowed.
+        ``min_radius >= max_radius``, or ``qos_reliability`` is not allowed, or
+        ``sensor_frame`` is set where tf2_ros is not installed.
     rclpy.exceptions.ParameterException
         If an initial value has the wrong type or is out of its declared range.
     """
 
     def __init__(self, node_name: str = "modeler", *,
-                 model_scene: SceneModeler = core_model_scene, **kwargs: Any) -> None:
+                 model_scene: SceneModeler = core_model_scene, transforms: Any = None,
+                 **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self._model_scene = model_scene
         self._spec_names = frozenset(p.name for p in PARAMETERS)
@@ -411,6 +435,7 @@ class ModelerNode(Node):
         self._option_names = frozenset(p.name for p in NODE_PARAMETERS) | set(self._numeric_specs)
         try:
             self._params, self._options = self._initial_parameters()
+            self._transforms = self._transform_source(transforms)
         except Exception:
             Node.destroy_node(self)  # nothing else exists yet
             raise
@@ -527,6 +552,42 @@ class ModelerNode(Node):
     # ---------------------------------------------------------------------------------
     # parameters
     # ---------------------------------------------------------------------------------
+
+    def _transform_source(self, given: Any) -> Any:
+        """Return where ``sensor_frame``'s pose is looked up (None without one)."""
+        if not self._options.sensor_frame:
+            return None
+        if given is not None:
+            return given
+        try:
+            from tf2_ros import Buffer, TransformListener
+        except ImportError as exc:
+            raise ParameterError(
+                f"parameter 'sensor_frame' = {self._options.sensor_frame!r} needs tf2_ros "
+                f"(ros-jazzy-tf2-ros), which cannot be imported here ({exc})") from None
+        buffer = Buffer()
+        self._transform_listener = TransformListener(buffer, self)
+        return buffer
+
+    def _sensor_pose(self, msg: PointCloud2 | Image) -> SensorPose | None:
+        """Return the sensor's pose in ``msg``'s frame (``sensor_frame``), or None.
+
+        None when no ``sensor_frame`` is set or the message is in it. Raises LookupError
+        (with tf2's reason) when the transform is not known within TF_TIMEOUT_S or is no
+        rigid transform.
+        """
+        sensor_frame = self._options.sensor_frame
+        frame_id = header_of(msg).frame_id
+        if not sensor_frame or frame_id == sensor_frame:
+            return None
+        try:
+            found = self._transforms.lookup_transform(
+                frame_id, sensor_frame, RosTime.from_msg(msg.header.stamp),
+                timeout=Duration(seconds=TF_TIMEOUT_S))
+            t, q = found.transform.translation, found.transform.rotation
+            return SensorPose.from_transform((t.x, t.y, t.z), (q.x, q.y, q.z, q.w))
+        except Exception as exc:  # noqa: BLE001 - tf2's lookup, connectivity, timing errors
+            raise LookupError(f"{type(exc).__name__}: {exc}") from exc
 
     def _initial_parameters(self) -> tuple[ModelingParams, NodeOptions]:
         self.declare_parameters("", [(p.name, p.default, spec_descriptor(p))
@@ -696,7 +757,18 @@ class ModelerNode(Node):
                ) -> ModeledFrame | None:
         """Read and model the frame (:func:`model_frame`); None (logged) if it failed."""
         try:
-            return model_frame(msg, params, model_scene=self._model_scene, to_scene=to_scene)
+            sensor = self._sensor_pose(msg)
+        except LookupError as exc:
+            self._count_failure()
+            frame_id = header_of(msg).frame_id
+            self.get_logger().warning(
+                f"frame '{frame_id}' {_stamp(msg)} skipped: no transform from sensor_frame "
+                f"'{self._options.sensor_frame}' to '{frame_id}' at its stamp ({exc})",
+                throttle_duration_sec=WARN_THROTTLE_S)
+            return None
+        try:
+            return model_frame(msg, params, model_scene=self._model_scene, to_scene=to_scene,
+                               sensor=sensor)
         except (PointCloud2Error, DepthImageError) as exc:
             self._count_failure()
             frame_id, _ = header_of(msg)

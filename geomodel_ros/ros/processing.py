@@ -30,6 +30,7 @@ from geomodel_ros.core.primitives import ModelingResult
 from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.core.reconstruction import reconstruct
 from geomodel_ros.core.tracking import Tracker, TrackerConfig
+from geomodel_ros.core.viewpoint import SensorPose
 
 from msg_adapters.diagnostics import noise_values, sensor_values
 from msg_adapters.interfaces import MarkerArray, PointCloud2
@@ -170,8 +171,8 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
                   model_scene: SceneModeler = core_model_scene,
                   tracking: ObjectTracking | None = None,
                   to_scene: Callable[[Any], ScenePoints] = cloud_to_scene,
-                  on_objects: Callable[[MarkerArray, PrimitiveArray], None] | None = None
-                  ) -> FrameResult:
+                  on_objects: Callable[[MarkerArray, PrimitiveArray], None] | None = None,
+                  sensor: SensorPose | None = None) -> FrameResult:
     """Model one point cloud and build the node's output messages.
 
     Parameters
@@ -179,8 +180,8 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     msg : sensor_msgs.msg.PointCloud2
         The scene, any layout ``msg_adapters.pointcloud2`` reads (organized or not, NaN
         rows for missing returns, padded, float64, big-endian); also messages deserialized
-        by ``rosbags``.  With ``params.reproject_along_rays`` it must be in the sensor's
-        frame [m].  Not modified.
+        by ``rosbags`` [m].  The modeling takes the sensor at the frame's origin unless
+        ``sensor`` or an organized cloud's grid says otherwise.  Not modified.
     params : ModelingParams
         Modeling and segmentation parameters (deterministic for a given ``params.seed``).
     segments, reconstruction : bool
@@ -196,6 +197,11 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
         Called with the frame's markers and typed objects as soon as they are built, before
         the segments and reconstruction clouds (the node publishes them there, so that a
         planner does not wait for the clouds: 30-40 ms on a Kinect frame).
+    sensor : SensorPose, optional
+        The sensor's pose in ``msg``'s frame (the node's ``sensor_frame``, from tf2): the
+        points are modeled in the sensor's optical frame and every output is in ``msg``'s
+        frame. Without it an organized cloud gives its camera itself (``params.viewpoint``)
+        and an unorganized one is taken as seen from its frame's origin.
 
     Returns
     -------
@@ -212,7 +218,8 @@ def process_cloud(msg: PointCloud2, params: ModelingParams, *, segments: bool = 
     Exception
         Whatever ``to_scene`` raises for a malformed message (e.g. ``DepthImageError``).
     """
-    return finish_frame(model_frame(msg, params, model_scene=model_scene, to_scene=to_scene),
+    return finish_frame(model_frame(msg, params, model_scene=model_scene, to_scene=to_scene,
+                                    sensor=sensor),
                         params, segments=segments, reconstruction=reconstruction, tracking=tracking,
                         on_objects=on_objects)
 
@@ -250,7 +257,8 @@ class ModeledFrame:
 
 def model_frame(msg: Any, params: ModelingParams, *,
                 model_scene: SceneModeler = core_model_scene,
-                to_scene: Callable[[Any], ScenePoints] = cloud_to_scene) -> ModeledFrame:
+                to_scene: Callable[[Any], ScenePoints] = cloud_to_scene,
+                sensor: SensorPose | None = None) -> ModeledFrame:
     """Read ``msg`` and model its scene: the first half of :func:`process_cloud`.
 
     Frames modeled concurrently (the node's ``workers``) are finished one at a time, in
@@ -268,7 +276,12 @@ def model_frame(msg: Any, params: ModelingParams, *,
     points, organized, header = to_scene(msg)
     n_valid = _count_finite(points)
     lap("convert_s")
-    labels, result = _model_or_nothing(points, organized, n_valid, params, model_scene)
+    if sensor is None:
+        labels, result = _model_or_nothing(points, organized, n_valid, params, model_scene)
+    else:  # modeled in the sensor's frame, whatever ``model_scene`` runs in
+        labels, result = _model_or_nothing(sensor.to_sensor(points), organized, n_valid,
+                                           params, model_scene)
+        result = sensor.result_to_input(result)
     lap("model_s")
     timing.update({f"core_{k}": float(v) for k, v in result.timing.items()})
     return ModeledFrame(points, organized, header, labels.astype(np.int64, copy=False), result,
