@@ -56,7 +56,7 @@ def _quaternion() -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def frame():
-    """The frame's returns (unorganized, camera frame) and their model."""
+    """Return the frame's returns (unorganized, camera frame) and their model."""
     scene = render_clutter(5, KINECT_NOISE)
     pts = scene.organized.reshape(-1, 3)
     pts = pts[np.isfinite(pts).all(axis=1)]
@@ -189,7 +189,7 @@ def test_the_node_models_an_unorganized_cloud_from_its_sensor_frame(context, fra
 
 
 def _type_code(prim) -> int:
-    """The geomodel_msgs/Primitive type constant of a core primitive."""
+    """Return the geomodel_msgs/Primitive type constant of a core primitive."""
     from geomodel_msgs.msg import Primitive as PrimitiveMsg
 
     return getattr(PrimitiveMsg, prim.type.value.upper())
