@@ -13,6 +13,7 @@ pose up for every frame not in ``sensor_frame`` (here from a stand-in for
 from __future__ import annotations
 
 import importlib.util
+import json
 import threading
 
 import numpy as np
@@ -208,3 +209,36 @@ def test_a_sensor_frame_without_tf2_is_a_clear_error(context):
     node = ModelerNode(context=context)
     assert node._transforms is None
     node.destroy_node()
+
+
+def test_the_command_line_models_a_moved_cloud_from_its_sensor_pose(frame, tmp_path, capsys):
+    from geomodel_ros.core.modeling import model_objects
+    from geomodel_ros.tools.cli import main
+
+    pts, (labels, own) = frame
+    cloud, out = tmp_path / "moved.npy", tmp_path / "out.json"
+    np.save(cloud, _to_base(pts))
+    pose = [*CAMERA_IN_BASE, *_quaternion()]
+    assert main(["model", str(cloud), "--json", str(out), "--sensor-pose",
+                 *map(str, pose)]) == 0
+    got = json.loads(out.read_text())
+    np.testing.assert_allclose(got["sensor"]["center"], CAMERA_IN_BASE, atol=1e-12)
+    assert [o["type"] for o in got["objects"]] == [o.type.value for o in own.objects]
+    for a, b in zip(own.objects, got["objects"]):
+        np.testing.assert_allclose(b["center"], _to_base(a.center[None])[0], atol=1e-3)
+    # With the labels given: the camera frame's objects of those labels, moved.
+    np.save(tmp_path / "labels.npy", labels)
+    assert main(["model", str(cloud), "--json", str(out), "--labels",
+                 str(tmp_path / "labels.npy"), "--sensor-pose", *map(str, pose)]) == 0
+    got = json.loads(out.read_text())
+    expected = model_objects(pts, labels, ModelingParams())
+    assert [o["type"] for o in got["objects"]] == [o.type.value for o in expected.objects]
+    for a, b in zip(expected.objects, got["objects"]):
+        np.testing.assert_allclose(b["center"], _to_base(a.center[None])[0], atol=1e-3)
+    capsys.readouterr()
+    # A quaternion of length zero is no rotation: a clear error, nothing written.
+    out.unlink()
+    assert main(["model", str(cloud), "--json", str(out), "--sensor-pose",
+                 "0", "0", "0", "0", "0", "0", "0"]) == 2
+    assert "--sensor-pose" in capsys.readouterr().err
+    assert not out.exists()

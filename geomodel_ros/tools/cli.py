@@ -237,23 +237,26 @@ def cmd_model(args: argparse.Namespace) -> int:
     from geomodel_ros.core.reconstruction import reconstruct
 
     params = _params(args)
+    sensor = _sensor_pose(args.sensor_pose)
     t0 = time.perf_counter()
     cloud = _load_points(args.input)
     labels = _labels_for(args, cloud)
     t_load = time.perf_counter() - t0
-    far = int(np.count_nonzero(rows_finite(cloud.points) & ~in_range(cloud.points,
-                                                                       params.max_range)))
-    far -= len(origin_rows(cloud.points))  # no returns, not far points
+    seen = cloud.points if sensor is None else sensor.to_sensor(cloud.points)
+    far = int(np.count_nonzero(rows_finite(seen) & ~in_range(seen, params.max_range)))
+    far -= len(origin_rows(seen))  # no returns, not far points
     if far:
         print(f"geomodel: warning: {far} of {len(cloud.points)} points are farther than "
-              f"max_range = {params.max_range:g} m from the origin and were ignored",
-              file=sys.stderr)
+              f"max_range = {params.max_range:g} m from the "
+              f"{'origin' if sensor is None else 'sensor'} and were ignored", file=sys.stderr)
     if labels is None:
         labels, result = model_scene(cloud.points, params, organized_shape=(
-            (cloud.height, cloud.width) if cloud.is_organized else None))
+            (cloud.height, cloud.width) if cloud.is_organized else None), sensor=sensor)
         result.timing["segmentation"] = result.timing["segmentation_s"]
-    else:
+    elif sensor is None:
         result = model_objects(cloud.points, labels, params)
+    else:
+        result = sensor.result_to_input(model_objects(seen, labels, params))
     if args.labels_out:
         np.save(args.labels_out, labels.astype(np.int32))
     out = result.to_dict()
@@ -277,6 +280,18 @@ def cmd_model(args: argparse.Namespace) -> int:
     print(f"{len(result.objects)} objects ({summary}{frag}) in {out['timing']['total_s']:.2f} s"
           f"{noise} -> {args.json}")
     return 0
+
+
+def _sensor_pose(values: list[float] | None):
+    """Return the ``--sensor-pose`` (x y z qx qy qz qw) as a SensorPose, or None."""
+    if values is None:
+        return None
+    from geomodel_ros.core.viewpoint import SensorPose
+
+    try:
+        return SensorPose.from_transform(values[:3], values[3:])
+    except ValueError as exc:
+        raise CliError(f"--sensor-pose: {exc}") from None
 
 
 def cmd_params(_args: argparse.Namespace) -> int:
@@ -429,6 +444,12 @@ def _add_model(sub) -> None:
     p.add_argument("--labels-out", help="write the per-point object ids used (.npy, int32, "
                    "-1 = none); without --labels/--labels-field these come from segmentation")
     p.add_argument("--reconstruction", help="write the reconstructed surfaces (.ply)")
+    p.add_argument("--sensor-pose", nargs=7, type=float, metavar=("X", "Y", "Z", "QX", "QY",
+                                                                   "QZ", "QW"),
+                   help="where the sensor's optical frame (z forward) is in the cloud's "
+                   "frame, as tf2 gives it [m, quaternion]: the cloud is modeled from there "
+                   "and every output stays in its frame (for a cloud moved out of the "
+                   "sensor's frame; an organized one gives its camera itself)")
     _add_params(p)
     p.set_defaults(func=cmd_model)
 
