@@ -30,7 +30,7 @@ ROSDEP_KEYS = {
     **{name: name for name in (
         "rclpy", "sensor_msgs", "visualization_msgs", "std_msgs", "std_srvs", "geometry_msgs",
         "shape_msgs", "diagnostic_msgs", "rcl_interfaces", "builtin_interfaces",
-        "geomodel_msgs", "ament_index_python", "launch", "launch_ros")},
+        "geomodel_msgs", "ament_index_python", "launch", "launch_ros", "tf2_ros")},
     # Python libraries: rosdistro rosdep/python.yaml
     "numpy": "python3-numpy",
     "scipy": "python3-scipy",
