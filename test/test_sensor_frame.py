@@ -242,3 +242,36 @@ def test_the_command_line_models_a_moved_cloud_from_its_sensor_pose(frame, tmp_p
                  "0", "0", "0", "0", "0", "0", "0"]) == 2
     assert "--sensor-pose" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_the_bag_tool_models_moved_clouds_from_the_sensor_pose(frame, tmp_path, capsys):
+    from rclpy.serialization import deserialize_message
+
+    from test_bags import read_bag, write_bag
+
+    pts, (_, own) = frame
+    bag, out = tmp_path / "moved", tmp_path / "out"
+    write_bag(bag, {"/points": [xyz_to_cloud(_to_base(pts).astype(np.float32),
+                                              make_header("base_link", 5))]})
+    pose = [str(v) for v in (*CAMERA_IN_BASE, *_quaternion())]
+    # A pose that is none: a clear error before anything is written.
+    assert main_cli(["bag", str(bag), str(out), "--sensor-pose", *pose[:3], "0", "0", "0",
+                     "0"]) == 2
+    assert "--sensor-pose" in capsys.readouterr().err and not out.exists()
+    assert main_cli(["bag", str(bag), str(out), "--sensor-pose", *pose]) == 0
+    (raw,) = [r for _, r in read_bag(out)["/modeler/objects"]]
+    got = deserialize_message(raw, PrimitiveArray)
+    assert got.header.frame_id == "base_link"
+    assert sorted(p.type for p in got.primitives) == sorted(_type_code(o) for o in own.objects)
+    desk = max(got.primitives, key=lambda p: p.point_count)
+    own_desk = max(own.objects, key=lambda o: o.point_count)
+    position = desk.pose.position
+    np.testing.assert_allclose([position.x, position.y, position.z],
+                               _to_base(own_desk.center[None])[0], atol=2e-3)
+
+
+def main_cli(argv: list[str]) -> int:
+    """Run the ``geomodel`` command line."""
+    from geomodel_ros.tools.cli import main
+
+    return main(argv)

@@ -36,6 +36,7 @@ from geomodel_ros.ros.processing import (FrameResult, ModelingError, SceneModele
 
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.modeling import model_scene as core_model_scene
+from geomodel_ros.core.viewpoint import SensorPose
 
 from msg_adapters.header import make_header
 from msg_adapters.interfaces import PointCloud2
@@ -367,12 +368,13 @@ def _add_outputs(writer: Writer, name: str, conns: Sequence[Connection], ns: str
 
 
 def _model_record(raw: bytes, params: ModelingParams, segments: bool, reconstruction: bool,
-                  model_scene: SceneModeler) -> tuple[FrameResult | None, str | None]:
+                  model_scene: SceneModeler, sensor: SensorPose | None
+                  ) -> tuple[FrameResult | None, str | None]:
     """Model one serialized cloud: the node's outputs, or None and why it was skipped."""
     try:
         msg = deserialize_cloud(raw)
         return process_cloud(msg, params, segments=segments, reconstruction=reconstruction,
-                             model_scene=model_scene), None
+                             model_scene=model_scene, sensor=sensor), None
     except PointCloud2Error as exc:
         return None, f"malformed PointCloud2: {exc}"
     except ModelingError as exc:
@@ -398,7 +400,8 @@ def process_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
                 segments: bool = True, reconstruction: bool = True,
                 progress: Callable[[int, int], None] | None = None,
                 warn: Callable[[str], None] | None = None,
-                model_scene: SceneModeler = core_model_scene) -> BagSummary:
+                model_scene: SceneModeler = core_model_scene,
+                sensor: SensorPose | None = None) -> BagSummary:
     """Model every PointCloud2 of a bag offline, as the ``modeler`` node would.
 
     Parameters
@@ -426,6 +429,10 @@ def process_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
         Called with a one-line reason for every skipped cloud.
     model_scene : SceneModeler
         The scene modeling (default: the core's ``model_scene``, as the node runs it).
+    sensor : SensorPose, optional
+        The sensor's pose in the clouds' frame, one for every cloud (a camera fixed on the
+        robot's base, clouds in that base's frame; the node looks it up with tf2 per
+        frame, ``sensor_frame``): each cloud is modeled from there, outputs in its frame.
 
     Returns
     -------
@@ -463,7 +470,7 @@ def process_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
                 summary.frames += 1
                 writer.write(outs.cloud, t_ns, raw)
                 frame, reason = _model_record(raw, params, segments, reconstruction,
-                                              model_scene)
+                                              model_scene, sensor)
                 if frame is None:
                     summary.skipped.append(f"message {summary.frames} (bag time {t_ns} ns) "
                                            f"skipped: {reason}")

@@ -183,6 +183,7 @@ def _synth_bag(args: argparse.Namespace, bags) -> int:
 @_bag_command
 def cmd_bag(args: argparse.Namespace, bags) -> int:
     params = _params(args)
+    sensor = _sensor_pose(args.sensor_pose)
     show = sys.stderr.isatty() if args.progress is None else args.progress
     state = {"open": False}
 
@@ -205,7 +206,8 @@ def cmd_bag(args: argparse.Namespace, bags) -> int:
                                    storage=args.storage, namespace=args.namespace,
                                    segments=not args.no_segments,
                                    reconstruction=not args.no_reconstruction,
-                                   progress=progress if show else None, warn=warn)
+                                   progress=progress if show else None, warn=warn,
+                                   sensor=sensor)
     finally:
         end_line()
     skipped = f", {len(summary.skipped)} skipped" if summary.skipped else ""
@@ -414,6 +416,7 @@ def _add_bag(sub) -> None:
                    help="do not write <namespace>/reconstruction")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show a [k/N] counter on stderr (default: when stderr is a terminal)")
+    _add_sensor_pose(p)
     _add_params(p)
     p.set_defaults(func=cmd_bag)
 
@@ -444,14 +447,19 @@ def _add_model(sub) -> None:
     p.add_argument("--labels-out", help="write the per-point object ids used (.npy, int32, "
                    "-1 = none); without --labels/--labels-field these come from segmentation")
     p.add_argument("--reconstruction", help="write the reconstructed surfaces (.ply)")
+    _add_sensor_pose(p)
+    _add_params(p)
+    p.set_defaults(func=cmd_model)
+
+
+def _add_sensor_pose(p) -> None:
+    """Add ``--sensor-pose`` to the command parser ``p`` (read by :func:`_sensor_pose`)."""
     p.add_argument("--sensor-pose", nargs=7, type=float, metavar=("X", "Y", "Z", "QX", "QY",
                                                                    "QZ", "QW"),
                    help="where the sensor's optical frame (z forward) is in the cloud's "
                    "frame, as tf2 gives it [m, quaternion]: the cloud is modeled from there "
                    "and every output stays in its frame (for a cloud moved out of the "
                    "sensor's frame; an organized one gives its camera itself)")
-    _add_params(p)
-    p.set_defaults(func=cmd_model)
 
 
 def _add_bench(sub) -> None:
