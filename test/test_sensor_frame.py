@@ -77,7 +77,7 @@ def test_a_transform_gives_the_pose_the_grid_gives():
     scene = render_clutter(5, KINECT_NOISE)
     moved = _to_base(scene.organized.reshape(-1, 3))
     grid = grid_sensor_pose(moved, scene.organized.shape[:2])
-    for scale in (1.0, 3.0):
+    for scale in (1.0, 3.0, 1e200, 1e-200):
         pose = SensorPose.from_transform(CAMERA_IN_BASE, scale * _quaternion())
         np.testing.assert_allclose(pose.rotation, grid.rotation, atol=1e-9)
         np.testing.assert_allclose(pose.center, grid.center, atol=1e-9)
@@ -90,6 +90,7 @@ def test_a_transform_gives_the_pose_the_grid_gives():
     ((0.0, 0.0, 0.0), (0.0, np.inf, 0.0, 1.0)),
     ((0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
     ((0.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+    ((1e300, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
 ])
 def test_a_transform_that_is_no_pose_is_refused(translation, quaternion):
     with pytest.raises(ValueError):

@@ -85,7 +85,8 @@ class SensorPose:
         ``translation`` (x, y, z) [m] and ``quaternion`` (x, y, z, w) of the transform
         from the optical frame to the cloud's (``lookup_transform(cloud_frame,
         sensor_frame, ...)``: ``p_cloud = R p_sensor + t``). The quaternion is
-        normalised. Raises ValueError for values that are not finite or a zero quaternion.
+        normalised. Raises ValueError for values that are not finite, a zero quaternion or a
+        position beyond :data:`MAX_COORDINATE`.
         """
         t = np.asarray(translation, dtype=np.float64).reshape(-1)
         q = np.asarray(quaternion, dtype=np.float64).reshape(-1)
@@ -94,9 +95,14 @@ class SensorPose:
                              f"got {t.size} and {q.size}")
         if not (np.isfinite(t).all() and np.isfinite(q).all()):
             raise ValueError("the sensor's pose is not finite")
-        if not np.linalg.norm(q) > 1e-9:
+        if np.abs(t).max() > MAX_COORDINATE:
+            raise ValueError(f"the sensor's position {t.tolist()} lies beyond "
+                             f"{MAX_COORDINATE:g} m: no measurement")
+        scale = float(np.abs(q).max())
+        if not scale > 0.0:
             raise ValueError("the sensor's rotation is a zero quaternion")
-        r = Rotation.from_quat(q).as_matrix()  # scalar last, as ROS; normalised
+        # Scaled first: the norm of a quaternion of huge components would overflow.
+        r = Rotation.from_quat(q / scale).as_matrix()  # scalar last, as ROS; normalised
         return cls(r.T, t.copy())
 
     def to_dict(self) -> dict:
