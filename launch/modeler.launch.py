@@ -23,6 +23,9 @@ The launch arguments:
   ``depth/camera_info``), used with ``input:=depth``.
 * ``qos_reliability``: ``auto`` (default: reliable when every publisher is reliable, else
   best effort), ``best_effort`` or ``reliable``.
+* ``sensor_frame``: the sensor's optical frame, for clouds published in another frame (the
+  node looks its pose up with tf2 for every frame; needed for unorganized clouds in a
+  robot's frame); empty by default.
 * ``workers``: frames modeled at once, each in its own worker process (default 1: in the
   node's process); on a computer with several cores, up to about one per core raises the
   processed rate.
@@ -43,6 +46,7 @@ from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
 
 PACKAGE = "geomodel_ros"
 
@@ -59,6 +63,7 @@ def generate_launch_description():
     camera_info_topic = LaunchConfiguration("camera_info_topic")
     qos_reliability = LaunchConfiguration("qos_reliability")
     workers = LaunchConfiguration("workers")
+    sensor_frame = LaunchConfiguration("sensor_frame")
     use_large_data_profile = LaunchConfiguration("use_large_data_profile")
     rviz = LaunchConfiguration("rviz")
 
@@ -86,6 +91,9 @@ def generate_launch_description():
             description="Input reliability: auto (follow the publishers), best_effort or "
                         "reliable."),
         DeclareLaunchArgument(
+            "sensor_frame", default_value="",
+            description="The sensor's optical frame, for clouds in another frame (tf2)."),
+        DeclareLaunchArgument(
             "workers", default_value="1",
             description="Frames modeled at once, each in its own worker process."),
         DeclareLaunchArgument(
@@ -103,8 +111,11 @@ def generate_launch_description():
             executable="modeler",
             name="modeler",
             namespace=namespace,
+            # An empty string read as YAML is no value: the frame is typed as a string.
             parameters=[params_file, {"qos_reliability": qos_reliability,
-                                      "input": input_kind, "workers": workers}],
+                                      "input": input_kind, "workers": workers,
+                                      "sensor_frame": ParameterValue(sensor_frame,
+                                                                     value_type=str)}],
             remappings=[("points", points_topic), ("depth/image_raw", depth_image_topic),
                         ("depth/camera_info", camera_info_topic)],
             output="screen",
