@@ -2,7 +2,7 @@
 
 An unorganized cloud (filtered, cropped, voxelised) carries no pixel grid to recover its
 camera from (``test_viewpoint.py``): a rendered clutter frame's returns are moved into a
-robot's base frame by a rigid transform chosen here, and the pose of the camera's optical
+robot's base frame by that file's rigid transform, and the pose of the camera's optical
 frame in the base frame is handed over as tf2 gives it (translation and an (x, y, z, w)
 quaternion). Modeled with it, the cloud must give the objects of the camera frame's
 cloud, moved; without it, the ranges are taken from the base's origin. The node looks the
@@ -34,20 +34,9 @@ from geomodel_ros.tools.synth.clutter import KINECT_NOISE, render_clutter
 from msg_adapters.header import make_header
 from msg_adapters.pointcloud2 import xyz_to_cloud
 from ros_helpers import RELIABLE, TIMEOUT, wait_until
+from test_viewpoint import CAMERA_IN_BASE, OPTICAL_IN_BASE, _to_base
 
-TILT = np.radians(25.0)
-#: Camera optical axes (x right, y down, z forward) in the base frame (x forward, y left,
-#: z up), pitched down by TILT.
-OPTICAL_IN_BASE = np.array([[np.cos(TILT), 0.0, np.sin(TILT)],
-                            [0.0, 1.0, 0.0],
-                            [-np.sin(TILT), 0.0, np.cos(TILT)]]) @ np.array(
-    [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-CAMERA_IN_BASE = np.array([0.3, -0.2, 1.25])
 SENSOR_FRAME = "camera_optical"
-
-
-def _to_base(points: np.ndarray) -> np.ndarray:
-    return points @ OPTICAL_IN_BASE.T + CAMERA_IN_BASE
 
 
 def _quaternion() -> np.ndarray:
