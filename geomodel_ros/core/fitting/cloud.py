@@ -9,9 +9,9 @@ from typing import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from geomodel_ros.core.faces import (FLAT_SPREAD_SHARE, WorkingCloud, build_working_cloud,
-                                     face_plane, faces_from_labels, split_faces,
-                                     split_plane_unions)
+from geomodel_ros.core.faces import (FLAT_SPREAD_SHARE, FaceSet, WorkingCloud,
+                                     build_working_cloud, face_plane, faces_from_labels,
+                                     split_faces, split_plane_unions)
 from geomodel_ros.core.fastmath import centroid, take_rows
 from geomodel_ros.core.fitting.orient import toward_sensor
 from geomodel_ros.core.fitting.slow_bend import SlowBend, SlowBendNull, bends_beyond
@@ -23,7 +23,8 @@ from geomodel_ros.core.surface_type import FaceBend, FaceFeature, face_bend, fac
 from geomodel_ros.core.view import SceneView
 
 __all__ = ["Plane", "ObjectFace", "ObjectCloud", "build_faces", "build_flat_face", "as_planar",
-           "independent_noise", "central_bend", "bends_beyond_noise", "MAX_NOISE_CORRELATION"]
+           "describe_faces", "independent_noise", "central_bend", "bends_beyond_noise",
+           "MAX_NOISE_CORRELATION"]
 
 #: A plane n . x + d = 0: (unit normal (3,), offset d [m]).
 Plane = tuple[NDArray[np.float64], float]
@@ -354,15 +355,24 @@ def build_faces(points: NDArray[np.float64], params: ModelingParams,
                          params.min_face_points)
         fs = split_plane_unions(wc, fs, params.ransac_threshold, params.angle_tolerance,
                                 params.min_face_points, planes)
+    return wc, describe_faces(wc, fs, params, correlation, slow_null, planes), fs.adjacency
+
+
+def describe_faces(wc: WorkingCloud, fs: FaceSet, params: ModelingParams,
+                   correlation: float = 1.0, slow_null: SlowBendNull | None = None,
+                   planes: dict[int, tuple[PlaneModel, float]] | None = None
+                   ) -> list[ObjectFace]:
+    """Describe the faces ``fs`` of the working cloud ``wc`` (planar or curved, normal, points).
+
+    ``planes``: planes already fitted to some faces' working points (ascending) and
+    normals, by face, taken instead of fitted again.
+    """
+    planes = {} if planes is None else planes
     order, bounds = _grouped(fs.labels[wc.point_to_working], fs.count)
     worder, wbounds = _grouped(fs.labels, fs.count)
-    # A face's plane fitted while looking for plane unions is fitted to the same working
-    # points (ascending) and normals here: it is taken instead of fitted again.
-    faces = [_describe_face(wc, worder[wbounds[f]:wbounds[f + 1]],
-                            order[bounds[f]:bounds[f + 1]], params, correlation, slow_null,
-                            planes.get(f))
-             for f in range(fs.count)]
-    return wc, faces, fs.adjacency
+    return [_describe_face(wc, worder[wbounds[f]:wbounds[f + 1]], order[bounds[f]:bounds[f + 1]],
+                           params, correlation, slow_null, planes.get(f))
+            for f in range(fs.count)]
 
 
 def build_flat_face(points: NDArray[np.float64], params: ModelingParams,

@@ -24,6 +24,7 @@ face taken as curved (:class:`CurvedMajorityAfterAll`).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
@@ -34,10 +35,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
+from geomodel_ros.core.faces import faces_from_labels
 from geomodel_ros.core.fastmath import centroid
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
-                                             bends_beyond_noise)
+                                             bends_beyond_noise, describe_faces)
 from geomodel_ros.core.confidence import surface_distance, surface_normals
 from geomodel_ros.core.fitting.axial import (across_axis, cap_facing, rim_arc,
                                               seen_from_outside)
@@ -53,7 +55,7 @@ from geomodel_ros.core.model_graph import (BETWEEN_BOUNDS, NO_CURVATURE, FaceInf
                                            GraphDecision, curvature_candidates, decide_type)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
-from geomodel_ros.core.ransac import CylinderModel, fit_plane_svd
+from geomodel_ros.core.ransac import CylinderModel, PlaneModel, fit_plane_svd, ransac
 from geomodel_ros.core.surface_type import face_feature, principal_curvatures
 
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
@@ -955,6 +957,69 @@ def _prefer_disc_cylinder(cloud: ObjectCloud, box: Primitive, faces: tuple[FaceS
     return (disc, faces) if c_disc < c_box else (box, faces)
 
 
+def lid_cylinder(cloud: ObjectCloud) -> tuple[Primitive, ObjectCloud] | None:
+    """Return the cylinder below the object's lid, with the object as fitted, or None.
+
+    The lid is the plane RANSAC finds with the most of the object's working points (within
+    ``ransac_threshold`` and ``ransac_normal_threshold``); they are taken as one planar
+    face and the others as one curved face, and the cylinder unit fits the side with its
+    axis along the lid's normal (the main face's, :func:`~.curved.axis_prior`). The
+    cylinder, when it verifies and the lid is a disc end of it all round
+    (:func:`disc_end`). The object's random stream is left as it was (a copy draws).
+    """
+    params, wc = cloud.params, cloud.wc
+    rng = copy.deepcopy(cloud.rng)
+    found = ransac(PlaneModel, wc.points, wc.normals, params.ransac_threshold,
+                   params.ransac_normal_threshold, params.ransac_max_iterations,
+                   params.ransac_confidence, rng)
+    if found is None or found.inliers.all() or not found.inliers.any():
+        return None
+    fs = faces_from_labels(wc, np.where(found.inliers, 0, 1)[wc.point_to_working])
+    lid, *rest = describe_faces(wc, fs, params, cloud.correlation, cloud.slow_null)
+    lid = lid if lid.info.planar else as_planar(wc, lid, params.ransac_threshold)
+    split = dataclasses.replace(cloud, faces=[lid, *(as_curved(f) for f in rest)],
+                                adjacency=fs.adjacency, rng=rng)
+    cyl, _ = fit_first(split, GraphDecision("mixed", ("cylinder",), 0,
+                                            reason="a lid and its side"))
+    if cyl is None or cyl.type is not PrimitiveType.CYLINDER or not disc_end(split, cyl):
+        return None
+    return cyl, split
+
+
+def prefer_lid_cylinder(situation: Situation, prim: Primitive,
+                        faces: tuple[FaceSummary, ...], reasons: list[str]
+                        ) -> tuple[Primitive, tuple[FaceSummary, ...]]:
+    """Return the cone or frustum ``prim`` or the cylinder below a lid, whichever costs less.
+
+    A can seen from above where the noise band is a large share of its radius: its lid
+    and the grazing strips of its side are one curved face (the normals turn smoothly
+    over the rim under the noise), no cylinder holds that face (the lid scatters far off
+    any side), and a wide cone through lid and side verifies -- of two to three times
+    the can's radius. Told apart, the lid is the object's largest plane and the side the
+    rest: the cylinder of that side with its axis along the lid's normal
+    (:func:`lid_cylinder`) replaces ``prim`` when its mean :func:`truncated_costs` over
+    the object's points are lower. A real cone or cup has no plane that is a disc end of
+    a cylinder holding the rest (the unit's checks and :func:`disc_end` refuse it), or
+    costs a cylinder more. Only with ``noise_model = auto``; the comparison is added to
+    ``reasons``.
+    """
+    cloud = situation.cloud
+    if prim.type not in (PrimitiveType.CONE, PrimitiveType.FRUSTUM) or \
+            cloud.params.noise_model != "auto":
+        return prim, faces
+    found = lid_cylinder(cloud)
+    if found is None:
+        return prim, faces
+    cyl, split = found
+    c_prim, c_cyl = truncated_cost(prim, cloud), truncated_cost(cyl, cloud)
+    verdict = "replaces" if c_cyl < c_prim else "does not replace"
+    reasons.append(f"the cylinder below its lid (cost {c_cyl:.3f}) {verdict} {prim.type} "
+                   f"(cost {c_prim:.3f})")
+    if c_cyl < c_prim:
+        return cyl, tuple(f.summary for f in split.faces)
+    return prim, faces
+
+
 class BoxOfFlatCores:
     """The box of the flat cores (:func:`box_rival`) of an object no round model explains.
 
@@ -1161,6 +1226,7 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
             faces = tuple(f.summary for f in attempt.cloud.faces)
             prim, faces = prefer_box(situation, prim, faces, reasons)
             prim, faces = prefer_round(situation, prim, faces, reasons)
+            prim, faces = prefer_lid_cylinder(situation, prim, faces, reasons)
             if prim.type == PrimitiveType.CUBOID and attempt.decision.concave_corner:
                 reasons.append("cuboid refused: its faces meet in a concave corner (seen "
                                "from inside: no box)")
