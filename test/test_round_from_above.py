@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from geomodel_ros.core.fitting import strategies
 from geomodel_ros.core.fitting.axial import cap_rim_arc
 from geomodel_ros.core.fitting.strategies import (_circle_2d, _prefer_disc_cylinder,
                                                   _rectangle_distance, cavity_floor,
@@ -35,7 +37,8 @@ from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.core.ransac import CylinderModel
 from geomodel_ros.tools.synth.clutter import (KINECT_NOISE, camera_pose, make_box, make_can,
-                                              make_container, render_clutter, render_layout)
+                                              make_cone, make_container, render_clutter,
+                                              render_layout)
 from geomodel_ros.tools.synth.scenes import KINECT_REAL_NOISE
 
 MM = 1e-3
@@ -412,3 +415,95 @@ def test_a_cup_whose_facets_meet_concavely_is_still_round():
     obj = _best(render_clutter(106, KINECT_REAL_NOISE), 6)
     assert obj.type == "cylinder", obj.reason
     assert "concave corner" in obj.reason
+
+
+# ------------------------------------------------------ a lid joined to the side as one face
+#: A can 56 mm across and 100 mm tall, a cone 70 mm across and 90 mm tall, a cup 60 mm
+#: across at its foot and 76 mm at its rim, 90 mm tall.
+SMALL_CAN = (0.028, 0.100)
+
+
+def _seen_from_above(item, distance: float, elevation_deg: float, rng: int):
+    scene = render_layout([item], [0], camera_pose(distance, math.radians(elevation_deg), 0.4),
+                          noise=KINECT_REAL_NOISE, rng=rng)
+    return _best(scene, 1)
+
+
+@pytest.mark.parametrize("distance,elevation,rng", [
+    (0.9, 68.0, 0), (0.9, 74.0, 2), (1.05, 62.0, 0), (1.05, 68.0, 1), (1.05, 74.0, 0)])
+def test_a_small_can_whose_lid_joined_its_side_is_the_cylinder_below_the_lid(distance,
+                                                                             elevation, rng):
+    # Under kinect-real noise at 0.9-1.05 m the lid of a can 56 mm across and the grazing
+    # strips of its side are one curved face, and a wide cone through both verified (cones
+    # and frustums before). The lid as a planar face, the rest as the side, gives the can.
+    obj = _seen_from_above(make_can(*SMALL_CAN), distance, elevation, rng)
+    assert obj.type == "cylinder", obj.reason
+    assert "the cylinder below its lid" in obj.reason
+    assert obj.dimensions["radius"] == pytest.approx(SMALL_CAN[0], abs=2.0 * MM)
+    assert obj.dimensions["height"] == pytest.approx(SMALL_CAN[1], abs=5.0 * MM)
+
+
+@pytest.mark.parametrize("distance,elevation,rng", [(0.9, 68.0, 0), (1.05, 62.0, 0),
+                                                    (1.05, 74.0, 0)])
+def test_a_cone_or_a_cup_seen_the_same_way_keeps_its_shape(distance, elevation, rng):
+    # No plane of theirs is the lid of a cylinder that holds the rest and costs less.
+    cone = _seen_from_above(make_cone(0.035, 0.09), distance, elevation, rng)
+    assert cone.type == "cone", cone.reason
+    assert cone.dimensions["radius"] == pytest.approx(0.035, abs=3.0 * MM)
+    cup = _seen_from_above(make_container(0.030, 0.038, 0.090), distance, elevation, rng)
+    assert cup.type in ("frustum", "cylinder"), cup.reason
+    # Its radius (a cylinder's: the wall's middle) between the foot's and the rim's.
+    assert 0.030 - 2.0 * MM <= cup.dimensions["radius"] <= 0.038 + 2.0 * MM
+    for obj in (cone, cup):
+        assert not re.search(r"the cylinder below its lid \(cost [0-9.]+\) replaces", obj.reason)
+
+
+@pytest.mark.parametrize("seed,gt_id", [(22, 10), (27, 3), (100, 5)])
+def test_cans_in_clutter_seen_as_wide_cones_are_the_cylinders_below_their_lids(seed, gt_id):
+    # kinect-real clutter at 0.84-1.0 m: cones of 90, 74 and 86 mm radius before.
+    scene = render_clutter(seed, KINECT_REAL_NOISE)
+    assert scene.kinds[gt_id] == "can"
+    obj = _best(scene, gt_id)
+    assert obj.type == "cylinder", obj.reason
+    truth = scene.objects[gt_id].dimensions
+    assert obj.dimensions["radius"] == pytest.approx(truth["radius"], abs=2.0 * MM)
+    assert obj.dimensions["height"] == pytest.approx(truth["height"], abs=5.0 * MM)
+
+
+def _cone_side(radius: float = 0.035) -> np.ndarray:
+    """Return the sensor's side of a cone about z: apex at z = 0.7 m, base 100 mm beyond."""
+    phi, t = np.meshgrid(np.linspace(-2.0, -1.1, 30), np.linspace(0.05, 1.0, 50))
+    r, z = radius * t.ravel(), 0.7 + 0.1 * t.ravel()
+    return np.column_stack([r * np.cos(phi.ravel()), r * np.sin(phi.ravel()), z])
+
+
+#: Round solids about the z axis between z = 0.7 and 0.8 m: a cylinder of r 35 mm and cones
+#: of r 35 and 70 mm at their base, their apex at z = 0.7 m (rotation z: base -> apex).
+CAN_CYLINDER = Primitive(3, PrimitiveType.CYLINDER, np.array([0.0, 0.0, 0.75]), np.eye(3),
+                         {"radius": 0.035, "height": 0.1}, 1, 0.0)
+APEX_UP = np.diag([1.0, -1.0, -1.0])
+
+
+def _cone(radius: float) -> Primitive:
+    return Primitive(3, PrimitiveType.CONE, np.array([0.0, 0.0, 0.75]), APEX_UP,
+                     {"radius": radius, "height": 0.1}, 1, 0.0)
+
+
+@pytest.mark.parametrize("points,cone,kind", [
+    ("can", 0.070, "cylinder"),    # a can's lid and side: the wide cone costs more
+    ("cone", 0.035, "cone")])      # a cone's side: the cylinder costs more
+def test_the_cylinder_below_a_lid_replaces_a_cone_only_where_it_costs_less(monkeypatch, points,
+                                                                            cone, kind):
+    cloud = _lid_and_sides(True) if points == "can" else SimpleNamespace(
+        oid=3, points=_cone_side(), params=ModelingParams(ransac_threshold=0.001))
+    monkeypatch.setattr(strategies, "lid_cylinder",
+                        lambda _: (CAN_CYLINDER, SimpleNamespace(faces=[])))
+    reasons = []
+    got, _ = strategies.prefer_lid_cylinder(SimpleNamespace(cloud=cloud), _cone(cone), (),
+                                            reasons)
+    assert got.type == kind
+    assert len(reasons) == 1 and reasons[0].startswith("the cylinder below its lid")
+    # With fixed noise settings nothing is compared.
+    cloud.params = ModelingParams(ransac_threshold=0.001, noise_model="fixed")
+    got, _ = strategies.prefer_lid_cylinder(SimpleNamespace(cloud=cloud), _cone(cone), (), [])
+    assert got.type == "cone"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -293,13 +293,15 @@ def bends_beyond_noise(points: NDArray[np.float64], mass: NDArray[np.float64],
 def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.int64],
                    params: ModelingParams, correlation: float = 1.0,
                    slow_null: SlowBendNull | None = None,
-                   fitted: tuple[PlaneModel, float] | None = None) -> ObjectFace:
+                   fitted: tuple[PlaneModel, float] | None = None,
+                   planar: bool | None = None) -> ObjectFace:
     """Surface type, normal and plane of the face with working points ``widx``.
 
     ``correlation``: the frame's ratio of slow to local noise, ``slow_null`` the bends of
     its slow errors (see :func:`_bent`). ``fitted``: the face's
     :func:`~geomodel_ros.core.faces.face_plane` when already known (the same points and
-    normals, in the same order, with ``ransac_threshold``).
+    normals, in the same order, with ``ransac_threshold``). ``planar``: the surface type
+    when the caller knows it (not tested).
     """
     # The face's working points (M, 3) [m], their unit normals (M, 3) and counts (M,),
     # gathered once (none of the calls below writes to them).
@@ -309,11 +311,13 @@ def _describe_face(wc: WorkingCloud, widx: NDArray[np.int64], pidx: NDArray[np.i
     # (the full-resolution covariance at a fraction of the cost).
     feat = face_feature(points, params.cf_weights, params.cf_threshold,
                         params.cf_radius_fraction, counts)
-    plane, plane_rmse = face_plane(points, normals, params.ransac_threshold) \
-        if fitted is None else fitted
-    planar = _checked_planar(feat.planar, plane_rmse, params.ransac_threshold,
-                             lambda: _bent(points, counts, plane.normal,
-                                           feat, params, correlation, slow_null))
+    if planar is None or planar:
+        plane, plane_rmse = face_plane(points, normals, params.ransac_threshold) \
+            if fitted is None else fitted
+    if planar is None:
+        planar = _checked_planar(feat.planar, plane_rmse, params.ransac_threshold,
+                                 lambda: _bent(points, counts, plane.normal,
+                                               feat, params, correlation, slow_null))
     center = counts @ points / max(int(counts.sum()), 1)
     if planar:
         normal = toward_sensor(plane.normal, center)
@@ -360,18 +364,20 @@ def build_faces(points: NDArray[np.float64], params: ModelingParams,
 
 def describe_faces(wc: WorkingCloud, fs: FaceSet, params: ModelingParams,
                    correlation: float = 1.0, slow_null: SlowBendNull | None = None,
-                   planes: dict[int, tuple[PlaneModel, float]] | None = None
-                   ) -> list[ObjectFace]:
+                   planes: dict[int, tuple[PlaneModel, float]] | None = None,
+                   planar: Sequence[bool] | None = None) -> list[ObjectFace]:
     """Describe the faces ``fs`` of the working cloud ``wc`` (planar or curved, normal, points).
 
     ``planes``: planes already fitted to some faces' working points (ascending) and
-    normals, by face, taken instead of fitted again.
+    normals, by face, taken instead of fitted again. ``planar``: every face's surface type
+    when the caller knows them (they are then not tested).
     """
     planes = {} if planes is None else planes
+    kinds = [None] * fs.count if planar is None else list(planar)
     order, bounds = _grouped(fs.labels[wc.point_to_working], fs.count)
     worder, wbounds = _grouped(fs.labels, fs.count)
     return [_describe_face(wc, worder[wbounds[f]:wbounds[f + 1]], order[bounds[f]:bounds[f + 1]],
-                           params, correlation, slow_null, planes.get(f))
+                           params, correlation, slow_null, planes.get(f), kinds[f])
             for f in range(fs.count)]
 
 

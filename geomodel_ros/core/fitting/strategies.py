@@ -975,10 +975,8 @@ def lid_cylinder(cloud: ObjectCloud) -> tuple[Primitive, ObjectCloud] | None:
     if found is None or found.inliers.all() or not found.inliers.any():
         return None
     fs = faces_from_labels(wc, np.where(found.inliers, 0, 1)[wc.point_to_working])
-    lid, *rest = describe_faces(wc, fs, params, cloud.correlation, cloud.slow_null)
-    lid = lid if lid.info.planar else as_planar(wc, lid, params.ransac_threshold)
-    split = dataclasses.replace(cloud, faces=[lid, *(as_curved(f) for f in rest)],
-                                adjacency=fs.adjacency, rng=rng)
+    faces = describe_faces(wc, fs, params, planar=(True, False))
+    split = dataclasses.replace(cloud, faces=faces, adjacency=fs.adjacency, rng=rng)
     cyl, _ = fit_first(split, GraphDecision("mixed", ("cylinder",), 0,
                                             reason="a lid and its side"))
     if cyl is None or cyl.type is not PrimitiveType.CYLINDER or not disc_end(split, cyl):
