@@ -25,6 +25,8 @@ from geomodel_ros.core.ransac import CylinderModel
 from geomodel_ros.core.surface_type import BEND_SIGNIFICANCE, face_bend
 
 MM = 1e-3
+#: 1.4826 median absolute deviation is a Gaussian's standard deviation.
+MAD_TO_SIGMA_HAND = 1.4826
 #: The faces lie 1 m in front of the sensor, along z.
 DEPTH = 1.0
 
@@ -154,6 +156,34 @@ def test_wrong_radius_is_rejected_right_one_kept():
     # With fixed parameters the amplitude is no measured noise: no check.
     fixed = ModelingParams(noise_amplitude=sigma, noise_model="fixed")
     assert check_noise_scatter(pts, wrong.distance, fixed, PrimitiveType.CYLINDER) is None
+
+
+def _side_plane_points(steep_share, n=2000):
+    """Points of the plane x = 0.5 m seen from the origin, ``steep_share`` of them steep.
+
+    A point at range R on that plane is seen at incidence cos = 0.5 / R: those at R = 0.8
+    m (cos 0.625) are steep, those at R = 2.5 m (cos 0.2) grazing. Every point lies 2 mm
+    beyond the plane along its ray (its offset along the ray: 2 mm).
+    """
+    k = int(round(steep_share * n))
+    r = np.r_[np.full(k, 0.8), np.full(n - k, 2.5)]
+    phi = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    x = np.full(n, 0.5)
+    rest = np.sqrt(r * r - 0.25)                       # the point's distance from the x axis
+    on_plane = np.c_[x, rest * np.sin(phi) * 0.3, rest * np.sqrt(1 - (0.3 * np.sin(phi)) ** 2)]
+    rays = on_plane / np.linalg.norm(on_plane, axis=1, keepdims=True)
+    return on_plane + 0.002 * rays
+
+
+@pytest.mark.parametrize("share,expected", [
+    (0.3, MAD_TO_SIGMA_HAND * 2.0), (0.1, MAD_TO_SIGMA_HAND * 2.0), (0.05, 0.0), (0.0, 0.0)])
+def test_the_scatter_is_judged_only_when_enough_points_are_seen_steeply(share, expected):
+    # Offsets of 2 mm along the rays over a noise of 1 mm: 1.4826 * 2 where at least a
+    # tenth of the points are seen within 70 deg of the normal; a side seen only in
+    # grazing strips with a few steep points (its rim) is not judged.
+    plane_distance = lambda p: p[:, 0] - 0.5                           # noqa: E731
+    got = noise_scatter_ratio(plane_distance, _side_plane_points(share), 1.0 * MM)
+    assert got == pytest.approx(expected, rel=1e-6, abs=1e-9)
 
 
 # ---------------------------------------------------------------------------------------
