@@ -575,13 +575,23 @@ def prefer_box(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, 
         return prim, faces
     cloud = situation.cloud
     walls = ~cavity_floor(cloud, prim)
-    c_round, c_box = truncated_cost(prim, cloud, walls), truncated_cost(box, cloud, walls)
-    verdict = "replaces" if c_box < c_round else "does not replace"
-    reasons.append(f"{note}; cuboid (cost {c_box:.3f}) {verdict} {prim.type} "
-                   f"(cost {c_round:.3f})")
-    if c_box < c_round:
-        return box, tuple(f.summary for f in box_cloud.faces)
-    return prim, faces
+    return _cheaper(cloud, (prim, faces), (box, tuple(f.summary for f in box_cloud.faces)),
+                   f"{note}; cuboid", reasons, walls)
+
+
+def _cheaper(cloud: ObjectCloud, held: tuple[Primitive, tuple[FaceSummary, ...]],
+            rival: tuple[Primitive, tuple[FaceSummary, ...]], name: str, reasons: list[str],
+            keep: NDArray[np.bool_] | None = None
+            ) -> tuple[Primitive, tuple[FaceSummary, ...]]:
+    """Return ``rival`` (model, faces) if its :func:`truncated_cost` is lower, else ``held``.
+
+    Over the object's points (those ``keep`` marks, if given); the comparison is added to
+    ``reasons``, the rival called ``name``.
+    """
+    c_held, c_rival = truncated_cost(held[0], cloud, keep), truncated_cost(rival[0], cloud, keep)
+    verdict = "replaces" if c_rival < c_held else "does not replace"
+    reasons.append(f"{name} (cost {c_rival:.3f}) {verdict} {held[0].type} (cost {c_held:.3f})")
+    return rival if c_rival < c_held else held
 
 
 def support_below(cloud: ObjectCloud) -> NDArray[np.float64] | None:
@@ -950,11 +960,7 @@ def _prefer_disc_cylinder(cloud: ObjectCloud, box: Primitive, faces: tuple[FaceS
     disc = disc_cylinder(cloud, box)
     if disc is None:
         return box, faces
-    c_box, c_disc = np.mean(truncated_costs(box, cloud)), np.mean(truncated_costs(disc, cloud))
-    verdict = "replaces" if c_disc < c_box else "does not replace"
-    reasons.append(f"the cylinder of its disc face (cost {c_disc:.3f}) {verdict} cuboid "
-                   f"(cost {c_box:.3f})")
-    return (disc, faces) if c_disc < c_box else (box, faces)
+    return _cheaper(cloud, (box, faces), (disc, faces), "the cylinder of its disc face", reasons)
 
 
 def lid_cylinder(cloud: ObjectCloud) -> tuple[Primitive, ObjectCloud] | None:
@@ -1009,13 +1015,8 @@ def prefer_lid_cylinder(situation: Situation, prim: Primitive,
     if found is None:
         return prim, faces
     cyl, split = found
-    c_prim, c_cyl = truncated_cost(prim, cloud), truncated_cost(cyl, cloud)
-    verdict = "replaces" if c_cyl < c_prim else "does not replace"
-    reasons.append(f"the cylinder below its lid (cost {c_cyl:.3f}) {verdict} {prim.type} "
-                   f"(cost {c_prim:.3f})")
-    if c_cyl < c_prim:
-        return cyl, tuple(f.summary for f in split.faces)
-    return prim, faces
+    return _cheaper(cloud, (prim, faces), (cyl, tuple(f.summary for f in split.faces)),
+                   "the cylinder below its lid", reasons)
 
 
 class BoxOfFlatCores:
