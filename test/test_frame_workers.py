@@ -141,6 +141,7 @@ class SlowFirst:
         self.finished: list[int] = []  # frames (1, 2) in the order their modeling ended
         self.lock = threading.Lock()
         self.later_done = threading.Event()
+        self.first_started = threading.Event()
 
     def is_first(self, points) -> bool:
         return int(np.isfinite(points).all(axis=1).sum()) == self.first_points
@@ -148,6 +149,7 @@ class SlowFirst:
     def __call__(self, points, params, *, organized_shape=None):
         first = self.is_first(points)
         if first:
+            self.first_started.set()
             self.later_done.wait(self.timeout)
             time.sleep(self.hold)
         out = model_scene(points, params, organized_shape=organized_shape)
@@ -158,12 +160,22 @@ class SlowFirst:
         return out
 
 
+def _publish_both(h: Harness, core: SlowFirst) -> None:
+    """Publish frame 1, wait until a worker has taken it to the core, then frame 2.
+
+    A frame not yet taken when the next arrives is replaced by it (the newest frame wins);
+    on a loaded machine a worker thread may take longer to wake than frame 2 to arrive.
+    """
+    h.publish_and_wait_received(_frame(1))
+    wait_until(core.first_started.is_set, "a worker to start modeling frame 1")
+    h.publish_and_wait_received(_frame(2))
+
+
 def test_frames_modeled_at_once_are_published_in_arrival_order(context):
     core = SlowFirst(hold=1.0)
     h = Harness(context, core, {"workers": 2})
     try:
-        h.publish_and_wait_received(_frame(1))
-        h.publish_and_wait_received(_frame(2))
+        _publish_both(h, core)
         h.objects.wait(2)
         wait_until(lambda: h.node.stats().processed == 2, "both frames to be processed")
         assert core.finished == [2, 1], "the second frame was not modeled while the first was"
@@ -237,8 +249,7 @@ def test_a_frame_failing_after_a_later_one_was_modeled_does_not_hold_it(context,
     core = SlowFirstFails(hold=0.5)
     h = Harness(context, core, {"workers": 2})
     try:
-        h.publish_and_wait_received(_frame(1))
-        h.publish_and_wait_received(_frame(2))
+        _publish_both(h, core)
         got = h.objects.wait(1)
         assert got.header.stamp.sec == 2
         wait_until(lambda: h.node.stats().failed == 1, "the first frame's failure to count")
