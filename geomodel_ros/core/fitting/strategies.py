@@ -1231,4 +1231,9 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
                                "from inside: no box)")
                 continue
             return prim, faces, reasons
+    if situation.cloud.params.noise_model == "auto":
+        found = lid_cylinder(situation.cloud)
+        if found is not None:
+            reasons.append("the cylinder below its lid")
+            return found[0], tuple(f.summary for f in found[1].faces), reasons
     return None, tuple(f.summary for f in situation.cloud.faces), reasons
