@@ -990,6 +990,21 @@ def lid_cylinder(cloud: ObjectCloud) -> tuple[Primitive, ObjectCloud] | None:
     return cyl, split
 
 
+def _rival_sphere(cloud: ObjectCloud) -> Primitive | None:
+    """Return the sphere least squares fits to all of the object's faces, or None."""
+    from geomodel_ros.core.fitting.curved import CurvedFit, fit_curved
+    from geomodel_ros.core.fitting.sphere import sphere_test
+    from geomodel_ros.core.ransac import SphereModel
+    curved = dataclasses.replace(cloud, faces=[as_curved(f) for f in cloud.faces],
+                                 rng=copy.deepcopy(cloud.rng))
+    side = fit_curved(curved, PrimitiveType.SPHERE, SphereModel, sphere_test(cloud.params),
+                      with_caps=False)
+    if not isinstance(side, CurvedFit):
+        return None
+    return Primitive(cloud.oid, PrimitiveType.SPHERE, side.model.center.copy(), np.eye(3),
+                     {"radius": float(side.model.radius)}, len(cloud.points), side.rmse)
+
+
 def prefer_lid_cylinder(situation: Situation, prim: Primitive,
                         faces: tuple[FaceSummary, ...], reasons: list[str]
                         ) -> tuple[Primitive, tuple[FaceSummary, ...]]:
@@ -1234,6 +1249,10 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
     if situation.cloud.params.noise_model == "auto":
         found = lid_cylinder(situation.cloud)
         if found is not None:
-            reasons.append("the cylinder below its lid")
-            return found[0], tuple(f.summary for f in found[1].faces), reasons
+            sphere = _rival_sphere(situation.cloud)
+            c_cyl = truncated_cost(found[0], situation.cloud)
+            c_sph = 1.0 if sphere is None else truncated_cost(sphere, situation.cloud)
+            reasons.append(f"the cylinder below its lid (cost {c_cyl:.3f}; a sphere {c_sph:.3f})")
+            if c_cyl < c_sph:
+                return found[0], tuple(f.summary for f in found[1].faces), reasons
     return None, tuple(f.summary for f in situation.cloud.faces), reasons
