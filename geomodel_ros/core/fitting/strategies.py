@@ -40,6 +40,7 @@ from geomodel_ros.core.fastmath import centroid
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
                                              bends_beyond_noise, describe_faces)
+from geomodel_ros.core.fitting.curved import CurvedFit, fit_curved
 from geomodel_ros.core.confidence import surface_distance, surface_normals
 from geomodel_ros.core.fitting.axial import (across_axis, cap_facing, rim_arc,
                                               seen_from_outside)
@@ -49,13 +50,15 @@ from geomodel_ros.core.fitting.normal_box import (MIN_SIDE_NORMALS, axis_costs, 
 from geomodel_ros.core.fitting.orient import toward_sensor
 from geomodel_ros.core.fitting.paired_cost import lower_beyond_noise, spread_blocks
 from geomodel_ros.core.fitting.result import Rejected
+from geomodel_ros.core.fitting.sphere import sphere_test
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.fitting.verify import bowed_profile, standing_on
 from geomodel_ros.core.model_graph import (BETWEEN_BOUNDS, NO_CURVATURE, FaceInfo,
                                            GraphDecision, curvature_candidates, decide_type)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
-from geomodel_ros.core.ransac import CylinderModel, PlaneModel, fit_plane_svd, ransac
+from geomodel_ros.core.ransac import (CylinderModel, PlaneModel, SphereModel, fit_plane_svd,
+                                     ransac)
 from geomodel_ros.core.surface_type import face_feature, principal_curvatures
 
 __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
@@ -990,11 +993,39 @@ def lid_cylinder(cloud: ObjectCloud) -> tuple[Primitive, ObjectCloud] | None:
     return cyl, split
 
 
+def lid_cylinder_alone(cloud: ObjectCloud, reasons: list[str]
+                       ) -> tuple[Primitive, tuple[FaceSummary, ...]] | None:
+    """Return the cylinder below the lid of an object no strategy fitted, or None.
+
+    The same lid and side as :func:`prefer_lid_cylinder` (:func:`lid_cylinder`): cans
+    whose lid joined their side and whose faces fit no rule (facets that meet at no right
+    angles) or whose round fits failed. Nothing competes, but a ball's cap passes as a lid
+    under the noise and the cylinder below it verifies: it is kept only when its
+    :func:`truncated_cost` is lower than that of the sphere least squares fits to the
+    whole object (:func:`_rival_sphere`; unverified: a rival, not a result). Only with
+    ``noise_model = auto``; the comparison is added to ``reasons``.
+    """
+    if cloud.params.noise_model != "auto":
+        return None
+    found = lid_cylinder(cloud)
+    if found is None:
+        return None
+    cyl, split = found
+    sphere = _rival_sphere(cloud)
+    c_cyl = truncated_cost(cyl, cloud)
+    c_sphere = 1.0 if sphere is None else truncated_cost(sphere, cloud)
+    verdict = "kept" if c_cyl < c_sphere else "not kept"
+    reasons.append(f"the cylinder below its lid (cost {c_cyl:.3f}) {verdict} against a "
+                   f"sphere (cost {c_sphere:.3f})")
+    return (cyl, tuple(f.summary for f in split.faces)) if c_cyl < c_sphere else None
+
+
 def _rival_sphere(cloud: ObjectCloud) -> Primitive | None:
-    """Return the sphere least squares fits to all of the object's faces, or None."""
-    from geomodel_ros.core.fitting.curved import CurvedFit, fit_curved
-    from geomodel_ros.core.fitting.sphere import sphere_test
-    from geomodel_ros.core.ransac import SphereModel
+    """Return the sphere least squares fits to all of the object's faces (unverified), or None.
+
+    :func:`~.curved.fit_curved` with every face taken as curved (RANSAC and refinement),
+    from a copy of the object's random stream.
+    """
     curved = dataclasses.replace(cloud, faces=[as_curved(f) for f in cloud.faces],
                                  rng=copy.deepcopy(cloud.rng))
     side = fit_curved(curved, PrimitiveType.SPHERE, SphereModel, sphere_test(cloud.params),
@@ -1222,7 +1253,9 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
     Returns the primitive (None if none fits), the face summaries it was fitted with
     (those of ``situation.cloud`` if none) and every reason on the way. A round fit
     is checked against the box of the flat cores (:func:`prefer_box`), a cuboid against
-    the round model of all the object's faces (:func:`prefer_round`).
+    the round model of all the object's faces (:func:`prefer_round`), a cone or frustum
+    against the cylinder below its lid (:func:`prefer_lid_cylinder`); an object no
+    strategy fits meets that cylinder alone (:func:`lid_cylinder_alone`).
     """
     reasons = [situation.decision.reason]
     for strategy in strategies:
@@ -1246,13 +1279,7 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
                                "from inside: no box)")
                 continue
             return prim, faces, reasons
-    if situation.cloud.params.noise_model == "auto":
-        found = lid_cylinder(situation.cloud)
-        if found is not None:
-            sphere = _rival_sphere(situation.cloud)
-            c_cyl = truncated_cost(found[0], situation.cloud)
-            c_sph = 1.0 if sphere is None else truncated_cost(sphere, situation.cloud)
-            reasons.append(f"the cylinder below its lid (cost {c_cyl:.3f}; a sphere {c_sph:.3f})")
-            if c_cyl < c_sph:
-                return found[0], tuple(f.summary for f in found[1].faces), reasons
+    alone = lid_cylinder_alone(situation.cloud, reasons)
+    if alone is not None:
+        return (*alone, reasons)
     return None, tuple(f.summary for f in situation.cloud.faces), reasons
