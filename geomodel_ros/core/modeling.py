@@ -33,7 +33,8 @@ from geomodel_ros.core.fitting.cloud import (SUPPORT_END_FACTOR, ObjectCloud, Ob
                                              build_faces, build_flat_face, independent_noise)
 from geomodel_ros.core.fitting.slow_bend import SlowBendNull, slow_bend_null
 from geomodel_ros.core.fitting.measure import every_kth
-from geomodel_ros.core.fitting.strategies import Situation, decide, run_strategies
+from geomodel_ros.core.fitting.strategies import (Situation, decide, round_of_plane,
+                                                  run_strategies)
 from geomodel_ros.core.input import downsample, in_range, working_params
 from geomodel_ros.core.noise import (NoiseEstimate, frame_noise, is_fragment, object_params,
                                      support_band)
@@ -192,18 +193,35 @@ def model_object(points: NDArray[np.float64], object_id: int, params: ModelingPa
 def _fitted(points: NDArray[np.float64], object_id: int, params: ModelingParams,
             rng: np.random.Generator,
             built: tuple[WorkingCloud, list[ObjectFace], NDArray[np.bool_]],
-            setting: _Setting) -> Primitive:
-    """Fit the object of ``points`` (n, 3) [m] with its ``built`` faces (:func:`build_faces`)."""
+            setting: _Setting, alternatives: bool = True) -> Primitive:
+    """Fit the object of ``points`` (n, 3) [m] with its ``built`` faces (:func:`build_faces`).
+
+    A plane gets its round alternative (:func:`~.strategies.round_of_plane`) when there is
+    one, unless ``alternatives`` is False (a support plane's modeling).
+    """
     wc, faces, adjacency = built
     if len(wc.points) < MIN_WORKING_POINTS or not faces:
         return _unknown(object_id, points, "too few distinct points after voxelization")
     cloud = ObjectCloud(object_id, points, wc, faces, adjacency, setting.spacing, params, rng,
                         setting.supports, setting.view, setting.correlation, setting.slow_null)
-    prim, summaries, reasons = run_strategies(Situation(cloud, decide(cloud)))
-    if prim is not None:
-        prim = with_confidence(prim, points, params.ransac_threshold)
-        return dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons))
-    return _unknown(object_id, points, "; ".join(reasons), summaries)
+    situation = Situation(cloud, decide(cloud))
+    prim, summaries, reasons = run_strategies(situation)
+    if prim is None:
+        return _unknown(object_id, points, "; ".join(reasons), summaries)
+    prim = with_confidence(prim, points, params.ransac_threshold)
+    prim = dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons))
+    if not alternatives or prim.type is not PrimitiveType.PLANE:
+        return prim
+    # From a copy of the object's stream: the plane's own results stay as they are.
+    plane_situation = dataclasses.replace(
+        situation, cloud=dataclasses.replace(cloud, rng=copy.deepcopy(rng)))
+    found = round_of_plane(plane_situation, prim, reasons)
+    if found is None:
+        return prim
+    rnd, rnd_faces = found
+    rnd = with_confidence(rnd, points, params.ransac_threshold)
+    return dataclasses.replace(prim, round_alternative=dataclasses.replace(
+        rnd, faces=rnd_faces, reason="; ".join(reasons)))
 
 
 def _as_support_plane(points: NDArray[np.float64], object_id: int, params: ModelingParams,
@@ -221,7 +239,7 @@ def _as_support_plane(points: NDArray[np.float64], object_id: int, params: Model
     if built is None:
         return None
     fresh = copy.deepcopy(rng)
-    prim = _fitted(points, object_id, params, fresh, built, setting)
+    prim = _fitted(points, object_id, params, fresh, built, setting, alternatives=False)
     if prim.type is not PrimitiveType.PLANE:
         return None
     rng.bit_generator.state = fresh.bit_generator.state
@@ -432,7 +450,21 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
     with single_threaded_blas():
         if params.noise_model == "auto" and noise is None:
             noise = frame_noise(pts, params)
-        return _model_rows(pts, idx_all, lab, flab, params, rng, supports, t0, noise)
+        result = _model_rows(pts, idx_all, lab, flab, params, rng, supports, t0, noise)
+    _settle_planes(result, supports or {})
+    return result
+
+
+def _settle_planes(result: ModelingResult, supports: dict[int, Plane]) -> None:
+    """Put each plane's round alternative in its place (supports stay planes); in place.
+
+    The segmentation's steps (joins of plane pieces, splits) are done with the planes the
+    modeling fitted; what the output reports is the round body a plane lay through
+    (``Primitive.round_alternative``, :func:`~.strategies.round_of_plane`).
+    """
+    result.objects = [o.round_alternative if o.round_alternative is not None and
+                      o.type is PrimitiveType.PLANE and o.id not in supports else o
+                      for o in result.objects]
 
 
 def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArray[np.int64],
@@ -600,6 +632,7 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     if split:
         labels = join_pieces(pts, labels, result, params, seg.support_planes, noise, model,
                              among=split)
+    _settle_planes(result, seg.support_planes)
     result.timing["modeling_s"] = time.perf_counter() - t0
     labels = _drop_fragments(labels, result, params)
     result.timing.update(seg.timing)

@@ -155,6 +155,10 @@ class Primitive:
     confidence : Confidence or None
         The modeling's confidence in type and size; None when not estimated (primitives
         built outside the modeling, e.g. read back from messages).
+    round_alternative : Primitive or None
+        Inside the modeling only (not in :meth:`to_dict`): the round model a plane gives
+        way to once the segmentation is done
+        (:func:`~geomodel_ros.core.fitting.strategies.round_of_plane`).
     """
 
     id: int
@@ -168,6 +172,7 @@ class Primitive:
     reason: str = ""
     completed: tuple[str, ...] = ()
     confidence: Confidence | None = None
+    round_alternative: Primitive | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         """Hold a known type name as its :class:`PrimitiveType`."""
