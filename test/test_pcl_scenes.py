@@ -131,6 +131,20 @@ def test_milk_scene_has_no_huge_round_object() -> None:
     assert all(r < 0.150 for r in radii), radii
 
 
+def test_office_back_wall_and_door_are_no_round_bodies() -> None:
+    # The wall and door 3.3-3.6 m away are planes (the data README). Their pieces bend
+    # with the sensor's slow range errors, and a wide cone (r 243 and 424 mm) holds their
+    # points closer than their planes beyond the noise; but their measured normals do not
+    # turn with it (strategies.round_of_plane).
+    points, labels, result = _modeled("region_growing_rgb_tutorial.pcd")
+    flat = np.asarray(points, dtype=float).reshape(-1, 3)
+    rows = labels.ravel()
+    far = [o for o in result.objects
+           if np.median(np.linalg.norm(flat[rows == o.id], axis=1)) > 3.0]
+    assert len(far) >= 3
+    assert all(o.type in ("plane", "unknown") for o in far), [(o.id, o.type) for o in far]
+
+
 @pytest.mark.xfail(strict=True, reason="the bottle pack (transparent PET under shrink-wrap, "
                    "many depth holes) is split by the segmentation into five segments; the "
                    "largest is modeled as `unknown`")

@@ -151,12 +151,12 @@ def test_a_failed_shortcut_leaves_the_object_stream_as_it_was(monkeypatch):
     plain_fit = modeling._fitted
     calls = []
 
-    def first_fails(points, oid, params, rng, built, setting):
+    def first_fails(points, oid, params, rng, built, setting, **options):
         calls.append(len(built[1]))
         if len(calls) == 1:
             rng.random(1000)
             return modeling._unknown(oid, points, "shortcut rejected")
-        return plain_fit(points, oid, params, rng, built, setting)
+        return plain_fit(points, oid, params, rng, built, setting, **options)
 
     pts = _rectangle(seed=4)
     plain = _model(pts, False)

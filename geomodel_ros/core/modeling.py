@@ -210,18 +210,31 @@ def _fitted(points: NDArray[np.float64], object_id: int, params: ModelingParams,
         return _unknown(object_id, points, "; ".join(reasons), summaries)
     prim = with_confidence(prim, points, params.ransac_threshold)
     prim = dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons))
-    if not alternatives or prim.type is not PrimitiveType.PLANE:
+    if not alternatives or prim.type is not PrimitiveType.PLANE or \
+            params.noise_model != "auto":
         return prim
-    # From a copy of the object's stream: the plane's own results stay as they are.
+    # Judged once the segmentation is done, for the planes that remain (:func:`_settle_planes`),
+    # from a copy of the object's stream: the plane's own results stay as they are.
     plane_situation = dataclasses.replace(
         situation, cloud=dataclasses.replace(cloud, rng=copy.deepcopy(rng)))
-    found = round_of_plane(plane_situation, prim, reasons)
+    return dataclasses.replace(prim, round_alternative=partial(
+        _round_alternative, plane_situation, prim, list(reasons)))
+
+
+def _round_alternative(situation: Situation, plane: Primitive, reasons: list[str]
+                       ) -> Primitive | None:
+    """Return the round model that replaces the ``plane`` of ``situation``, or None.
+
+    :func:`~.strategies.round_of_plane`, with its confidence, faces and ``reasons`` (the
+    plane's, then the comparison).
+    """
+    found = round_of_plane(situation, plane, reasons)
     if found is None:
-        return prim
-    rnd, rnd_faces = found
-    rnd = with_confidence(rnd, points, params.ransac_threshold)
-    return dataclasses.replace(prim, round_alternative=dataclasses.replace(
-        rnd, faces=rnd_faces, reason="; ".join(reasons)))
+        return None
+    rnd, faces = found
+    cloud = situation.cloud
+    rnd = with_confidence(rnd, cloud.points, cloud.params.ransac_threshold)
+    return dataclasses.replace(rnd, faces=faces, reason="; ".join(reasons))
 
 
 def _as_support_plane(points: NDArray[np.float64], object_id: int, params: ModelingParams,
@@ -451,20 +464,26 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
         if params.noise_model == "auto" and noise is None:
             noise = frame_noise(pts, params)
         result = _model_rows(pts, idx_all, lab, flab, params, rng, supports, t0, noise)
-    _settle_planes(result, supports or {})
+        _settle_planes(result, supports or {})
     return result
 
 
 def _settle_planes(result: ModelingResult, supports: dict[int, Plane]) -> None:
-    """Put each plane's round alternative in its place (supports stay planes); in place.
+    """Put the round model of each plane that lay through a round body in its place; in place.
 
     The segmentation's steps (joins of plane pieces, splits) are done with the planes the
-    modeling fitted; what the output reports is the round body a plane lay through
-    (``Primitive.round_alternative``, :func:`~.strategies.round_of_plane`).
+    modeling fitted; for each plane left that is no support the round alternative is
+    judged (``Primitive.round_alternative``, :func:`~.strategies.round_of_plane`, on the
+    modeling's worker threads) and reported when it holds. Every object leaves without
+    the alternative.
     """
-    result.objects = [o.round_alternative if o.round_alternative is not None and
-                      o.type is PrimitiveType.PLANE and o.id not in supports else o
-                      for o in result.objects]
+    todo = [o for o in result.objects if o.round_alternative is not None
+            and o.type is PrimitiveType.PLANE and o.id not in supports]
+    found = dict(zip((o.id for o in todo),
+                     parallel_map(lambda o: o.round_alternative(), todo)))
+    result.objects = [found[o.id] if found.get(o.id) is not None else
+                      o if o.round_alternative is None else
+                      dataclasses.replace(o, round_alternative=None) for o in result.objects]
 
 
 def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArray[np.int64],

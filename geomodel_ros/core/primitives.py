@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -155,9 +155,10 @@ class Primitive:
     confidence : Confidence or None
         The modeling's confidence in type and size; None when not estimated (primitives
         built outside the modeling, e.g. read back from messages).
-    round_alternative : Primitive or None
-        Inside the modeling only (not in :meth:`to_dict`): the round model a plane gives
-        way to once the segmentation is done
+    round_alternative : callable or None
+        Inside the modeling only (None on its output, not in :meth:`to_dict`): a plane's
+        judge, called once the segmentation is done, of the round model the plane gives
+        way to, returning it or None
         (:func:`~geomodel_ros.core.fitting.strategies.round_of_plane`).
     """
 
@@ -172,7 +173,8 @@ class Primitive:
     reason: str = ""
     completed: tuple[str, ...] = ()
     confidence: Confidence | None = None
-    round_alternative: Primitive | None = field(default=None, repr=False, compare=False)
+    round_alternative: Callable[[], Primitive | None] | None = field(default=None, repr=False,
+                                                                     compare=False)
 
     def __post_init__(self) -> None:
         """Hold a known type name as its :class:`PrimitiveType`."""
