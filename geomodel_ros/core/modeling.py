@@ -196,8 +196,10 @@ def _fitted(points: NDArray[np.float64], object_id: int, params: ModelingParams,
             setting: _Setting, alternatives: bool = True) -> Primitive:
     """Fit the object of ``points`` (n, 3) [m] with its ``built`` faces (:func:`build_faces`).
 
-    A plane gets its round alternative (:func:`~.strategies.round_of_plane`) when there is
-    one, unless ``alternatives`` is False (a support plane's modeling).
+    A plane (with ``noise_model = auto``) carries the judge of its round alternative
+    (``Primitive.round_alternative``: :func:`_round_alternative`), which
+    :func:`_settle_planes` calls once the segmentation is done; not with ``alternatives``
+    False (a support plane's modeling).
     """
     wc, faces, adjacency = built
     if len(wc.points) < MIN_WORKING_POINTS or not faces:
