@@ -480,9 +480,8 @@ def prefer_box_of_normals(situation: Situation, prim: Primitive,
     params = cloud.params
     if prim.type not in ROUND_TYPES or params.noise_model != "auto":
         return prim, faces
-    wc, tol = cloud.wc, params.angle_tolerance
-    look = slice(None, None, _every(len(wc.points), RIVAL_FIT_POINTS))
-    points, normals = wc.points[look], wc.normals[look]
+    tol = params.angle_tolerance
+    points, normals = _first_look_normals(cloud)
     axes = box_axes(normals, tol)
     model = None if axes is None else surface_normals(prim, points)
     if model is None:
@@ -722,6 +721,16 @@ def all_faces_curved(cloud: ObjectCloud, note: str, target: int | None = None
     faces = [as_curved(f) for f in cloud.faces]
     return Attempt(dataclasses.replace(cloud, faces=faces), decision,
                    note=f"{note}: {decision.reason}")
+
+
+def _first_look_normals(cloud: ObjectCloud) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Return every k-th working point (m, 3) [m] and its measured normal (m, 3).
+
+    About :data:`RIVAL_FIT_POINTS` of them: the points a rival's normals are judged on.
+    """
+    wc = cloud.wc
+    look = slice(None, None, _every(len(wc.points), RIVAL_FIT_POINTS))
+    return wc.points[look], wc.normals[look]
 
 
 def _every(n: int, target: int | None) -> int:
@@ -998,11 +1007,10 @@ def round_of_plane(situation: Situation, plane: Primitive, reasons: list[str]
         return None
     attempt, rnd, blocks, c_plane, c_round = found
     closer, stat = lower_beyond_noise(c_round, c_plane, blocks)
-    wc, tol = cloud.wc, params.angle_tolerance
-    look = slice(None, None, _every(len(wc.points), RIVAL_FIT_POINTS))
-    model = surface_normals(rnd, wc.points[look])
-    share = 0.0 if model is None else float(np.mean(normal_costs(model, wc.normals[look],
-                                                                 tol) < 1.0))
+    points, normals = _first_look_normals(cloud)
+    model = surface_normals(rnd, points)
+    share = 0.0 if model is None else float(np.mean(
+        normal_costs(model, normals, params.angle_tolerance) < 1.0))
     follow = share >= params.min_inlier_ratio
     verdict = "replaces" if closer and follow else "does not replace"
     reasons.append(f"{attempt.note}; {rnd.type} (cost {np.mean(c_round):.3f}, "
