@@ -956,7 +956,35 @@ def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary
                        f"{', a disc end' if disc else ''})")
         if lower or disc:
             return rnd, tuple(f.summary for f in attempt.cloud.faces)
+    below = _lid_cylinder_beyond_noise(cloud, prim, reasons)
+    if below is not None:
+        return below
     return _prefer_disc_cylinder(cloud, prim, faces, reasons)
+
+
+def _lid_cylinder_beyond_noise(cloud: ObjectCloud, box: Primitive, reasons: list[str]
+                               ) -> tuple[Primitive, tuple[FaceSummary, ...]] | None:
+    """Return the cylinder below the box's largest plane if it holds the points closer, or None.
+
+    A can seen from above with part of its lid hidden (by another object, or cut by the
+    image's edge): taken as curved, the lid draws the round rival's fits off the side, and
+    the lid is no disc all round. Its largest plane taken as the lid and the rest as its
+    side (:func:`lid_cylinder` without the lid's outline) give the can's cylinder; it
+    replaces the box when it holds the object's points closer beyond the noise
+    (:func:`~.paired_cost.lower_beyond_noise`, the round rival's test). The comparison is
+    added to ``reasons``.
+    """
+    found = lid_cylinder(cloud, whole_lid=False)
+    if found is None:
+        return None
+    cyl, split = found
+    c_box, c_cyl = truncated_costs(box, cloud), truncated_costs(cyl, cloud)
+    lower, stat = lower_beyond_noise(c_cyl, c_box,
+                                     spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)))
+    reasons.append(f"the cylinder below its largest plane (cost {np.mean(c_cyl):.3f}) "
+                   f"{'replaces' if lower else 'does not replace'} cuboid (cost "
+                   f"{np.mean(c_box):.3f}, t = {stat:.1f})")
+    return (cyl, tuple(f.summary for f in split.faces)) if lower else None
 
 
 def _prefer_disc_cylinder(cloud: ObjectCloud, box: Primitive, faces: tuple[FaceSummary, ...],
@@ -1021,15 +1049,16 @@ def round_of_plane(situation: Situation, plane: Primitive, reasons: list[str]
     return rnd, tuple(f.summary for f in attempt.cloud.faces)
 
 
-def lid_cylinder(cloud: ObjectCloud) -> tuple[Primitive, ObjectCloud] | None:
+def lid_cylinder(cloud: ObjectCloud, whole_lid: bool = True
+                 ) -> tuple[Primitive, ObjectCloud] | None:
     """Return the cylinder below the object's lid, with the object as fitted, or None.
 
     The lid is the plane RANSAC finds with the most of the object's working points (within
     ``ransac_threshold`` and ``ransac_normal_threshold``); they are taken as one planar
     face and the others as one curved face, and the cylinder unit fits the side with its
     axis along the lid's normal (the main face's, :func:`~.curved.axis_prior`). The
-    cylinder, when it verifies and the lid is a disc end of it all round
-    (:func:`disc_end`). The object's random stream is left as it was (a copy draws).
+    cylinder, when it verifies and (with ``whole_lid``) the lid is a disc end of it all
+    round (:func:`disc_end`). The object's random stream is left as it was (a copy draws).
     """
     params, wc = cloud.params, cloud.wc
     rng = copy.deepcopy(cloud.rng)
@@ -1043,7 +1072,8 @@ def lid_cylinder(cloud: ObjectCloud) -> tuple[Primitive, ObjectCloud] | None:
     split = dataclasses.replace(cloud, faces=faces, adjacency=fs.adjacency, rng=rng)
     cyl, _ = fit_first(split, GraphDecision("mixed", ("cylinder",), 0,
                                             reason="a lid and its side"))
-    if cyl is None or cyl.type is not PrimitiveType.CYLINDER or not disc_end(split, cyl):
+    if cyl is None or cyl.type is not PrimitiveType.CYLINDER or (
+            whole_lid and not disc_end(split, cyl)):
         return None
     return cyl, split
 
