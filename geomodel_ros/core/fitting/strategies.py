@@ -872,6 +872,34 @@ def _rectangle_distance(rim: NDArray[np.float64]) -> NDArray[np.float64]:
                               b[:, best] - lo_b[best], hi_b[best] - b[:, best]])
 
 
+def _round_outline(rim: NDArray[np.float64], centre: NDArray[np.float64], radius: float
+                   ) -> bool:
+    """Whether a convex outline (its vertices in order, (m, 2) [m]) follows a circle.
+
+    Its vertices lie nearer the circle of ``centre`` (2,) and ``radius`` than the
+    least-area rectangle round them (median distances, :func:`_rectangle_distance`).
+    """
+    return bool(np.median(np.abs(np.linalg.norm(rim - centre, axis=1) - radius))
+                < np.median(_rectangle_distance(rim)))
+
+
+def _lid_on_circle(cloud: ObjectCloud, lid: ObjectFace, cylinder: Primitive) -> bool:
+    """Whether the outline of ``lid`` (a planar face) follows the circle of ``cylinder``.
+
+    The convex hull of the lid's points projected along the axis, :func:`_round_outline`
+    against the cylinder's own circle: a can's lid, whole or with part of it hidden (the
+    cut's straight edge adds no vertices between its ends, which lie on the circle); a
+    box's top under a cylinder through the box and its neighbour follows a rectangle.
+    """
+    axis = cylinder.rotation[:, 2]
+    uv = (cloud.points[lid.points] - cylinder.center) @ frame_with_z(axis)[:, :2]
+    try:
+        hull = ConvexHull(uv)
+    except (QhullError, ValueError):
+        return False
+    return _round_outline(uv[hull.vertices], np.zeros(2), cylinder.dimensions["radius"])
+
+
 def disc_cylinder(cloud: ObjectCloud, box: Primitive) -> Primitive | None:
     """Return the cylinder whose end is a planar face of the object seen as a disc, or None.
 
@@ -902,9 +930,7 @@ def disc_cylinder(cloud: ObjectCloud, box: Primitive) -> Primitive | None:
         if circle is None:
             continue
         centre2, radius = circle
-        rim = uv[hull.vertices]
-        if np.median(np.abs(np.linalg.norm(rim - centre2, axis=1) - radius)) >= \
-                np.median(_rectangle_distance(rim)):
+        if not _round_outline(uv[hull.vertices], centre2, radius):
             continue  # the outline follows a rectangle, not the circle
         name = ("length", "width", "height")[k]
         length = box.dimensions[name]
@@ -969,10 +995,10 @@ def _lid_cylinder_beyond_noise(cloud: ObjectCloud, box: Primitive, reasons: list
     A can seen from above with part of its lid hidden (by another object, or cut by the
     image's edge): taken as curved, the lid draws the round rival's fits off the side, and
     the lid is no disc all round. Its largest plane taken as the lid and the rest as its
-    side (:func:`lid_cylinder` without the lid's outline) give the can's cylinder; it
-    replaces the box when it holds the object's points closer beyond the noise
-    (:func:`~.paired_cost.lower_beyond_noise`, the round rival's test). The comparison is
-    added to ``reasons``.
+    side give the can's cylinder when the lid's outline follows its circle
+    (:func:`lid_cylinder` without ``whole_lid``); it replaces the box when it holds the
+    object's points closer beyond the noise (:func:`~.paired_cost.lower_beyond_noise`,
+    the round rival's test). The comparison is added to ``reasons``.
     """
     found = lid_cylinder(cloud, whole_lid=False)
     if found is None:
@@ -1057,8 +1083,10 @@ def lid_cylinder(cloud: ObjectCloud, whole_lid: bool = True
     ``ransac_threshold`` and ``ransac_normal_threshold``); they are taken as one planar
     face and the others as one curved face, and the cylinder unit fits the side with its
     axis along the lid's normal (the main face's, :func:`~.curved.axis_prior`). The
-    cylinder, when it verifies and (with ``whole_lid``) the lid is a disc end of it all
-    round (:func:`disc_end`). The object's random stream is left as it was (a copy draws).
+    cylinder, when it verifies and the lid is a disc end of it all round
+    (:func:`disc_end`), or without ``whole_lid`` when the lid's outline follows its
+    circle (:func:`_lid_on_circle`: part of the lid may be hidden). The object's random
+    stream is left as it was (a copy draws).
     """
     params, wc = cloud.params, cloud.wc
     rng = copy.deepcopy(cloud.rng)
@@ -1072,8 +1100,9 @@ def lid_cylinder(cloud: ObjectCloud, whole_lid: bool = True
     split = dataclasses.replace(cloud, faces=faces, adjacency=fs.adjacency, rng=rng)
     cyl, _ = fit_first(split, GraphDecision("mixed", ("cylinder",), 0,
                                             reason="a lid and its side"))
-    if cyl is None or cyl.type is not PrimitiveType.CYLINDER or (
-            whole_lid and not disc_end(split, cyl)):
+    if cyl is None or cyl.type is not PrimitiveType.CYLINDER:
+        return None
+    if not (disc_end(split, cyl) if whole_lid else _lid_on_circle(split, split.faces[0], cyl)):
         return None
     return cyl, split
 
