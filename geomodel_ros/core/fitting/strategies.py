@@ -29,7 +29,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Protocol, Sequence
+from typing import Iterator, Protocol, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -900,16 +900,15 @@ def _lid_on_circle(cloud: ObjectCloud, lid: ObjectFace, cylinder: Primitive) -> 
     return _round_outline(uv[hull.vertices], np.zeros(2), cylinder.dimensions["radius"])
 
 
-def disc_cylinder(cloud: ObjectCloud, box: Primitive) -> Primitive | None:
-    """Return the cylinder whose end is a planar face of the object seen as a disc, or None.
+def _round_faces(cloud: ObjectCloud, box: Primitive
+                 ) -> Iterator[tuple[int, NDArray[np.float64], NDArray[np.float64],
+                                     NDArray[np.float64], NDArray[np.float64], float]]:
+    """Yield the planar faces across one of the box's axes whose outline follows a circle.
 
-    Each planar face across one of the box's axes (largest first) is taken as a can's
-    lid: the circle through its outline (the convex hull of its points in its plane,
-    least squares) with the box's extent along that axis (completed where the box's was,
-    its rmse over the object's points). The first face whose outline
-    lies nearer that circle than the least-area rectangle round it (median distances of
-    the hull's vertices, :func:`_rectangle_distance`) and that is a disc end of its
-    cylinder, all round (:func:`disc_end`), gives it.
+    Largest first; each face's outline is the convex hull of its points in its plane, its
+    circle the least-squares one through the hull's vertices (:func:`_round_outline`).
+    Yields the box axis's index k, the face's normal (3,), its plane's frame (3, 3) and
+    centroid (3,), and the circle's centre (2,) in that frame and radius [m].
     """
     cos_tol = math.cos(cloud.params.angle_tolerance)
     for face in sorted((f for f in cloud.faces if f.info.planar), key=lambda f: -f.info.size):
@@ -930,8 +929,23 @@ def disc_cylinder(cloud: ObjectCloud, box: Primitive) -> Primitive | None:
         if circle is None:
             continue
         centre2, radius = circle
-        if not _round_outline(uv[hull.vertices], centre2, radius):
-            continue  # the outline follows a rectangle, not the circle
+        if _round_outline(uv[hull.vertices], centre2, radius):
+            yield k, n, frame, c0, centre2, radius
+
+
+def disc_cylinder(cloud: ObjectCloud, box: Primitive,
+                  round_faces: list[tuple] | None = None) -> Primitive | None:
+    """Return the cylinder whose end is a planar face of the object seen as a disc, or None.
+
+    Each planar face across one of the box's axes whose outline follows a circle
+    (:func:`_round_faces`, largest first) is taken as a can's lid: that circle with the
+    box's extent along that axis (completed where the box's was, its rmse over the
+    object's points). The first such face that is a disc end of its cylinder, all round
+    (:func:`disc_end`), gives it. ``round_faces``: those faces when already listed.
+    """
+    if round_faces is None:
+        round_faces = list(_round_faces(cloud, box))
+    for k, n, frame, c0, centre2, radius in round_faces:
         name = ("length", "width", "height")[k]
         length = box.dimensions[name]
         axis = box.rotation[:, k] * (1.0 if box.rotation[:, k] @ n < 0 else -1.0)
@@ -982,10 +996,12 @@ def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary
                        f"{', a disc end' if disc else ''})")
         if lower or disc:
             return rnd, tuple(f.summary for f in attempt.cloud.faces)
-    below = _lid_cylinder_beyond_noise(cloud, prim, reasons)
-    if below is not None:
-        return below
-    return _prefer_disc_cylinder(cloud, prim, faces, reasons)
+    round_faces = list(_round_faces(cloud, prim))
+    if round_faces:  # a real box's faces are rectangles: no lid to look below
+        below = _lid_cylinder_beyond_noise(cloud, prim, reasons)
+        if below is not None:
+            return below
+    return _prefer_disc_cylinder(cloud, prim, faces, reasons, round_faces)
 
 
 def _lid_cylinder_beyond_noise(cloud: ObjectCloud, box: Primitive, reasons: list[str]
@@ -998,13 +1014,25 @@ def _lid_cylinder_beyond_noise(cloud: ObjectCloud, box: Primitive, reasons: list
     side give the can's cylinder when the lid's outline follows its circle
     (:func:`lid_cylinder` without ``whole_lid``); it replaces the box when it holds the
     object's points closer beyond the noise (:func:`~.paired_cost.lower_beyond_noise`,
-    the round rival's test). The comparison is added to ``reasons``.
+    the round rival's test). :func:`prefer_round` tries it only when one of the box's
+    faces has a round outline (:func:`_round_faces`); as for the round rival, a first look
+    on :func:`thinned` faces that costs no less than the box on average ends the attempt
+    before the refinement. The comparison is added to ``reasons``.
     """
-    found = lid_cylinder(cloud, whole_lid=False)
+    split = _lid_and_side(cloud)
+    if split is None:
+        return None
+    c_box = truncated_costs(box, cloud)
+    look, _ = fit_first(dataclasses.replace(thinned(split), rng=copy.deepcopy(split.rng)),
+                        _LID_AND_SIDE)
+    if look is None or look.type is not PrimitiveType.CYLINDER or \
+            np.mean(truncated_costs(look, cloud)) >= np.mean(c_box):
+        return None
+    found = lid_cylinder(cloud, whole_lid=False, split=split)
     if found is None:
         return None
     cyl, split = found
-    c_box, c_cyl = truncated_costs(box, cloud), truncated_costs(cyl, cloud)
+    c_cyl = truncated_costs(cyl, cloud)
     lower, stat = lower_beyond_noise(c_cyl, c_box,
                                      spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)))
     reasons.append(f"the cylinder below its largest plane (cost {np.mean(c_cyl):.3f}) "
@@ -1014,7 +1042,8 @@ def _lid_cylinder_beyond_noise(cloud: ObjectCloud, box: Primitive, reasons: list
 
 
 def _prefer_disc_cylinder(cloud: ObjectCloud, box: Primitive, faces: tuple[FaceSummary, ...],
-                          reasons: list[str]) -> tuple[Primitive, tuple[FaceSummary, ...]]:
+                          reasons: list[str], round_faces: list[tuple] | None = None
+                          ) -> tuple[Primitive, tuple[FaceSummary, ...]]:
     """Return the cylinder of the box's disc face (:func:`disc_cylinder`) if it costs less.
 
     A can seen mostly by its lid, its side a few grazing slivers (or facets that pass as
@@ -1022,9 +1051,10 @@ def _prefer_disc_cylinder(cloud: ObjectCloud, box: Primitive, faces: tuple[FaceS
     is the can's circle: the cylinder of that circle, as long as the box along its axis,
     replaces the box when its mean :func:`truncated_costs` over the object's points are
     lower (a real box's top whose outline the noise band lets pass as a disc keeps its
-    box: its sides and corners cost the cylinder far more).
+    box: its sides and corners cost the cylinder far more). ``round_faces``: the box's
+    faces of :func:`_round_faces` when already listed.
     """
-    disc = disc_cylinder(cloud, box)
+    disc = disc_cylinder(cloud, box, round_faces)
     if disc is None:
         return box, faces
     return _cheaper(cloud, (box, faces), (disc, faces), "the cylinder of its disc face", reasons)
@@ -1075,18 +1105,13 @@ def round_of_plane(situation: Situation, plane: Primitive, reasons: list[str]
     return rnd, tuple(f.summary for f in attempt.cloud.faces)
 
 
-def lid_cylinder(cloud: ObjectCloud, whole_lid: bool = True
-                 ) -> tuple[Primitive, ObjectCloud] | None:
-    """Return the cylinder below the object's lid, with the object as fitted, or None.
+def _lid_and_side(cloud: ObjectCloud) -> ObjectCloud | None:
+    """Return ``cloud`` with two faces, its lid (planar) and its side (curved), or None.
 
     The lid is the plane RANSAC finds with the most of the object's working points (within
-    ``ransac_threshold`` and ``ransac_normal_threshold``); they are taken as one planar
-    face and the others as one curved face, and the cylinder unit fits the side with its
-    axis along the lid's normal (the main face's, :func:`~.curved.axis_prior`). The
-    cylinder, when it verifies and the lid is a disc end of it all round
-    (:func:`disc_end`), or without ``whole_lid`` when the lid's outline follows its
-    circle (:func:`_lid_on_circle`: part of the lid may be hidden). The object's random
-    stream is left as it was (a copy draws).
+    ``ransac_threshold`` and ``ransac_normal_threshold``), the side the other points; None
+    when no plane is found or it holds all of them. The object's random stream is left as
+    it was: the returned cloud draws from a copy.
     """
     params, wc = cloud.params, cloud.wc
     rng = copy.deepcopy(cloud.rng)
@@ -1097,9 +1122,28 @@ def lid_cylinder(cloud: ObjectCloud, whole_lid: bool = True
         return None
     fs = faces_from_labels(wc, np.where(found.inliers, 0, 1)[wc.point_to_working])
     faces = describe_faces(wc, fs, params, planar=(True, False))
-    split = dataclasses.replace(cloud, faces=faces, adjacency=fs.adjacency, rng=rng)
-    cyl, _ = fit_first(split, GraphDecision("mixed", ("cylinder",), 0,
-                                            reason="a lid and its side"))
+    return dataclasses.replace(cloud, faces=faces, adjacency=fs.adjacency, rng=rng)
+
+
+#: The cylinder unit on a lid and its side (:func:`_lid_and_side`).
+_LID_AND_SIDE = GraphDecision("mixed", ("cylinder",), 0, reason="a lid and its side")
+
+
+def lid_cylinder(cloud: ObjectCloud, whole_lid: bool = True,
+                 split: ObjectCloud | None = None) -> tuple[Primitive, ObjectCloud] | None:
+    """Return the cylinder below the object's lid, with the object as fitted, or None.
+
+    The object as its lid and its side (:func:`_lid_and_side`, or ``split`` when given:
+    its result), and the cylinder unit fitting the side with its axis along the lid's
+    normal (the main face's, :func:`~.curved.axis_prior`). The cylinder, when it verifies
+    and the lid is a disc end of it all round (:func:`disc_end`), or without
+    ``whole_lid`` when the lid's outline follows its circle (:func:`_lid_on_circle`: part
+    of the lid may be hidden).
+    """
+    split = _lid_and_side(cloud) if split is None else split
+    if split is None:
+        return None
+    cyl, _ = fit_first(split, _LID_AND_SIDE)
     if cyl is None or cyl.type is not PrimitiveType.CYLINDER:
         return None
     if not (disc_end(split, cyl) if whole_lid else _lid_on_circle(split, split.faces[0], cyl)):
