@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from geomodel_ros.core.fitting.axial import axial_extent, verified_side
 from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
-from geomodel_ros.core.fitting.measure import bulk_extent, bulk_reach
+from geomodel_ros.core.fitting.measure import bulk_reach, side_bulk
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
 from geomodel_ros.core.fitting.verify import (axes_within, axis_within, check_apex,
                                               check_axial_sunk_in_support, check_bulk_length,
@@ -98,10 +98,14 @@ def fit_cone_side(task: FitTask, kind: PrimitiveType
     return side, lo, hi, side_points
 
 
-def _sized(task: FitTask, model: ConeModel, lo: float, hi: float) -> float | Rejected:
-    """Size the base radius [m] of a cone whose points run from ``lo`` to ``hi`` from its apex."""
+def _sized(task: FitTask, model: ConeModel, lo: float, hi: float,
+           side_points: NDArray[np.float64]) -> float | Rejected:
+    """Size the base radius [m] of a cone whose points run from ``lo`` to ``hi`` from its apex.
+
+    ``side_points`` (n, 3): the side's points the extent was taken from.
+    """
     cloud = task.cloud
-    bad = check_bulk_length(hi - lo, bulk_extent(cloud.points, model.axis), CONE)
+    bad = check_bulk_length(hi - lo, side_bulk(cloud.points, side_points, model.axis), CONE)
     if bad:
         return bad
     height = hi if hi > 0 else 0.0  # apex at t = 0, base at the far end
@@ -125,9 +129,9 @@ def fit_cone(task: FitTask) -> FitOutcome:
     fitted = fit_cone_side(task, CONE)
     if not isinstance(fitted, tuple):
         return fitted
-    side, lo, hi, _ = fitted
+    side, lo, hi, side_points = fitted
     model = side.model
-    radius = _sized(task, model, lo, hi)
+    radius = _sized(task, model, lo, hi, side_points)
     if isinstance(radius, Rejected):
         return radius
     height = hi if hi > 0 else 0.0

@@ -11,7 +11,7 @@ from geomodel_ros.core import obb
 from geomodel_ros.core.fitting.axial import axial_extent, verified_side
 from geomodel_ros.core.fitting.completion import complete_axial
 from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
-from geomodel_ros.core.fitting.measure import bulk_extent
+from geomodel_ros.core.fitting.measure import side_bulk
 from geomodel_ros.core.fitting.orient import axis_toward_sensor
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
 from geomodel_ros.core.fitting.verify import (axes_within, axis_within,
@@ -84,7 +84,7 @@ def fit_cylinder(task: FitTask) -> FitOutcome:
         side_points = obb.ray_to_cylinder(side_points, model.point, axis, model.radius,
                                           CYLINDER_RAY_SHIFT_FACTOR * params.ransac_threshold)
     lo, hi = axial_extent(cloud, side_points, caps, nearest, model.point, axis)
-    bad = check_bulk_length(hi - lo, bulk_extent(cloud.points, axis), CYLINDER)
+    bad = check_bulk_length(hi - lo, side_bulk(cloud.points, side_points, axis), CYLINDER)
     if bad:
         return bad
     if hi - lo <= 0:

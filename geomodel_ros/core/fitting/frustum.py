@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from geomodel_ros.core.fitting.cloud import ObjectCloud, independent_noise
 from geomodel_ros.core.fitting.cone import fit_cone_side
-from geomodel_ros.core.fitting.measure import bulk_extent, bulk_reach
+from geomodel_ros.core.fitting.measure import bulk_reach, side_bulk
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
 from geomodel_ros.core.fitting.slow_taper import slow_taper
 from geomodel_ros.core.fitting.taper_spread import least_taper
@@ -133,7 +133,7 @@ def _sized(task: FitTask, model: ConeModel, lo: float, hi: float,
     exceed the least taper: the RANSAC cone's slope is only the sizes' estimate.
     """
     points = task.cloud.points
-    bad = check_bulk_length(hi - lo, bulk_extent(points, model.axis), FRUSTUM)
+    bad = check_bulk_length(hi - lo, side_bulk(points, side_points, model.axis), FRUSTUM)
     if bad:
         return bad
     judged = None if task.cloud.params.noise_model != "auto" else \

@@ -11,8 +11,8 @@ from numpy.typing import NDArray
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.noise import MIN_INCIDENCE_COS
 
-__all__ = ["STATS_SAMPLE", "every_kth", "bulk_extent", "bulk_reach", "arc_span", "steep_arc_span",
-           "without_strays", "nearest_surface", "rms", "ray_incidence",
+__all__ = ["STATS_SAMPLE", "every_kth", "bulk_extent", "side_bulk", "bulk_reach", "arc_span",
+           "steep_arc_span", "without_strays", "nearest_surface", "rms", "ray_incidence",
            "noise_scatter_ratio", "scatter_incidence", "MAD_TO_SIGMA", "SCATTER_SAMPLE"]
 
 #: Percentile statistics over an object's points (bulk reach, strays, support test,
@@ -53,6 +53,20 @@ def bulk_extent(points: NDArray[np.float64], axis: NDArray[np.float64]) -> float
     """Extent [m] of the bulk (BULK_PERCENTILES) of ``points`` (N, 3) along unit ``axis``."""
     lo, hi = np.percentile(points @ axis, list(BULK_PERCENTILES))
     return float(hi - lo)
+
+
+def side_bulk(points: NDArray[np.float64], side_points: NDArray[np.float64],
+              axis: NDArray[np.float64]) -> float:
+    """Bulk extent [m] along unit ``axis`` of an object's ``points`` or of its side's, the longer.
+
+    A round body's length is checked against it (:func:`~.verify.check_bulk_length`). A
+    flat end seen whole may hold most of the object's points at one place along the axis
+    (a tall can's lid seen from above: 94 % of its points), and the bulk of all points is
+    then the lid's few millimetres while the side's points (n, 3) run the can's length;
+    a few strays on the side's extended surface stay outside the bulk of either.
+    """
+    bulk = bulk_extent(points, axis)
+    return max(bulk, bulk_extent(side_points, axis)) if len(side_points) else bulk
 
 
 def bulk_reach(points: NDArray[np.float64], origin: NDArray[np.float64],
