@@ -81,7 +81,7 @@ def _lid(uv: np.ndarray, radius: float, centre=(0.0, 0.0)) -> bool:
 
 
 def _grid(half: float, step: float = 0.0015, turn_deg: float = 10.0) -> np.ndarray:
-    """A square lattice of ``step`` [m] over +-``half`` (and beyond), turned by ``turn_deg``.
+    """Return a square lattice of ``step`` [m] over +-``half`` (and beyond), turned ``turn_deg``.
 
     A lid's pixels seen obliquely: a lattice not aligned with the lid's cut.
     """

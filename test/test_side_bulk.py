@@ -33,7 +33,7 @@ def _best(scene, gt_id: int):
 
 
 def _lid_and_side(lid_points: int = 9000, side_points: int = 150, strays: int = 0):
-    """A lid at z = 0 (r 45 mm) and a side strip from z = -150 mm to 0, with far strays."""
+    """Return a lid at z = 0 (r 45 mm) and a side strip from z = -150 mm to 0, and the side."""
     rng = np.random.default_rng(4)
     phi = rng.uniform(0.0, 2.0 * math.pi, lid_points)
     rho = 0.045 * np.sqrt(rng.uniform(0.0, 1.0, lid_points))
