@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from geomodel_ros.core.modeling import model_objects
+from geomodel_ros.core.modeling import model_objects, model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.tools.synth.suite import SuiteCase, render_case
 
@@ -21,3 +21,15 @@ def suite_true_labels(layout, distance, noise="kinect-real", seed=1, params=None
     result = model_objects(scene.points, np.where(ok, scene.labels, -1),
                            params or ModelingParams(), supports={0: (n, float(-n @ c))})
     return {o.id: o for o in result.objects}, {g.id: g for g in scene.objects}, result
+
+
+def best_object(scene, gt_id, params=None):
+    """Model a rendered scene end to end; return the object of most of ``gt_id``'s pixels.
+
+    ``scene``: a rendered scene with its organized cloud and label image
+    (:mod:`geomodel_ros.tools.synth`); fails when none of the object's pixels was segmented.
+    """
+    labels, result = model_scene(scene.organized, params or ModelingParams())
+    mine = labels[(scene.label_image.ravel() == gt_id) & (labels >= 0)]
+    assert len(mine), "the object was not segmented at all"
+    return {o.id: o for o in result.objects}[int(np.bincount(mine).argmax())]

@@ -22,21 +22,13 @@ import pytest
 from geomodel_ros.core.fitting import strategies
 from geomodel_ros.core.fitting.strategies import _lid_on_circle
 from geomodel_ros.core.geometry import frame_with_z
-from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.tools.synth.clutter import camera_pose, make_box, render_clutter, \
     render_layout
 from geomodel_ros.tools.synth.scenes import KINECT_REAL_NOISE
+from suite_helpers import best_object
 
 MM = 1e-3
-
-
-def _best(scene, gt_id: int):
-    """Return the object modeled from the most pixels of ground-truth object ``gt_id``."""
-    labels, result = model_scene(scene.organized)
-    mine = labels[(scene.label_image.ravel() == gt_id) & (labels >= 0)]
-    assert len(mine), "the object was not segmented at all"
-    return {o.id: o for o in result.objects}[int(np.bincount(mine).argmax())]
 
 
 @pytest.mark.parametrize("seed, gt_id", [(40, 6), (103, 12)])
@@ -44,7 +36,7 @@ def test_a_can_whose_lid_is_partly_hidden_is_the_cylinder_below_it(seed, gt_id):
     # Noise-free: cans r 42.6 and 27.8 mm whose lids' rims show 250 deg and less.
     scene = render_clutter(seed)
     assert scene.kinds[gt_id] == "can"
-    obj = _best(scene, gt_id)
+    obj = best_object(scene, gt_id)
     assert obj.type == "cylinder", obj.reason
     assert "the cylinder below its largest plane" in obj.reason
     truth = scene.objects[gt_id].dimensions
@@ -62,7 +54,7 @@ def test_a_box_and_a_can_in_one_segment_make_no_lid_of_the_boxs_top():
     # held the pair closer than that box (t = 2.5) and took the split's place; the top's
     # outline follows a rectangle, not that cylinder's circle.
     scene = render_clutter(10, KINECT_REAL_NOISE)
-    box, can = _best(scene, 1), _best(scene, 9)
+    box, can = best_object(scene, 1), best_object(scene, 9)
     assert box.id != can.id
     assert box.type == "cuboid", box.reason
     assert can.type == "cylinder", can.reason
@@ -124,6 +116,6 @@ def test_a_box_with_rectangular_faces_makes_no_lid_attempt(monkeypatch):
     scene = render_layout([make_box(0.08, 0.06, 0.07, yaw=0.4)], [0],
                           camera_pose(0.8, math.radians(50.0), 0.3), noise=KINECT_REAL_NOISE,
                           rng=2)
-    obj = _best(scene, 1)
+    obj = best_object(scene, 1)
     assert obj.type == "cuboid", obj.reason
     assert calls == []

@@ -17,19 +17,11 @@ import numpy as np
 import pytest
 
 from geomodel_ros.core.fitting.measure import bulk_extent, side_bulk
-from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.tools.synth.clutter import KINECT_NOISE, render_clutter
+from suite_helpers import best_object
 
 MM = 1e-3
 Z = np.array([0.0, 0.0, 1.0])
-
-
-def _best(scene, gt_id: int):
-    """Return the object modeled from the most pixels of ground-truth object ``gt_id``."""
-    labels, result = model_scene(scene.organized)
-    mine = labels[(scene.label_image.ravel() == gt_id) & (labels >= 0)]
-    assert len(mine), "the object was not segmented at all"
-    return {o.id: o for o in result.objects}[int(np.bincount(mine).argmax())]
 
 
 def _lid_and_side(lid_points: int = 9000, side_points: int = 150, strays: int = 0):
@@ -72,7 +64,7 @@ def test_a_tall_can_seen_by_its_lid_and_a_strip_of_side_is_a_cylinder_of_its_siz
     # axis") or not reported before.
     scene = render_clutter(seed, noise)
     assert scene.kinds[gt_id] == "can"
-    obj = _best(scene, gt_id)
+    obj = best_object(scene, gt_id)
     assert obj.type == "cylinder", obj.reason
     truth = scene.objects[gt_id].dimensions
     tol = 0.3 * MM if noise is None else 2.0 * MM
