@@ -1155,17 +1155,19 @@ def lid_cylinder_alone(cloud: ObjectCloud, reasons: list[str]
                        ) -> tuple[Primitive, tuple[FaceSummary, ...]] | None:
     """Return the cylinder below the lid of an object no strategy fitted, or None.
 
-    The same lid and side as :func:`prefer_lid_cylinder` (:func:`lid_cylinder`): cans
-    whose lid joined their side and whose faces fit no rule (facets that meet at no right
-    angles) or whose round fits failed. Nothing competes, but a ball's cap passes as a lid
-    under the noise and the cylinder below it verifies: it is kept only when its
-    :func:`truncated_cost` is lower than that of the sphere least squares fits to the
-    whole object (:func:`_rival_sphere`; unverified: a rival, not a result). Only with
-    ``noise_model = auto``; the comparison is added to ``reasons``.
+    The lid and side of :func:`lid_cylinder`, the lid's outline following the cylinder's
+    circle (``whole_lid`` false: part of it may be hidden, as in
+    :func:`_lid_cylinder_beyond_noise`): cans whose lid joined their side and whose faces
+    fit no rule (facets that meet at no right angles) or whose round fits failed.
+    Nothing competes, but a ball's cap passes as a lid under the noise and the cylinder
+    below it verifies: it is kept only when its :func:`truncated_cost` is lower than that
+    of the sphere least squares fits to the whole object (:func:`_rival_sphere`;
+    unverified: a rival, not a result). Only with ``noise_model = auto``; the comparison
+    is added to ``reasons``.
     """
     if cloud.params.noise_model != "auto":
         return None
-    found = lid_cylinder(cloud)
+    found = lid_cylinder(cloud, whole_lid=False)
     if found is None:
         return None
     cyl, split = found
