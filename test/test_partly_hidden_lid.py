@@ -119,3 +119,17 @@ def test_a_box_with_rectangular_faces_makes_no_lid_attempt(monkeypatch):
     obj = best_object(scene, 1)
     assert obj.type == "cuboid", obj.reason
     assert calls == []
+
+
+def test_a_can_no_rule_fits_whose_lid_is_partly_hidden_is_the_cylinder_below_it():
+    # Noise-free seed 24: a can r 27.6 mm, h 69.6 mm whose side shows 25 mm below its lid
+    # and whose lid is partly hidden: its faces fit no rule (`unknown` before; the lid
+    # was no disc end all round). The cylinder below the lid costs less than a sphere.
+    scene = render_clutter(24)
+    assert scene.kinds[8] == "can"
+    obj = best_object(scene, 8)
+    assert obj.type == "cylinder", obj.reason
+    assert "the cylinder below its lid" in obj.reason
+    truth = scene.objects[8].dimensions
+    assert obj.dimensions["radius"] == pytest.approx(truth["radius"], abs=0.3 * MM)
+    assert obj.dimensions["height"] == pytest.approx(truth["height"], abs=0.3 * MM)

@@ -1137,8 +1137,9 @@ def lid_cylinder(cloud: ObjectCloud, whole_lid: bool = True,
     its result), and the cylinder unit fitting the side with its axis along the lid's
     normal (the main face's, :func:`~.curved.axis_prior`). The cylinder, when it verifies
     and the lid is a disc end of it all round (:func:`disc_end`), or without
-    ``whole_lid`` when the lid's outline follows its circle (:func:`_lid_on_circle`: part
-    of the lid may be hidden).
+    ``whole_lid`` also when the lid's outline follows its circle (:func:`_lid_on_circle`:
+    part of the lid may be hidden; a noisy lid seen whole may pass the one test and not
+    the other).
     """
     split = _lid_and_side(cloud) if split is None else split
     if split is None:
@@ -1146,7 +1147,8 @@ def lid_cylinder(cloud: ObjectCloud, whole_lid: bool = True,
     cyl, _ = fit_first(split, _LID_AND_SIDE)
     if cyl is None or cyl.type is not PrimitiveType.CYLINDER:
         return None
-    if not (disc_end(split, cyl) if whole_lid else _lid_on_circle(split, split.faces[0], cyl)):
+    if not (disc_end(split, cyl) or not whole_lid and _lid_on_circle(split, split.faces[0],
+                                                                      cyl)):
         return None
     return cyl, split
 
