@@ -23,8 +23,8 @@ from geomodel_ros.core.fitting import strategies
 from geomodel_ros.core.fitting.strategies import _lid_on_circle
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.primitives import Primitive
-from geomodel_ros.tools.synth.clutter import camera_pose, make_box, render_clutter, \
-    render_layout
+from geomodel_ros.tools.synth.clutter import KINECT_NOISE, camera_pose, make_box, \
+    render_clutter, render_layout
 from geomodel_ros.tools.synth.scenes import KINECT_REAL_NOISE
 from suite_helpers import best_object
 
@@ -121,15 +121,21 @@ def test_a_box_with_rectangular_faces_makes_no_lid_attempt(monkeypatch):
     assert calls == []
 
 
-def test_a_can_no_rule_fits_whose_lid_is_partly_hidden_is_the_cylinder_below_it():
+@pytest.mark.parametrize("noise, seed, gt_id", [(None, 24, 8), (KINECT_NOISE, 137, 12)])
+def test_a_can_no_rule_fits_is_the_cylinder_below_its_lid_whole_or_partly_hidden(
+        noise, seed, gt_id):
     # Noise-free seed 24: a can r 27.6 mm, h 69.6 mm whose side shows 25 mm below its lid
-    # and whose lid is partly hidden: its faces fit no rule (`unknown` before; the lid
-    # was no disc end all round). The cylinder below the lid costs less than a sphere.
-    scene = render_clutter(24)
-    assert scene.kinds[8] == "can"
-    obj = best_object(scene, 8)
+    # and whose lid is partly hidden: its faces fit no rule (`unknown` before; the lid was
+    # no disc end all round). Kinect-class seed 137: a can r 34.2 mm, h 94.4 mm whose round
+    # fits scatter beyond the noise; its lid, seen whole, is a disc end all round but its
+    # noisy outline is not nearer the circle than its rectangle: either test lets it be a
+    # lid. The cylinder below the lid costs less than a sphere of the object.
+    scene = render_clutter(seed, noise)
+    assert scene.kinds[gt_id] == "can"
+    obj = best_object(scene, gt_id)
     assert obj.type == "cylinder", obj.reason
     assert "the cylinder below its lid" in obj.reason
-    truth = scene.objects[8].dimensions
-    assert obj.dimensions["radius"] == pytest.approx(truth["radius"], abs=0.3 * MM)
-    assert obj.dimensions["height"] == pytest.approx(truth["height"], abs=0.3 * MM)
+    truth = scene.objects[gt_id].dimensions
+    tol = 0.3 * MM if noise is None else 2.0 * MM
+    assert obj.dimensions["radius"] == pytest.approx(truth["radius"], abs=tol)
+    assert obj.dimensions["height"] == pytest.approx(truth["height"], abs=tol)
