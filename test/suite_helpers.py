@@ -33,3 +33,18 @@ def best_object(scene, gt_id, params=None):
     mine = labels[(scene.label_image.ravel() == gt_id) & (labels >= 0)]
     assert len(mine), "the object was not segmented at all"
     return {o.id: o for o in result.objects}[int(np.bincount(mine).argmax())]
+
+
+def can_cylinder(scene, gt_id, tol_radius, tol_height):
+    """Return the object modeled of can ``gt_id``, asserting a cylinder of its size.
+
+    Its radius and height within ``tol_radius`` and ``tol_height`` [m] of the rendered
+    can's (:func:`best_object`).
+    """
+    assert scene.kinds[gt_id] == "can"
+    obj = best_object(scene, gt_id)
+    assert obj.type == "cylinder", obj.reason
+    truth = scene.objects[gt_id].dimensions
+    assert abs(obj.dimensions["radius"] - truth["radius"]) <= tol_radius, obj.dimensions
+    assert abs(obj.dimensions["height"] - truth["height"]) <= tol_height, obj.dimensions
+    return obj

@@ -1011,8 +1011,8 @@ def _lid_cylinder_beyond_noise(cloud: ObjectCloud, box: Primitive, reasons: list
     A can seen from above with part of its lid hidden (by another object, or cut by the
     image's edge): taken as curved, the lid draws the round rival's fits off the side, and
     the lid is no disc all round. Its largest plane taken as the lid and the rest as its
-    side give the can's cylinder when the lid's outline follows its circle
-    (:func:`lid_cylinder` without ``whole_lid``); it replaces the box when it holds the
+    side give the can's cylinder when the lid is a disc end or its outline follows the
+    circle (:func:`lid_cylinder` without ``whole_lid``); it replaces the box when it holds the
     object's points closer beyond the noise (:func:`~.paired_cost.lower_beyond_noise`,
     the round rival's test). :func:`prefer_round` tries it only when one of the box's
     faces has a round outline (:func:`_round_faces`); as for the round rival, a first look
@@ -1147,8 +1147,8 @@ def lid_cylinder(cloud: ObjectCloud, whole_lid: bool = True,
     cyl, _ = fit_first(split, _LID_AND_SIDE)
     if cyl is None or cyl.type is not PrimitiveType.CYLINDER:
         return None
-    if not (disc_end(split, cyl) or not whole_lid and _lid_on_circle(split, split.faces[0],
-                                                                      cyl)):
+    if not (disc_end(split, cyl)
+            or (not whole_lid and _lid_on_circle(split, split.faces[0], cyl))):
         return None
     return cyl, split
 
@@ -1157,8 +1157,8 @@ def lid_cylinder_alone(cloud: ObjectCloud, reasons: list[str]
                        ) -> tuple[Primitive, tuple[FaceSummary, ...]] | None:
     """Return the cylinder below the lid of an object no strategy fitted, or None.
 
-    The lid and side of :func:`lid_cylinder`, the lid's outline following the cylinder's
-    circle (``whole_lid`` false: part of it may be hidden, as in
+    The lid and side of :func:`lid_cylinder`, the lid a disc end all round or its outline
+    following the cylinder's circle (``whole_lid`` false: part of it may be hidden, as in
     :func:`_lid_cylinder_beyond_noise`): cans whose lid joined their side and whose faces
     fit no rule (facets that meet at no right angles) or whose round fits failed.
     Nothing competes, but a ball's cap passes as a lid under the noise and the cylinder
