@@ -61,8 +61,8 @@ from geomodel_ros.core.ransac import (CylinderModel, PlaneModel, SphereModel, fi
                                      ransac)
 from geomodel_ros.core.surface_type import face_feature, principal_curvatures
 
-__all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "decide", "run_strategies",
-           "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
+__all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "LAST_STRATEGIES", "decide",
+           "run_strategies", "ModelGraphCandidates", "CurvedFacesAlone", "FlatCurvedFacesAsPlanar",
            "UprightAboveSupport", "BoxRival", "PlanarPatchesOfCurvedObjects", "BoxOfFlatCores",
            "DoublyCurvedAsSphere", "flat_faces",
            "flat_core_faces", "box_rival", "normal_box_rival", "prefer_box_of_normals",
@@ -1302,11 +1302,12 @@ class PlanarFacesWithoutRule:
 
 
 class NormalsBoxAfterAll(PlanarFacesWithoutRule):
-    """The box of the point normals' modes for an object no other strategy fitted.
+    """The box of the point normals' modes for an object nothing else fitted.
 
     Under the noise a box's sides may also pass as curved faces whose round fits all fail
     (Kinect-class clutter seed 46: a box 109 x 53 x 42 mm, "k2 ~ 0, k1 varies"); its
-    measured normals still gather about its three axes. Tried last, with the evidence
+    measured normals still gather about its three axes. Tried last (after every other
+    strategy and the cylinder below a lid, :data:`LAST_STRATEGIES`), with the evidence
     :class:`PlanarFacesWithoutRule` asks of the normals (most of them facing the box's
     sides, sides along all three axes), for the objects that strategy did not apply to.
     """
@@ -1431,10 +1432,13 @@ STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
                                     FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
                                     PlanarPatchesOfCurvedObjects(), BoxOfFlatCores(),
                                     PlanarFacesWithoutRule(), DoublyCurvedAsSphere(),
-                                    CurvedMajorityAfterAll(), NormalsBoxAfterAll())
+                                    CurvedMajorityAfterAll())
+#: Tried after the cylinder below a lid, for an object no strategy fitted.
+LAST_STRATEGIES: tuple[Strategy, ...] = (NormalsBoxAfterAll(),)
 
 
-def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES
+def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES,
+                   last: Sequence[Strategy] = LAST_STRATEGIES
                    ) -> tuple[Primitive | None, tuple[FaceSummary, ...], list[str]]:
     """Try ``strategies`` in order until one fits.
 
@@ -1443,9 +1447,29 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
     is checked against the box of the flat cores (:func:`prefer_box`), a cuboid against
     the round model of all the object's faces (:func:`prefer_round`), a cone or frustum
     against the cylinder below its lid (:func:`prefer_lid_cylinder`); an object no
-    strategy fits meets that cylinder alone (:func:`lid_cylinder_alone`).
+    strategy fits meets that cylinder alone (:func:`lid_cylinder_alone`), and then the
+    ``last`` strategies.
     """
     reasons = [situation.decision.reason]
+    found = _first_fit(situation, strategies, reasons)
+    if found is not None:
+        return (*found, reasons)
+    alone = lid_cylinder_alone(situation.cloud, reasons)
+    if alone is not None:
+        return (*alone, reasons)
+    found = _first_fit(situation, last, reasons)
+    if found is not None:
+        return (*found, reasons)
+    return None, tuple(f.summary for f in situation.cloud.faces), reasons
+
+
+def _first_fit(situation: Situation, strategies: Sequence[Strategy], reasons: list[str]
+               ) -> tuple[Primitive, tuple[FaceSummary, ...]] | None:
+    """Return the model of the first of ``strategies`` that fits, with its faces, or None.
+
+    Each fit meets its rivals (:func:`prefer_box`, :func:`prefer_round`,
+    :func:`prefer_lid_cylinder`); reasons are added to ``reasons``.
+    """
     for strategy in strategies:
         if not strategy.applies(situation):
             continue
@@ -1466,8 +1490,5 @@ def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATE
                 reasons.append("cuboid refused: its faces meet in a concave corner (seen "
                                "from inside: no box)")
                 continue
-            return prim, faces, reasons
-    alone = lid_cylinder_alone(situation.cloud, reasons)
-    if alone is not None:
-        return (*alone, reasons)
-    return None, tuple(f.summary for f in situation.cloud.faces), reasons
+            return prim, faces
+    return None
