@@ -182,6 +182,21 @@ def test_the_runner_returns_nothing_but_reasons_when_no_strategy_fits():
     assert reasons == ["graph reason", "cone: no curved face"]
 
 
+def test_the_last_strategies_run_only_when_nothing_else_fits():
+    cloud = cloud_of(plane_points())
+    # No curved face for the cone: the last strategy is tried, and fits.
+    situation = Situation(cloud, decision("planar", ["cone"], 0, "graph reason"))
+    prim, _, reasons = run_strategies(situation, (ModelGraphCandidates(),),
+                                      (_Fixed(["plane"], "last"),))
+    assert prim.type == "plane"
+    assert reasons == ["graph reason", "cone: no curved face", "last", "fixed: plane verified"]
+    # The plane fits first: the last strategy is never tried.
+    situation = Situation(cloud, decision("planar", ["plane"], 0, "graph reason"))
+    prim, _, reasons = run_strategies(situation, (ModelGraphCandidates(),),
+                                      (_Fixed(["cylinder"], "never"),))
+    assert prim.type == "plane" and "never" not in reasons
+
+
 def test_the_runner_records_every_rejection_for_later_strategies():
     cloud = cloud_of(plane_points())
     situation = Situation(cloud, decision("planar", ["cone", "sphere"], 0, "graph reason"))
