@@ -1275,6 +1275,8 @@ class PlanarFacesWithoutRule:
     """
 
     name = "planar faces without a rule"
+    #: Begins the attempt's note (the reasons say why the normals' box was tried).
+    note_prefix = "planar faces without a rule"
 
     def applies(self, situation: Situation) -> bool:
         """Return True for planar faces without a candidate (``auto`` noise)."""
@@ -1297,8 +1299,7 @@ class PlanarFacesWithoutRule:
         rival = normal_box_rival(cloud, axes)
         if rival is None:
             return None
-        return Attempt(rival.cloud, rival.decision,
-                       note=f"planar faces without a rule; {rival.note}")
+        return Attempt(rival.cloud, rival.decision, note=f"{self.note_prefix}; {rival.note}")
 
 
 class NormalsBoxAfterAll(PlanarFacesWithoutRule):
@@ -1313,19 +1314,12 @@ class NormalsBoxAfterAll(PlanarFacesWithoutRule):
     """
 
     name = "the box of the point normals after all"
+    note_prefix = "no strategy fitted"
 
     def applies(self, situation: Situation) -> bool:
         """Return True with ``auto`` noise where :class:`PlanarFacesWithoutRule` did not apply."""
         return situation.cloud.params.noise_model == "auto" and \
             not PlanarFacesWithoutRule.applies(self, situation)
-
-    def attempt(self, situation: Situation) -> Attempt | None:
-        """Fit the cuboid to the sides of the point normals' modes, if most face them."""
-        found = PlanarFacesWithoutRule.attempt(self, situation)
-        if found is None:
-            return None
-        return dataclasses.replace(found, note=found.note.replace(
-            "planar faces without a rule", "no strategy fitted", 1))
 
 
 class DoublyCurvedAsSphere:
