@@ -22,7 +22,7 @@ from geomodel_ros.core.fitting.completion import (CircleSection, Extension, Rect
 from geomodel_ros.core.modeling import estimate_spacing, model_object, model_objects, model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.view import SceneView
-from geomodel_ros.tools.synth import Box, Cylinder, Rectangle
+from geomodel_ros.tools.synth import Box, Cone, Cylinder, Frustum, Rectangle
 from geomodel_ros.tools.synth.scenes import (DESK_CENTER, DESK_NORMAL, DESK_SIZE,
                                              SEGMENTATION_CAMERA, desk_frame, render_scene,
                                              scene_geometry)
@@ -63,6 +63,20 @@ def _can(radius_mm: float, height_mm: float, u: float, v: float) -> Cylinder:
     return Cylinder(r, h, center=_at(u, v, h / 2), rotation=FRAME)
 
 
+def _cone(radius_mm: float, height_mm: float, u: float, v: float, gap: float = 0.0) -> Cone:
+    """Return a cone standing on its base on the desk (or ``gap`` [m] above it), apex up."""
+    r, h = MM * radius_mm, MM * height_mm
+    return Cone(r, h, center=_at(u, v, h / 2 + gap), rotation=FRAME)
+
+
+def _frustum(radius_mm: float, top_mm: float, height_mm: float, u: float, v: float,
+             on_small_end: bool = False) -> Frustum:
+    """Return a closed frustum on the desk, on its larger circle (a flower pot) or smaller."""
+    r, rt, h = MM * radius_mm, MM * top_mm, MM * height_mm
+    rotation = FRAME @ np.diag([1.0, -1.0, -1.0]) if on_small_end else FRAME
+    return Frustum(r, rt, h, center=_at(u, v, h / 2), rotation=rotation)
+
+
 #: A thin wall-like box 200 mm wide standing between the camera and the object (the camera
 #: looks at the desk from its -v side).
 def _wall(height_mm: float, v: float) -> Box:
@@ -71,11 +85,19 @@ def _wall(height_mm: float, v: float) -> Box:
 
 BOX = (80.0, 60.0, 100.0)  # length, width, height [mm] of the test box
 CAN = (30.0, 100.0)  # radius, height [mm]
+CONE = (45.0, 100.0)  # base radius, height [mm]
+POT = (50.0, 35.0, 90.0)  # radius (base, the larger circle), top radius, height [mm]
+UPSIDE = (60.0, 40.0, 70.0)  # the same, for a frustum standing on its smaller circle
 SCENES = {
     "box seen": [_box(BOX, 0.0, 10.0, 20.0)],
     "box behind wall": [_box(BOX, 0.0, 10.0, 20.0), _wall(70.0, -50.0)],
     "box floating": [_box((80.0, 60.0, 60.0), 0.0, 10.0, 20.0, gap=0.05)],
     "can behind wall": [_can(*CAN, 0.0, 10.0), _wall(80.0, -40.0)],
+    "cone behind wall": [_cone(*CONE, 0.0, 10.0), _wall(60.0, -50.0)],
+    "cone floating": [_cone(*CONE, 0.0, 10.0, gap=0.05)],
+    "pot behind wall": [_frustum(*POT, 0.0, 10.0), _wall(60.0, -50.0)],
+    "frustum on small end behind wall": [_frustum(*UPSIDE, 0.0, 10.0, on_small_end=True),
+                                         _wall(45.0, -60.0)],
 }
 
 
@@ -119,6 +141,9 @@ def test_scenes_hide_what_they_should():
     assert heights_seen("box behind wall").min() > 3 * CONTACT
     assert heights_seen("can behind wall").min() > 0.5 * CAN[1] * MM
     assert heights_seen("box floating").min() == pytest.approx(0.05, abs=0.1 * MM)
+    for name in ("cone behind wall", "pot behind wall", "frustum on small end behind wall"):
+        assert heights_seen(name).min() > CONTACT, name
+    assert heights_seen("cone floating").min() == pytest.approx(0.05, abs=0.1 * MM)
 
 
 def test_box_with_hidden_lower_part_gets_its_full_height_marked_completed():
@@ -194,6 +219,41 @@ def test_standing_can_with_lower_half_hidden_gets_its_height():
     assert abs(float(can.rotation[:, 2] @ DESK_NORMAL)) == pytest.approx(1.0, abs=1e-4)
 
 
+def test_cone_with_hidden_base_is_completed_with_its_taper():
+    # The base of a cone seen behind a wall lies on the desk: the height grows to the
+    # desk and the base radius with the side's taper (both marked completed).
+    cone = modeled("cone behind wall")
+    assert cone.type == "cone"
+    assert set(cone.completed) == {"radius", "height"}
+    assert cone.dimensions["height"] == pytest.approx(CONE[1] * MM, abs=SIZE_TOL)
+    assert cone.dimensions["radius"] == pytest.approx(CONE[0] * MM, abs=SIZE_TOL)
+    # Its base lies on the desk: the centre is half the height above it.
+    assert float(DESK_NORMAL @ cone.center + DESK_D) == pytest.approx(CONE[1] / 2 * MM,
+                                                                      abs=SIZE_TOL)
+
+
+def test_cone_floating_above_the_desk_is_not_extended_to_it():
+    # Negative: the desk is seen through the gap below the base.
+    cone = modeled("cone floating")
+    assert cone.type == "cone" and cone.completed == ()
+    assert cone.dimensions["height"] == pytest.approx(CONE[1] * MM, abs=SIZE_TOL)
+
+
+@pytest.mark.parametrize("name, size, end", [("pot behind wall", POT, "radius"),
+                                             ("frustum on small end behind wall", UPSIDE,
+                                              "top_radius")])
+def test_frustum_with_hidden_lower_end_is_completed_at_that_end(name, size, end):
+    # A flower pot stands on its larger circle, the other frustum on its smaller one: the
+    # hidden end is completed down to the desk with the side's taper, whichever it is.
+    frustum = modeled(name)
+    assert frustum.type == "frustum"
+    assert set(frustum.completed) == {end, "height"}
+    got = [frustum.dimensions[k] for k in ("radius", "top_radius", "height")]
+    assert got == pytest.approx([s * MM for s in size], abs=SIZE_TOL)
+    assert float(DESK_NORMAL @ frustum.center + DESK_D) == pytest.approx(size[2] / 2 * MM,
+                                                                         abs=SIZE_TOL)
+
+
 def test_lying_cylinder_and_fully_seen_objects_of_the_paper_scenes_are_not_completed():
     # Negative: scene2 holds a lying cylinder (its axis parallel to the desk: no plane
     # beyond its ends), scene1 boxes and scene2 spheres, cone, standing cylinder, all
@@ -263,6 +323,36 @@ def test_extension_probes_lie_on_the_sides_that_face_the_sensor():
     probes = ext.probes()
     assert np.all(probes[:, 2] < 1.0)
     assert np.linalg.norm(probes[:, [0, 2]] - [0.0, 1.0], axis=1) == pytest.approx(0.03)
+
+
+def test_tapered_extension_probes_and_inside_follow_the_taper():
+    # A cone's hidden part: axis +y (down in the camera frame) through (0, 0, 1) m, radius
+    # 20 mm at the observed end y = 0, growing by 0.5 mm per mm down to y = 0.04 m.
+    frame = np.column_stack([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    ext = Extension(frame, np.array([0.0, 0.0, 1.0]), CircleSection(0.02), 0.0, 0.04, 0.5)
+    probes = ext.probes()
+    assert len(probes) > 0
+    # Each probe lies on the cone: its distance from the axis is 20 mm + 0.5 y.
+    radius = np.linalg.norm(probes[:, [0, 2]] - [0.0, 1.0], axis=1)
+    assert radius == pytest.approx(0.02 + 0.5 * probes[:, 1])
+    # The extent it spans grows by the growth at the plane on either side.
+    flat = Extension(frame, np.array([0.0, 0.0, 1.0]), CircleSection(0.02), 0.0, 0.04)
+    assert ext.diameter() == pytest.approx(flat.diameter() + 2 * 0.5 * 0.04)
+    # Other returns on a ring 22 mm off the axis at y = 25 mm lie inside the cone there
+    # (radius 32.5 mm) by more than the contact tolerance (``tol``), but not inside the
+    # end's section (20 mm): the growth is taken into account.
+    from geomodel_ros.core.fitting.cloud import SUPPORT_END_FACTOR
+    from geomodel_ros.core.fitting.completion import _held_or_filled
+
+    params = ModelingParams()
+    tol = SUPPORT_END_FACTOR * params.seg_plane_threshold
+    assert 0.022 < 0.02 + 0.5 * 0.025 - tol and 0.022 > 0.02 - tol
+    assert tol < 0.025 < 0.04 - tol  # between the two ends, clear of both
+    ring = np.array([[0.022 * math.cos(a), 0.025, 1.0 + 0.022 * math.sin(a)]
+                     for a in np.linspace(0.0, 2 * math.pi, 40, endpoint=False)])
+    cloud = SimpleNamespace(params=params)
+    assert _held_or_filled(cloud, ext, ring)
+    assert not _held_or_filled(cloud, flat, ring)
 
 
 def _patch(x: tuple[float, float], y: tuple[float, float], z: float, step: float = 0.001

@@ -78,8 +78,9 @@ class Section(Protocol):
     def outline(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Points (k, 2) on the outline and their outward unit normals (k, 2)."""
 
-    def contains(self, s: NDArray[np.float64], margin: float) -> NDArray[np.bool_]:
-        """Whether the points ``s`` (m, 2) lie inside by more than ``margin`` [m]."""
+    def contains(self, s: NDArray[np.float64], margin: float | NDArray[np.float64]
+                 ) -> NDArray[np.bool_]:
+        """Whether the points ``s`` (m, 2) lie inside by more than ``margin`` [m] (or (m,))."""
 
     def outside(self, s: NDArray[np.float64]) -> NDArray[np.float64]:
         """Distance [m] (m,) of ``s`` (m, 2) [m] outside the section (0 inside)."""
@@ -111,9 +112,11 @@ class RectangleSection:
                 normals.append(n)
         return np.concatenate(pts), np.concatenate(normals)
 
-    def contains(self, s: NDArray[np.float64], margin: float) -> NDArray[np.bool_]:
-        """Inside the rectangle shrunk by ``margin`` on every side."""
-        return np.all((s > self.lo + margin) & (s < self.hi - margin), axis=1)
+    def contains(self, s: NDArray[np.float64], margin: float | NDArray[np.float64]
+                 ) -> NDArray[np.bool_]:
+        """Inside the rectangle shrunk by ``margin`` (scalar or one per point) on every side."""
+        m = np.asarray(margin, dtype=np.float64)[..., None]
+        return np.all((s > self.lo + m) & (s < self.hi - m), axis=1)
 
     def outside(self, s: NDArray[np.float64]) -> NDArray[np.float64]:
         """Distance outside the rectangle."""
@@ -136,8 +139,9 @@ class CircleSection:
         n = np.column_stack([np.cos(a), np.sin(a)])
         return self.radius * n, n
 
-    def contains(self, s: NDArray[np.float64], margin: float) -> NDArray[np.bool_]:
-        """Inside the circle shrunk by ``margin``."""
+    def contains(self, s: NDArray[np.float64], margin: float | NDArray[np.float64]
+                 ) -> NDArray[np.bool_]:
+        """Inside the circle shrunk by ``margin`` (scalar or one per point)."""
         return np.linalg.norm(s, axis=1) < self.radius - margin
 
     def outside(self, s: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -162,6 +166,10 @@ class Extension:
     section : Section
     t_end, t_plane : float [m]
         Axial coordinates of the observed end and of the support plane on the axis.
+    slope : float
+        Outward growth of the section per metre along the axis (a cone's or frustum's
+        taper, tan of its half-angle; 0 for a prism): ``section`` is the section at
+        ``t_end``, and at ``t`` its outline lies ``slope * (t - t_end)`` [m] farther out.
     """
 
     frame: NDArray[np.float64]
@@ -169,15 +177,21 @@ class Extension:
     section: Section
     t_end: float
     t_plane: float
+    slope: float = 0.0
+
+    def grow(self, t: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        """Outward offset [m] of the section's outline at axial coordinates ``t`` [m]."""
+        return self.slope * (np.asarray(t, dtype=np.float64) - self.t_end)
 
     def local(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Local coordinates (m, 3) (s1, s2, t) of the points ``x`` (m, 3) [m]."""
         return (x - self.origin) @ self.frame
 
     def diameter(self) -> float:
-        """Largest width [m] of the section (its outline's extent)."""
+        """Largest width [m] of the section (its outline's extent) over the extension."""
         s, _ = self.section.outline()
-        return float(np.linalg.norm(s.max(axis=0) - s.min(axis=0)))
+        wider = 2.0 * max(float(self.grow(self.t_plane)), 0.0)
+        return float(np.linalg.norm(s.max(axis=0) - s.min(axis=0))) + wider
 
     def end_centre(self) -> NDArray[np.float64]:
         """Centre (3,) [m] of the section at the observed end."""
@@ -193,7 +207,8 @@ class Extension:
         u, v, w = self.frame[:, 0], self.frame[:, 1], self.frame[:, 2]
         on_side = self.origin + s[:, :1] * u + s[:, 1:] * v
         normals = n[:, :1] * u + n[:, 1:] * v
-        pts = on_side[:, None, :] + t[None, :, None] * w
+        pts = on_side[:, None, :] + t[None, :, None] * w + \
+            self.grow(t)[None, :, None] * normals[:, None, :]
         facing = np.einsum("kj,kij->ki", normals, pts) < 0.0
         return pts[facing]
 
@@ -316,7 +331,7 @@ def _held_or_filled(cloud: ObjectCloud, ext: Extension, others: NDArray[np.float
     ledge = at_end & (ext.section.outside(q[:, :2]) <= tol)  # under or right beside it
     lo, hi = sorted((ext.t_end, ext.t_plane))
     between = (t > lo + tol) & (t < hi - tol)
-    inside = between & ext.section.contains(q[:, :2], tol)
+    inside = between & ext.section.contains(q[:, :2], tol - ext.grow(t))
     return int(np.count_nonzero(ledge)) >= MIN_OTHER_RETURNS or \
         int(np.count_nonzero(inside)) >= MIN_OTHER_RETURNS
 
@@ -361,18 +376,25 @@ def complete_box(cloud: ObjectCloud, rot: NDArray[np.float64], lo: NDArray[np.fl
 
 
 def complete_axial(cloud: ObjectCloud, origin: NDArray[np.float64], axis: NDArray[np.float64],
-                   radius: float, lo: float, hi: float) -> tuple[float, float, bool]:
-    """Extend a standing cylinder's hidden end down to the support plane beyond it.
+                   radius: float, lo: float, hi: float, slope: float = 0.0,
+                   ends: tuple[int, ...] = (0, 1)) -> tuple[float, float, int | None]:
+    """Extend a standing round solid's hidden end down to the support plane beyond it.
 
-    The side ``origin + t * axis``, ``lo <= t <= hi`` [m], of ``radius`` [m]. A lying
-    cylinder (axis parallel to the support) has no plane beyond its ends and is returned
-    unchanged. Returns the ends and whether one was completed.
+    The side ``origin + t * axis``, ``lo <= t <= hi`` [m], of radius ``radius + slope *
+    t`` [m] at ``t``: a cylinder (``slope`` 0), or a cone or frustum with its apex at
+    ``origin`` (``radius`` 0, ``slope`` the tangent of its half-angle), whose hidden part
+    keeps its taper down to the plane. Only the ``ends`` listed (0 the low end, 1 the high
+    end) may be completed (a cone's apex is no end to complete). A lying cylinder (axis
+    parallel to the support) has no plane beyond its ends and is returned unchanged.
+    Returns the ends and the end completed (None when neither was).
     """
     beyond = plane_beyond(cloud, axis, origin, origin + axis * (lo + hi) / 2, lo, hi)
-    if beyond is None:
-        return lo, hi, False
+    if beyond is None or beyond[0] not in ends:
+        return lo, hi, None
     end, t_plane = beyond
-    ext = Extension(frame_with_z(axis), origin, CircleSection(radius), (lo, hi)[end], t_plane)
+    t_end = (lo, hi)[end]
+    ext = Extension(frame_with_z(axis), origin, CircleSection(radius + slope * t_end), t_end,
+                    t_plane, slope)
     if not hidden_extension(cloud, ext):
-        return lo, hi, False
-    return (t_plane, hi, True) if end == 0 else (lo, t_plane, True)
+        return lo, hi, None
+    return (t_plane, hi, end) if end == 0 else (lo, t_plane, end)

@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fitting.axial import axial_extent, verified_side
+from geomodel_ros.core.fitting.completion import complete_axial
 from geomodel_ros.core.fitting.curved import CurvedFit, axis_prior, fit_curved
 from geomodel_ros.core.fitting.measure import bulk_reach, side_bulk
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
@@ -134,6 +135,13 @@ def fit_cone(task: FitTask) -> FitOutcome:
     radius = _sized(task, model, lo, hi, side_points)
     if isinstance(radius, Rejected):
         return radius
+    completed: tuple[str, ...] = ()
+    # After the checks of the points: a completed base lies beyond them. Only the base
+    # (the end away from the apex) is completed, with the side's taper.
+    slope = math.tan(model.half_angle)
+    _, base, end = complete_axial(task.cloud, model.apex, model.axis, 0.0, lo, hi, slope, (1,))
+    if end is not None and not check_radius(base * slope, task.cloud.params, CONE):
+        hi, radius, completed = base, base * slope, ("radius", "height")
     height = hi if hi > 0 else 0.0
     center = model.apex + model.axis * height / 2
     bad = check_axial_sunk_in_support(center, model.axis, height, (0.0, radius), task.cloud, CONE)
@@ -141,5 +149,5 @@ def fit_cone(task: FitTask) -> FitOutcome:
         return bad
     prim = Primitive(task.cloud.oid, CONE, center, frame_with_z(-model.axis),
                      {"radius": float(radius), "height": float(height)},
-                     len(task.cloud.points), side.rmse)
+                     len(task.cloud.points), side.rmse, completed=completed)
     return Fitted(prim, "cone verified")

@@ -90,7 +90,7 @@ def fit_cylinder(task: FitTask) -> FitOutcome:
     if hi - lo <= 0:
         return Rejected(CYLINDER, "cylinder has no height")
     # After the bulk check: a completed height is longer than the points' bulk.
-    lo, hi, completed = complete_axial(cloud, model.point, axis, model.radius, lo, hi)
+    lo, hi, end = complete_axial(cloud, model.point, axis, model.radius, lo, hi)
     axis, lo, hi = axis_toward_sensor(axis, model.point, lo, hi)
     center = model.point + axis * (lo + hi) / 2
     radius = float(model.radius)
@@ -99,5 +99,6 @@ def fit_cylinder(task: FitTask) -> FitOutcome:
         return bad
     prim = Primitive(cloud.oid, CYLINDER, center, frame_with_z(axis),
                      {"radius": float(model.radius), "height": float(hi - lo)},
-                     len(cloud.points), side.rmse, completed=("height",) if completed else ())
+                     len(cloud.points), side.rmse,
+                     completed=("height",) if end is not None else ())
     return Fitted(prim, "cylinder verified")

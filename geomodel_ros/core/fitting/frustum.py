@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from geomodel_ros.core.fitting.cloud import ObjectCloud, independent_noise
+from geomodel_ros.core.fitting.completion import complete_axial
 from geomodel_ros.core.fitting.cone import fit_cone_side
 from geomodel_ros.core.fitting.measure import bulk_reach, side_bulk
 from geomodel_ros.core.fitting.result import FitOutcome, FitTask, Fitted, Rejected
@@ -169,11 +170,35 @@ def fit_frustum(task: FitTask) -> FitOutcome:
     dims = _sized(task, model, lo, hi, side_points)
     if isinstance(dims, Rejected):
         return dims
+    lo, hi, dims, completed = _completed(cloud, model, lo, hi, dims)
     center = model.apex + model.axis * (lo + hi) / 2
     bad = check_axial_sunk_in_support(center, model.axis, dims["height"],
                                       (dims["top_radius"], dims["radius"]), cloud, FRUSTUM)
     if bad:
         return bad
     prim = Primitive(cloud.oid, FRUSTUM, center, frame_with_z(-model.axis),
-                     {k: float(v) for k, v in dims.items()}, len(cloud.points), side.rmse)
+                     {k: float(v) for k, v in dims.items()}, len(cloud.points), side.rmse,
+                     completed=completed)
     return Fitted(prim, "frustum verified")
+
+
+def _completed(cloud: ObjectCloud, model: ConeModel, lo: float, hi: float,
+               dims: dict[str, float]
+               ) -> tuple[float, float, dict[str, float], tuple[str, ...]]:
+    """Return the frustum's extent and sizes with a hidden end completed down to its support.
+
+    Either end may stand on the support (a bowl on its smaller circle, a flower pot on
+    its larger one); the hidden part keeps the side's taper
+    (:func:`~.completion.complete_axial`). The completion is kept only if the result is
+    still a frustum (:func:`frustum_sizes`: no nearer its apex than a frustum's top may
+    be) of an accepted radius. Returns ``lo``, ``hi``, the sizes and the names of the
+    completed sizes.
+    """
+    slope = math.tan(model.half_angle)
+    new_lo, new_hi, end = complete_axial(cloud, model.apex, model.axis, 0.0, lo, hi, slope)
+    if end is None:
+        return lo, hi, dims, ()
+    grown = frustum_sizes(model, new_lo, new_hi, cloud.params.ransac_threshold, 0.0)
+    if isinstance(grown, Rejected) or check_radius(grown["radius"], cloud.params, FRUSTUM):
+        return lo, hi, dims, ()
+    return new_lo, new_hi, grown, (("top_radius", "radius")[end], "height")
