@@ -509,3 +509,28 @@ def test_desk_pieces_counts_segments_mostly_desk():
     assert desk_pieces(labels, gt, [0]) == 1
     assert desk_pieces(labels, gt, []) == 2  # the support counts when not named one
     assert desk_pieces(np.full(4, -1), np.zeros(4, dtype=int), []) == 0
+
+
+def test_elevation_range_moves_only_the_camera():
+    # The same seed seen from lower: the same objects at the same places, the camera drawn
+    # at an elevation within the range asked for (the angle of its position above the
+    # desk, seen from its aim point, which lies on the desk in front of it).
+    low = (np.radians(15.0), np.radians(25.0))
+    for seed in range(5):
+        items, bases, pose = clutter_layout(seed)
+        items_low, bases_low, pose_low = clutter_layout(seed, low)
+        assert bases_low == bases
+        for a, b in zip(items, items_low):
+            assert a.kind == b.kind
+            assert np.array_equal(a.shape.center, b.shape.center)
+        rotation, position = pose_low
+        forward = rotation[2]  # the optical z axis in desk coordinates
+        aim = position + forward * (-position[2] / forward[2])  # where it meets the desk
+        elevation = np.arcsin(position[2] / np.linalg.norm(position - aim))
+        assert low[0] - 1e-9 <= elevation <= low[1] + 1e-9
+        # Distance to the aim point and azimuth are the default draw's.
+        _, default_position = pose
+        default_aim = default_position + pose[0][2] * (-default_position[2] / pose[0][2][2])
+        assert np.linalg.norm(position - aim) == pytest.approx(
+            np.linalg.norm(default_position - default_aim))
+        assert aim == pytest.approx(default_aim)

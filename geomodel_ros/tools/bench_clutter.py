@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import time
 from collections import Counter, defaultdict
@@ -34,7 +35,8 @@ from geomodel_ros.core.params import ModelingParams, load_params_file
 from geomodel_ros.tools.evaluation import dimension_errors, segment_frame, segmentation_scores
 from geomodel_ros.tools.paths import CONFIG_DIR
 from geomodel_ros.tools.synth.camera import PinholeCamera
-from geomodel_ros.tools.synth.clutter import KINECT_CAMERA, KINECT_NOISE, render_clutter
+from geomodel_ros.tools.synth.clutter import (CAMERA_ELEVATION, KINECT_CAMERA, KINECT_NOISE,
+                                              render_clutter)
 from geomodel_ros.tools.synth.scenes import (KINECT_CLASS_NOISE, KINECT_REAL_NOISE,
                                              MIXED_EDGE_NOISE, NoiseModel)
 
@@ -70,8 +72,13 @@ CAMERAS = {"kinect": KINECT_CAMERA,
 
 
 def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: ModelingParams,
-                 camera: PinholeCamera = KINECT_CAMERA, types: bool = False) -> list[dict]:
+                 camera: PinholeCamera = KINECT_CAMERA, types: bool = False,
+                 elevation: tuple[float, float] = CAMERA_ELEVATION) -> list[dict]:
     """Segment the clutter scenes ``seeds``; one row per scored object.
+
+    ``elevation``: the range [rad] of the camera's elevation above the desk (the same
+    objects seen from another height, :func:`~geomodel_ros.tools.synth.clutter.
+    clutter_layout`).
 
     ``noisy``: True for the clutter's KINECT_NOISE, False for none, or a NoiseModel.
     Objects with fewer than MIN_SCORED_POINTS pixels of a 640 x 480 frame (more in
@@ -89,7 +96,7 @@ def clutter_rows(seeds: Sequence[int], noisy: bool | NoiseModel, params: Modelin
     rows = []
     for seed in seeds:
         noise = noisy if isinstance(noisy, NoiseModel) else (KINECT_NOISE if noisy else None)
-        scene = render_clutter(seed, noise, camera)
+        scene = render_clutter(seed, noise, camera, elevation)
         model_of: dict = {}
         if types:
             labels, result = model_scene(scene.organized, params)
@@ -220,6 +227,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="also osd_learn (config/kinect.yaml, as `geomodel bench`)")
     parser.add_argument("--camera", choices=sorted(CAMERAS), default="kinect",
                         help="render the scenes with this camera (default: kinect, 640 x 480)")
+    parser.add_argument("--elevation", type=float, nargs=2, metavar=("LO", "HI"),
+                        default=None,
+                        help="camera elevation above the desk drawn in [LO, HI] degrees "
+                             "(default 25 75; the same objects for any range)")
     parser.add_argument("--json", type=Path, default=None, help="write the rows here")
     parser.add_argument("--failures", action="store_true", help="list objects with IoU < 0.8")
     parser.add_argument("--types", action="store_true",
@@ -228,13 +239,18 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     params = load_params_file(args.params) if args.params else ModelingParams()
     seeds = range(args.first, args.first + args.scenes)
+    elevation = CAMERA_ELEVATION
+    if args.elevation is not None:
+        if not 0.0 < args.elevation[0] <= args.elevation[1] <= 90.0:
+            parser.error("--elevation needs 0 < LO <= HI <= 90 [deg]")
+        elevation = (math.radians(args.elevation[0]), math.radians(args.elevation[1]))
     report = {}
     runs = [("kinect-noise" if noisy else "noise-free", noisy)
             for noisy in {"both": (False, True), "clean": (False,), "kinect": (True,)}[args.noise]]
     runs += [(f"{name}-noise", OPTIONAL_NOISE[name]) for name in args.noise_model]
     for label, noisy in runs:
         rows = report[label] = clutter_rows(seeds, noisy, params, CAMERAS[args.camera],
-                                            args.types)
+                                            args.types, elevation)
         print("\n".join(clutter_lines(rows, f"clutter {label}") + type_lines(rows)))
         if args.failures:
             for r in rows:

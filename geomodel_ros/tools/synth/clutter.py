@@ -532,9 +532,11 @@ def camera_pose(distance: float, elevation: float, azimuth: float,
     return np.stack([right, down, forward]), position
 
 
-def _camera_pose(rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _camera_pose(rng: np.random.Generator,
+                 elevation_range: tuple[float, float] = CAMERA_ELEVATION
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     distance = rng.uniform(*CAMERA_DISTANCE)
-    elevation = rng.uniform(*CAMERA_ELEVATION)
+    elevation = rng.uniform(*elevation_range)
     azimuth = rng.uniform(0.0, 2.0 * np.pi)
     aim = rng.uniform(-np.array(AIM_OFFSET), AIM_OFFSET)
     return camera_pose(distance, elevation, azimuth, (aim[0], aim[1]))
@@ -616,8 +618,13 @@ def render_layout(items: list[Placeable], bases: list[int], pose, *,
                         rotation[:, 2].copy())
 
 
-def clutter_layout(seed: int) -> tuple[list[Placeable], list[int], tuple]:
+def clutter_layout(seed: int, elevation: tuple[float, float] = CAMERA_ELEVATION
+                   ) -> tuple[list[Placeable], list[int], tuple]:
     """Objects, their bases and the camera pose of clutter scene ``seed`` (not rendered).
+
+    ``elevation``: the range [rad] the camera's elevation above the desk is drawn from
+    (default :data:`CAMERA_ELEVATION`); the objects, and the camera's distance, azimuth
+    and aim, are the same for any range (one draw each, in the same order).
 
     Returns
     -------
@@ -630,11 +637,12 @@ def clutter_layout(seed: int) -> tuple[list[Placeable], list[int], tuple]:
     """
     rng = np.random.default_rng(seed)
     table = _place_objects(rng)
-    return table.items, table.bases, _camera_pose(rng)
+    return table.items, table.bases, _camera_pose(rng, elevation)
 
 
 def render_clutter(seed: int, noise: NoiseModel | None = None,
-                   camera: PinholeCamera = KINECT_CAMERA) -> ClutterScene:
+                   camera: PinholeCamera = KINECT_CAMERA,
+                   elevation: tuple[float, float] = CAMERA_ELEVATION) -> ClutterScene:
     """Render clutter scene ``seed`` (the same seed gives the same scene and noise).
 
     Parameters
@@ -645,13 +653,15 @@ def render_clutter(seed: int, noise: NoiseModel | None = None,
         Sensor degradations (e.g. :data:`KINECT_NOISE`); None gives the exact cloud.
     camera : PinholeCamera
         Intrinsics (its pose must be the identity; the scene is posed in front of it).
+    elevation : (float, float)
+        Range [rad] of the camera's elevation above the desk (:func:`clutter_layout`).
 
     Returns
     -------
     ClutterScene
         Labels: desk 0, objects 1..K, -1 no return.
     """
-    items, bases, pose = clutter_layout(seed)
+    items, bases, pose = clutter_layout(seed, elevation)
     return render_layout(items, bases, pose, noise=noise,
                          rng=np.random.default_rng([seed, 1]), camera=camera,
                          name=f"clutter{seed}")
