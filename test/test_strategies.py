@@ -40,7 +40,7 @@ def test_the_strategies_are_tried_in_the_documented_order():
                                             "box of the flat cores",
                                             "planar faces without a rule",
                                             "doubly curved as a sphere",
-                                            "mostly curved, all faces curved"]
+                                            "nothing fitted, all faces curved"]
 
 
 def test_model_graph_candidates_apply_only_when_the_graph_proposed_a_type():

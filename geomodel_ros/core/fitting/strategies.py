@@ -1374,10 +1374,14 @@ class CurvedMajorityAfterAll:
     48-point patch on its top and the cone and cylinder of the mixed rules, their axes
     along its normal, fail). When every strategy before this one found no model, the
     flat-end reading has failed and the patch's flatness is no evidence against the
-    curved one: as for :class:`PlanarPatchesOfCurvedObjects`, when the curved faces hold
-    most of the object (:data:`CURVED_MAJORITY`) every face is taken as curved and the
-    candidates of the object's principal curvatures are fitted, under their units' own
-    checks. The same holds for an object whose faces all passed as planar: a small round
+    curved one: every face of a mixed object is taken as curved and the candidates of
+    the object's principal curvatures are fitted, under their units' own checks, and the
+    round model meets the box of the flat cores as every round fit does
+    (:func:`prefer_box`). Whatever share the planar faces hold: a lying can whose side
+    came as a curved face and a larger facet that passed as planar gets round fits whose
+    axis must follow the facet's normal, as a cap's, and all fail ("axis not aligned with
+    its planar face"; Kinect-class clutter seed 47's can, r 25.8 mm, `unknown` before).
+    The same holds for an object whose faces all passed as planar: a small round
     body at 0.7-1.2 m under slow sensor errors comes as two or three facets meeting at
     no right angle (no rule of the model graph, no box of its normals' modes), or as one
     face whose plane its points scatter beyond the noise about. Tried last, so it
@@ -1388,10 +1392,10 @@ class CurvedMajorityAfterAll:
     fit on them fails (the suite's tori: 174 -> 63 ms over 18 frames; the office: 132 -> 84 ms).
     """
 
-    name = "mostly curved, all faces curved"
+    name = "nothing fitted, all faces curved"
 
     def applies(self, situation: Situation) -> bool:
-        """Return True for a mostly curved mixed object, or one of planar faces only.
+        """Return True for a mixed object, or one of planar faces only.
 
         The latter only when its points do not lie within one plane's inlier band,
         ``ransac_threshold`` either side of it (as a box must be thicker than a
@@ -1400,15 +1404,16 @@ class CurvedMajorityAfterAll:
         thresholds thick, took cones and cylinders of 80-254 mm radius; the small round
         bodies this serves are 2.4-4 thresholds thick.
         """
-        if _mostly_curved_mixed(situation):
-            return True
         cloud = situation.cloud
+        if cloud.params.noise_model == "auto" and situation.decision.category == "mixed":
+            return True
         return (cloud.params.noise_model == "auto" and situation.decision.category == "planar"
                 and _thickness(cloud.wc.points) > 2.0 * cloud.params.ransac_threshold)
 
     def attempt(self, situation: Situation) -> Attempt | None:
         """Take every face as curved and propose the curvatures' candidates."""
-        note = ("mostly curved" if situation.decision.category == "mixed"
+        note = ("planar and curved faces that fit nothing"
+                if situation.decision.category == "mixed"
                 else "planar faces that fit nothing") + ", all faces taken as curved"
         attempt = all_faces_curved(situation.cloud, note, RIVAL_FIT_POINTS)
         if attempt is None or fit_first(thinned(attempt.cloud), attempt.decision)[0] is None:
