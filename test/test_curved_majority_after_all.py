@@ -85,12 +85,13 @@ def test_planar_faces_within_one_inlier_band_are_not_taken_as_curved():
                                thickness=0.02, threshold=0.03))
 
 
-def _clutter_object(seed, gt):
-    """Model kinect-real clutter scene ``seed``; the model holding most of object ``gt``.
+def _clutter_object(seed, gt, noise=KINECT_REAL_NOISE):
+    """Model clutter scene ``seed`` (kinect-real noise unless ``noise``); the model of ``gt``.
 
-    Also the share of ``gt``'s pixels in that model's segment.
+    The model holding most of object ``gt``, and the share of ``gt``'s pixels in that
+    model's segment.
     """
-    scene = render_clutter(seed, KINECT_REAL_NOISE)
+    scene = render_clutter(seed, noise)
     truth = scene.label_image.ravel()
     labels, result = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
                                  organized_shape=scene.label_image.shape)
@@ -117,15 +118,9 @@ def test_a_lying_can_whose_side_facet_passed_as_planar_is_a_cylinder():
     # Kinect-class clutter seed 47's lying can: a curved face and a side facet that
     # passed as planar; the mixed rules made the round fits' axis follow the facet's
     # normal, as a cap's, and every fit failed (`unknown`). Truth from the scene.
-    scene = render_clutter(47, KINECT_NOISE)
-    truth = scene.label_image.ravel()
-    labels, result = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
-                                 organized_shape=scene.label_image.shape)
-    own = labels[truth == 5]
-    best = int(np.bincount(own[own >= 0]).argmax())
-    assert np.mean(own == best) > 0.9
-    can = {o.id: o for o in result.objects}[best]
-    true = scene.objects[5]
+    can, share = _clutter_object(47, 5, KINECT_NOISE)
+    assert share > 0.9
+    true = render_clutter(47).objects[5]
     assert can.type == PrimitiveType.CYLINDER
     assert can.dimensions["radius"] == pytest.approx(true.dimensions["radius"], abs=2 * MM)
     axis_error = math.degrees(math.acos(min(1.0, abs(float(
