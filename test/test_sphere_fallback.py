@@ -20,7 +20,7 @@ import pytest
 
 from data_helpers import DATA, require
 from geomodel_ros.core.fitting.result import Rejected
-from geomodel_ros.core.fitting.strategies import (STRATEGIES, CurvedMajorityAfterAll,
+from geomodel_ros.core.fitting.strategies import (STRATEGIES, AllFacesCurvedAfterAll,
                                                   DoublyCurvedAsSphere,
                                                   PlanarFacesWithoutRule, support_below)
 from geomodel_ros.core.fitting.verify import (SEE_THROUGH_CORE, bowed_profile,
@@ -150,12 +150,12 @@ def test_the_sphere_fallback_needs_a_second_bend():
 
 
 def test_the_sphere_fallback_is_followed_only_by_the_last_resort():
-    # After it comes only the last resort of mostly curved mixed objects
-    # (test_curved_majority_after_all.py); the strategy for planar faces that fit no rule of
-    # the model graph, just before it, never applies where it does (a round fit was tried,
-    # or the curved faces' curvatures fit no primitive).
+    # After it comes only the last resort of mixed objects and of planar ones, every face
+    # taken as curved (test_all_faces_curved_after_all.py); the strategy for planar faces
+    # that fit no rule of the model graph, just before it, never applies where it does (a
+    # round fit was tried, or the curved faces' curvatures fit no primitive).
     last = max(k for k, s in enumerate(STRATEGIES) if isinstance(s, DoublyCurvedAsSphere))
-    assert [type(s) for s in STRATEGIES[last + 1:]] == [CurvedMajorityAfterAll]
+    assert [type(s) for s in STRATEGIES[last + 1:]] == [AllFacesCurvedAfterAll]
     assert isinstance(STRATEGIES[last - 1], PlanarFacesWithoutRule)
     for sit in (situation([BOWED]), situation((), (), "principal curvature ratio 0.41 fits "
                                                      "no primitive")):

@@ -17,9 +17,9 @@ beat the round model of all the object's faces taken as curved, on the same cost
 fitted as the box of the point normals' modes (:class:`PlanarFacesWithoutRule`); an
 object that no strategy typed but whose surface showed itself curved two ways (a side
 rejected for a bowed profile, or curvatures neither developable nor spherical) is tried
-as a sphere (:class:`DoublyCurvedAsSphere`); and, after everything else, a mixed object
-whose curved faces hold most of its points, or an object of planar faces only, with every
-face taken as curved (:class:`CurvedMajorityAfterAll`).
+as a sphere (:class:`DoublyCurvedAsSphere`); and, after everything else, a mixed object,
+or an object of planar faces only, with every face taken as curved
+(:class:`AllFacesCurvedAfterAll`).
 """
 
 from __future__ import annotations
@@ -1337,7 +1337,7 @@ class DoublyCurvedAsSphere:
     curved and the sphere unit's own checks (inliers, radius, scatter against the
     measured noise) decide; a torus, whose profile bows as well, scatters about its best
     sphere far beyond the noise. Tried after every strategy that might type the object
-    otherwise (only :class:`CurvedMajorityAfterAll` follows), so it only types objects
+    otherwise (only :class:`AllFacesCurvedAfterAll` follows), so it only types objects
     that would otherwise be ``unknown``; only with ``noise_model = auto`` (``fixed`` keeps the
     previous strategies exactly).
     """
@@ -1364,7 +1364,7 @@ class DoublyCurvedAsSphere:
                        note=f"curved two ways ({why}): every face taken as curved")
 
 
-class CurvedMajorityAfterAll:
+class AllFacesCurvedAfterAll:
     """Every face of an untyped object taken as curved, when nothing else fits.
 
     A planar face of a mixed object whose bend stays within the frame's noise is taken
@@ -1431,7 +1431,7 @@ STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
                                     FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
                                     PlanarPatchesOfCurvedObjects(), BoxOfFlatCores(),
                                     PlanarFacesWithoutRule(), DoublyCurvedAsSphere(),
-                                    CurvedMajorityAfterAll())
+                                    AllFacesCurvedAfterAll())
 #: Tried after the cylinder below a lid, for an object no strategy fitted.
 LAST_STRATEGIES: tuple[Strategy, ...] = (NormalsBoxAfterAll(),)
 

@@ -1,6 +1,6 @@
 """An object of mixed or planar faces that no strategy models: every face taken as curved.
 
-Module: core.fitting.strategies (CurvedMajorityAfterAll, tried after every other strategy).
+Module: core.fitting.strategies (AllFacesCurvedAfterAll, tried after every other strategy).
 
 Far from the sensor a small patch of a round surface bends within the frame's noise and
 passes for a flat end; the mixed rules' axes then follow its normal and fail. Expectations
@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from geomodel_ros.core.fitting.strategies import STRATEGIES, CurvedMajorityAfterAll
+from geomodel_ros.core.fitting.strategies import STRATEGIES, AllFacesCurvedAfterAll
 from geomodel_ros.core.model_graph import GraphDecision
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams
@@ -53,7 +53,7 @@ def situation(category, sizes, noise_model="auto", thickness=0.05, threshold=0.0
 
 
 def test_it_applies_to_mixed_objects_and_to_planar_ones():
-    s = CurvedMajorityAfterAll()
+    s = AllFacesCurvedAfterAll()
     # The ball at 1.5 m: curved faces of 95 and 119 working points, a 48-point patch.
     assert s.applies(situation("mixed", [(False, 95), (True, 48), (False, 119)]))
     # Whatever share the planar faces hold (a lying can whose larger side facet passed as
@@ -75,12 +75,12 @@ def test_planar_faces_within_one_inlier_band_are_not_taken_as_curved():
     # office scene's far object, 107 mm deep under a 210 mm band, became a cone of
     # r 327 mm). The band reaches a threshold either side of the plane: 50 mm deep is
     # curved under a 20 mm threshold, not under a 30 mm one.
-    s = CurvedMajorityAfterAll()
+    s = AllFacesCurvedAfterAll()
     faces = [(True, 200), (True, 200)]
     assert s.applies(situation("planar", faces, thickness=0.05, threshold=0.02))
     assert not s.applies(situation("planar", faces, thickness=0.05, threshold=0.03))
     assert not s.applies(situation("planar", [(True, 400)], thickness=0.107, threshold=0.21))
-    # The band does not restrict mostly curved mixed objects (their curved faces showed).
+    # The band does not restrict mixed objects (their curved faces showed).
     assert s.applies(situation("mixed", [(False, 95), (True, 48), (False, 119)],
                                thickness=0.02, threshold=0.03))
 
@@ -145,7 +145,7 @@ def test_pieces_of_a_far_wall_are_not_taken_for_round_bodies(distance, yaw):
 
 
 def test_it_is_tried_last():
-    assert isinstance(STRATEGIES[-1], CurvedMajorityAfterAll)
+    assert isinstance(STRATEGIES[-1], AllFacesCurvedAfterAll)
 
 
 def _over(scene, labels, result, gid):
