@@ -9,10 +9,12 @@ kinect-real noise, where it cuts lids and side facets off cans seen from 0.4-0.8
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from geomodel_ros.core.compounds import _may_extend, join_pieces
+from geomodel_ros.core.compounds import _may_be_piece_of, _may_extend, join_pieces
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.modeling import PartModeler, model_objects, model_scene
 from geomodel_ros.core.params import ModelingParams
@@ -275,3 +277,65 @@ def test_only_ends_and_facets_along_the_side_may_extend_a_round_body():
     box = _prim(PrimitiveType.CUBOID, (0.0, 0.16, 0.9), up, length=0.1, width=0.1,
                 height=0.12)
     assert _may_extend(box, box_face, face, PARAMS)
+
+
+def _flank_split(side, x_cut):
+    """Split a can's side into the points left of ``x_cut`` [m] and the strip right of it."""
+    return side[side[:, 0] <= x_cut], side[side[:, 0] > x_cut]
+
+
+def test_a_strip_of_a_cans_side_modeled_round_joins_it():
+    # The facing half of a can's side (r 40 mm), a strip of it cut off at x = 5 mm (7 to
+    # 90 deg off the line of sight) and modeled round on its own, as the noise makes a
+    # can's cut-off strip (kinect-real seed 56): it is a piece of the can.
+    side, _ = _can(0.0, 0.8, 0.1, 0.1 + CAN[1], CAN[0])
+    rest, strip = _flank_split(side, 0.005)
+    pts, labels, result = _model([rest, strip])
+    assert [o.type for o in result.objects] == [PrimitiveType.CYLINDER] * 2
+    joined = _join(pts, labels, result)
+    assert [o.id for o in result.objects] == [0] and np.all(joined == 0)
+    can = result.objects[0]
+    assert can.type == PrimitiveType.CYLINDER and can.point_count == len(pts)
+    assert can.dimensions["radius"] == pytest.approx(CAN[0], abs=1e-3)
+
+
+def test_two_cans_side_by_side_stay_apart():
+    # A can of r 30 mm touching one of r 40 mm (axes 70 mm apart): neither the union's
+    # model nor the larger can's holds the smaller one's side.
+    big, _ = _can(0.0, 0.8, 0.1, 0.1 + CAN[1], CAN[0])
+    small, _ = _can(0.07, 0.8, 0.1, 0.1 + CAN[1], 0.03)
+    small = small[np.hypot(small[:, 0], small[:, 2] - 0.8) >= CAN[0]]  # the part not inside
+    pts, labels, result = _model([big, small])
+    assert [o.type for o in result.objects] == [PrimitiveType.CYLINDER] * 2
+    joined = _join(pts, labels, result)
+    assert [o.id for o in result.objects] == [0, 1]
+    assert np.array_equal(joined, labels)
+
+
+def test_only_a_plane_or_a_smaller_round_part_may_be_a_piece():
+    can = _prim(PrimitiveType.CYLINDER, (0.0, 0.16, 0.8), (0.0, 1.0, 0.0),
+                radius=CAN[0], height=CAN[1])
+    box = _prim(PrimitiveType.CUBOID, (0.1, 0.16, 0.8), (0.0, 1.0, 0.0),
+                length=0.1, width=0.1, height=0.1)
+    strip = dataclasses.replace(_prim(PrimitiveType.CYLINDER, (0.0, 0.16, 0.8), (0.0, 1.0, 0.0),
+                                      radius=CAN[0], height=CAN[1]), id=1)
+    plane = dataclasses.replace(_prim(PrimitiveType.PLANE, (0.0, 0.1, 0.8), (0.0, 1.0, 0.0),
+                                      length=0.08, width=0.08), id=1)
+    assert _may_be_piece_of(strip, can, 300, 3000)
+    assert not _may_be_piece_of(strip, can, 3000, 3000)    # no smaller than the body
+    assert not _may_be_piece_of(strip, box, 300, 3000)     # a box has no round face
+    assert not _may_be_piece_of(can, can, 300, 3000)       # itself
+    assert _may_be_piece_of(plane, can, 300, 3000) and _may_be_piece_of(plane, box, 300, 3000)
+
+
+def test_a_round_piece_may_extend_a_round_body_only_on_its_surface():
+    # Axes along the can's do not let a round piece pass as a lid does: a strip of the
+    # can's side lies on it, a can standing beside it (axes 90 mm apart) does not.
+    up = (0.0, 1.0, 0.0)
+    can = _prim(PrimitiveType.CYLINDER, (0.0, 0.16, 0.8), up, radius=CAN[0], height=CAN[1])
+    side, _ = _can(0.0, 0.8, 0.1, 0.1 + CAN[1], CAN[0])
+    _, strip = _flank_split(side, 0.005)
+    assert _may_extend(can, can, strip, PARAMS)
+    beside, _ = _can(0.09, 0.8, 0.1, 0.1 + CAN[1], CAN[0])
+    other = _prim(PrimitiveType.CYLINDER, (0.09, 0.16, 0.8), up, radius=CAN[0], height=CAN[1])
+    assert not _may_extend(can, other, beside, PARAMS)

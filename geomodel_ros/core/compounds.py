@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 from geomodel_ros.core.confidence import estimate_confidence, round_outline, surface_distance
 from geomodel_ros.core.fastmath import group_by_label, pair_components, take_rows
 from geomodel_ros.core.fitting.cloud import Plane
+from geomodel_ros.core.joins import ROUND_TYPES
 from geomodel_ros.core.model_graph import SLIVER_SHARE
 from geomodel_ros.core.noise import NoiseEstimate, is_fragment, object_params
 from geomodel_ros.core.params import ModelingParams
@@ -34,11 +35,11 @@ if TYPE_CHECKING:
 
 __all__ = ["join_pieces", "split_compounds"]
 
-#: A plane piece joins a body (:func:`join_pieces`) across a border of at least this
+#: A piece joins a body (:func:`join_pieces`) across a border of at least this
 #: many of its points within a segmentation link of the body's points, times the square
 #: root of its points (the border of a face is about that long in points).
 PIECE_MIN_BORDER = 1.0
-#: Bodies a plane piece may join: a box's face, a can's lid or a facet of its side.
+#: Bodies a piece may join: a box's face, a can's lid or a facet or strip of its side.
 SOLID_TYPES = (PrimitiveType.CUBOID, PrimitiveType.CYLINDER, PrimitiveType.CONE,
                PrimitiveType.FRUSTUM, PrimitiveType.SPHERE)
 #: Random stream of the bodies modeled again with their pieces (``[seed, this, body id,
@@ -114,26 +115,29 @@ def join_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
                 result: ModelingResult, params: ModelingParams,
                 supports: dict[int, Plane], noise: NoiseEstimate | None, model: PartModeler,
                 among: set[int] | None = None) -> NDArray[np.int64]:
-    """Join the plane pieces of bodies to their bodies; return the labels (N,), a new array.
+    """Join the pieces of bodies to their bodies; return the labels (N,), a new array.
 
     Under noise the segmentation cuts a face off a body now and then (its border's links
     vote concave by chance): a box's face, a can's lid or a facet of its side is then
-    reported as a plane of its own beside the body's model. A plane (no support) whose
-    points touch a body's (a cuboid, cylinder, cone, frustum or sphere; at least
-    :data:`PIECE_MIN_BORDER` sqrt(its points) of them within a segmentation link) joins it
-    when the two are one body: their union, modeled again as one object (``model``), is of
-    the body's type and its surface holds the body's points and the plane's each as well
-    as their own models did (:func:`_explains`); or, where that refit fails, the body's own
-    model holds the plane's points so (a lid on the can's capped solid). A flat object
-    beside a box or on a can (a lying can's flat side, a book) is no face of a body
-    through both. ``result`` is updated in place: the body's model becomes the union's,
-    the plane is gone. With ``among`` only the pairs with a body or a plane among those
-    ids are tried (the parts a split made: a box's face kept with another body in one
-    segment is a plane of its own once the body is split off).
+    reported as a plane of its own beside the body's model, or, where the cut-off piece of
+    a round body bends beyond the frame's errors (a strip of a can's side, its lid with a
+    strip of the side), as a smaller round body (:func:`_may_be_piece_of`). A piece (no
+    support) whose points touch a body's (a cuboid, cylinder, cone, frustum or sphere; at
+    least :data:`PIECE_MIN_BORDER` sqrt(its points) of them within a segmentation link)
+    joins it when the two are one body: their union, modeled again as one object
+    (``model``), is of the body's type and its surface holds the body's points and the
+    piece's each as well as their own models did (:func:`_explains`); or, where that refit
+    fails, the body's own model holds the piece's points so (a lid on the can's capped
+    solid). A flat object beside a box or on a can (a lying can's flat side, a book), or a
+    can beside a can, is no part of a body through both. ``result`` is updated in place:
+    the body's model becomes the union's, the piece is gone. With ``among`` only the pairs
+    with a body or a piece among those ids are tried (the parts a split made: a box's face
+    kept with another body in one segment is a plane of its own once the body is split
+    off).
     """
     bodies = [o for o in result.objects if o.type in SOLID_TYPES and o.id not in supports]
-    pieces = [o for o in result.objects
-              if o.type == PrimitiveType.PLANE and o.id not in supports]
+    pieces = [o for o in result.objects if o.id not in supports
+              and (o.type == PrimitiveType.PLANE or o.type in ROUND_TYPES)]
     if not bodies or not pieces:
         return labels
     labels = labels.copy()
@@ -144,9 +148,12 @@ def join_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
         # The tolerances at the body's range, for a round body's pre-test (_may_extend).
         at_body = params if round_outline(body) is None else \
             _params_at(params, noise, parts[body.id].points)
+        if body.id in gone:
+            continue
         for piece in sorted(pieces, key=lambda o: -o.point_count):
             own, mine = parts[body.id], parts[piece.id]
             if piece.id in gone or (among is not None and not {body.id, piece.id} & among) \
+                    or not _may_be_piece_of(piece, body, len(mine.rows), len(own.rows)) \
                     or not _may_extend(by_id[body.id], piece, mine.points, at_body) \
                     or not _touching(own, mine, params, noise):
                 continue
@@ -170,23 +177,40 @@ def join_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
     return labels
 
 
+def _may_be_piece_of(piece: Primitive, body: Primitive, piece_points: int,
+                     body_points: int) -> bool:
+    """Tell whether ``piece`` may be a piece cut off ``body`` (:func:`join_pieces`).
+
+    A plane may be any body's face; a round piece (a strip of a can's side, or its lid
+    with a strip of the side, which a side bent by the noise makes round) only a smaller
+    part of a round body: a box has no round face.
+    """
+    if piece.id == body.id:
+        return False
+    if piece.type == PrimitiveType.PLANE:
+        return True
+    return body.type in ROUND_TYPES and piece_points < body_points
+
+
 def _may_extend(body: Primitive, piece: Primitive, points: NDArray[np.float64],
                 params: ModelingParams) -> bool:
-    """Tell whether the union of a round ``body`` and a plane ``piece`` may be one body.
+    """Tell whether the union of a round ``body`` and a ``piece`` may be one body.
 
     A pre-test before the union's refit (:func:`join_pieces`): a round body's side fixes
-    its axis and radius, so a model of its type through both can hold the plane's
-    ``points`` (n, 3) only as an end (the plane's normal within ``angle_tolerance`` of the
+    its axis and radius, so a model of its type through both can hold the piece's
+    ``points`` (n, 3) only as an end (a plane's normal within ``angle_tolerance`` of the
     axis: a lid) or on its surface: ``min_inlier_ratio`` of the points within
     :data:`SPLIT_OFF_FACTOR` ``ransac_threshold`` of the side, extended past its ends (a
-    facet), or of the body's capped solid (a piece of its rim). Boxes and spheres pass (a
-    box's face may widen the box).
+    facet), or of the body's capped solid (a piece of its rim; a round piece must lie so:
+    a strip of the side, a lid with a strip of it, not a can standing beside). Boxes and
+    spheres pass (a box's face may widen the box).
     """
     outline = round_outline(body)
     if outline is None:
         return True
     axis = body.rotation[:, 2]
-    if abs(float(piece.rotation[:, 2] @ axis)) >= math.cos(params.angle_tolerance):
+    if piece.type == PrimitiveType.PLANE \
+            and abs(float(piece.rotation[:, 2] @ axis)) >= math.cos(params.angle_tolerance):
         return True
     _, radius_at, _ = outline
     local = (points - body.center) @ body.rotation
