@@ -145,11 +145,11 @@ def join_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
     parts = _parts(pts, labels, {o.id for o in bodies + pieces})
     gone: set[int] = set()
     for body in sorted(bodies, key=lambda o: -o.point_count):
+        if body.id in gone:  # a round body joined to a larger one as its piece
+            continue
         # The tolerances at the body's range, for a round body's pre-test (_may_extend).
         at_body = params if round_outline(body) is None else \
             _params_at(params, noise, parts[body.id].points)
-        if body.id in gone:
-            continue
         for piece in sorted(pieces, key=lambda o: -o.point_count):
             own, mine = parts[body.id], parts[piece.id]
             if piece.id in gone or (among is not None and not {body.id, piece.id} & among) \
@@ -182,8 +182,8 @@ def _may_be_piece_of(piece: Primitive, body: Primitive, piece_points: int,
     """Tell whether ``piece`` may be a piece cut off ``body`` (:func:`join_pieces`).
 
     A plane may be any body's face; a round piece (a strip of a can's side, or its lid
-    with a strip of the side, which a side bent by the noise makes round) only a smaller
-    part of a round body: a box has no round face.
+    with a strip of the side, found round on its own) only a smaller part of a round
+    body: a box has no round face.
     """
     if piece.id == body.id:
         return False
