@@ -34,8 +34,8 @@ from numpy.typing import NDArray
 from geomodel_ros.core.noise import NoiseEstimate
 from geomodel_ros.core.surface_type import FaceBend, patch_bends
 
-__all__ = ["NULL_PATCHES", "NULL_SAMPLE", "DENSER_FACTOR", "NULL_RANGE_MARGIN",
-           "MIN_NULL_PATCHES", "SlowBend", "SlowBendNull", "slow_bend_null", "bends_beyond"]
+__all__ = ["NULL_PATCHES", "NULL_SAMPLE", "MIN_NULL_PATCHES", "SlowBend", "SlowBendNull",
+           "slow_bend_null", "bends_beyond"]
 
 #: Patches of the support measured per bound: a face beyond all of them bends beyond the
 #: frame's errors at a level of 1 / (NULL_PATCHES + 1) (2.4 %; the face's turn must
@@ -47,22 +47,6 @@ MIN_NULL_PATCHES = 10
 #: The support is sampled to about this many points (every k-th): patches of a few
 #: hundred points down to a tenth of a 640 x 480 image's width keep 20 points or more.
 NULL_SAMPLE = 20000
-#: Where fewer than MIN_NULL_PATCHES patches of that sample hold a face's count, the bound
-#: is taken from a sample this many times denser (:meth:`SlowBendNull.bound`; a desk seen
-#: at a slant shows a third as many pixels in a disc as a face that faces the sensor). On
-#: kinect-real clutter (seeds 0-5) it leaves as few faces without a bound as all the
-#: support's points do (1 of 33 judgements from 25-75 deg, 4 of 43 from 15-25 deg; twice
-#: as dense 4 and 11, the first sample alone 14 and 17).
-DENSER_FACTOR = 4
-#: A face is judged by the support's errors only within this factor of the support's
-#: nearest and farthest ranges (the errors are measured there and scaled by the depth
-#: noise within them, not extrapolated: on the PCL mug scene, whose table lies 0.7-1.1 m
-#: away, the stereo camera's background 1.9-2.5 m away bent beyond its table's errors
-#: scaled by sigma(z) in 51 of 120 face judgements, and board edges there became cones of
-#: r 0.4 m). A quarter:
-#: the side of an object standing at the support's near edge rises towards the sensor
-#: by up to its height (a 12 cm can at 0.5 m).
-NULL_RANGE_MARGIN = 1.25
 #: A patch needs this many points for its quadric (six terms) to say anything.
 MIN_PATCH_POINTS = 20
 #: A patch whose points spread about their centroid by less than this share of a full
@@ -106,16 +90,11 @@ class SlowBendNull:
         The support plane's normal.
     noise : NoiseEstimate
         The frame's noise (``sigma(z)`` scales the bends from range to range).
-    denser : (Q, 3) float64 [m], optional
-        A sample of the support's points :data:`DENSER_FACTOR` times as dense, for the
-        faces whose count the first sample's patches do not hold (None: the first sample
-        holds all the support's points).
     """
 
     points: NDArray[np.float64]
     normal: NDArray[np.float64]
     noise: NoiseEstimate
-    denser: NDArray[np.float64] | None = None
 
     @cached_property
     def _centres(self) -> NDArray[np.float64]:
@@ -125,27 +104,12 @@ class SlowBendNull:
         return self.points[np.sort(pick)]
 
     @cached_property
-    def _ranges(self) -> tuple[float, float]:
-        """Nearest and farthest range [m] of the support's points: where the null is measured."""
-        d = np.linalg.norm(self.points if self.denser is None else self.denser, axis=1)
-        return float(d.min()), float(d.max())
-
-    @cached_property
     def _squared_distances(self) -> NDArray[np.float64]:
         """(C, P) squared distances [m^2] from the patch centres to the sample's points."""
-        return _squared_distances(self._centres, self.points)
-
-    @cached_property
-    def _denser_squared_distances(self) -> NDArray[np.float32]:
-        """(C, Q) the same to the denser sample's points (computed when first needed).
-
-        In float32 about the sample's mean (four times as many points): the squared
-        radii they are compared with are 1e-4 m^2 and more, the rounding about 1e-7 of
-        the squared extent.
-        """
-        mid = self.denser.mean(axis=0)
-        return _squared_distances((self._centres - mid).astype(np.float32),
-                                  (self.denser - mid).astype(np.float32))
+        c, p = self._centres, self.points
+        d2 = np.einsum("ij,ij->i", c, c)[:, None] + np.einsum("ij,ij->i", p, p)[None, :] \
+            - 2.0 * (c @ p.T)
+        return np.maximum(d2, 0.0)
 
     def bound(self, radius: float, depth: float, count: int) -> SlowBend:
         """Bend of flat patches as large in the image as a disc of ``radius`` at ``depth``.
@@ -159,30 +123,26 @@ class SlowBendNull:
         count : int
             Points of the face's region: each patch is sampled to as many (evenly over
             its points); patches with fewer are left out, and a region of fewer than
-            MIN_PATCH_POINTS gets no bound (infinite: too few points to judge), nor does
-            a region beyond NULL_RANGE_MARGIN of the ranges the support spans. Where
-            fewer than MIN_NULL_PATCHES patches of the sample hold as many, the same
-            patches are taken from the denser sample (``denser``): the sample is
-            thinned for speed, and a face's region holds more points than the thinned
-            patches where the support is seen at a slant (a desk seen 70 deg from its
-            normal shows a third as many pixels in a disc as a face that faces the
-            sensor); the bound is infinite only when those too hold fewer.
+            MIN_PATCH_POINTS gets no bound (infinite: too few points to judge).
 
         Returns
         -------
         SlowBend
             Heights scaled to ``depth`` by sigma(depth) / sigma(patch range).
         """
-        if radius <= 0.0 or depth <= 0.0 or count < MIN_PATCH_POINTS \
-                or not self._ranges[0] / NULL_RANGE_MARGIN <= depth \
-                <= self._ranges[1] * NULL_RANGE_MARGIN:
+        if radius <= 0.0 or depth <= 0.0 or count < MIN_PATCH_POINTS:
             return SlowBend(math.inf, 0.0, 0)
         at = np.linalg.norm(self._centres, axis=1)
         r = radius * at / depth
-        keep, patches, full = self._patches(self.points, self._squared_distances, r, count)
-        if np.count_nonzero(full) < MIN_NULL_PATCHES and self.denser is not None:
-            keep, patches, full = self._patches(self.denser, self._denser_squared_distances,
-                                                r, count)
+        inside = self._squared_distances <= (r * r)[:, None]
+        keep = np.flatnonzero(inside.sum(axis=1) >= count)
+        patches = np.array([self.points[np.flatnonzero(inside[i])[
+            np.linspace(0, np.count_nonzero(inside[i]) - 1, count).astype(np.int64)]]
+            for i in keep]).reshape(len(keep), count, 3)
+        # Patches cut by the support's border spread less than a full disc.
+        q = patches - patches.mean(axis=1, keepdims=True)
+        spread = np.sqrt(np.mean(np.einsum("pki,pki->pk", q, q), axis=1))
+        full = spread >= MIN_PATCH_SPREAD * r[keep] / math.sqrt(2.0)
         if np.count_nonzero(full) < MIN_NULL_PATCHES:
             return SlowBend(math.inf, 0.0, int(np.count_nonzero(full)))
         height, turn = patch_bends(patches[full], self.normal)
@@ -190,26 +150,6 @@ class SlowBendNull:
                               np.finfo(float).tiny)
         height = height * self.noise.sigma(depth) / sigma_at
         return SlowBend(float(height.max()), float(np.median(turn)), len(height))
-
-    @staticmethod
-    def _patches(points: NDArray[np.float64], d2: NDArray, r: NDArray[np.float64],
-                 count: int
-                 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
-        """Sample the patches that hold ``count`` of ``points`` to as many, evenly.
-
-        ``d2`` (C, P) holds the squared distances [m^2] of ``points`` from the patch
-        centres, ``r`` (C,) the patches' radii [m]. Returns the patches kept (K,), their
-        points (K, count, 3) and which of them are full discs (K,): a patch cut by the
-        support's border spreads less.
-        """
-        inside = d2 <= (r * r)[:, None]
-        keep = np.flatnonzero(inside.sum(axis=1) >= count)
-        patches = np.array([points[np.flatnonzero(inside[i])[
-            np.linspace(0, np.count_nonzero(inside[i]) - 1, count).astype(np.int64)]]
-            for i in keep]).reshape(len(keep), count, 3)
-        q = patches - patches.mean(axis=1, keepdims=True)
-        spread = np.sqrt(np.mean(np.einsum("pki,pki->pk", q, q), axis=1))
-        return keep, patches, spread >= MIN_PATCH_SPREAD * r[keep] / math.sqrt(2.0)
 
 
 def slow_bend_null(points: NDArray[np.float64], labels: NDArray[np.int64],
@@ -235,27 +175,11 @@ def slow_bend_null(points: NDArray[np.float64], labels: NDArray[np.int64],
     rows = np.flatnonzero(labels == best)
     if len(rows) < MIN_PATCH_POINTS * MIN_NULL_PATCHES:
         return None
-    step = max(1, len(rows) // NULL_SAMPLE)
-    pts, denser = (_finite(points[rows[::k]])
-                   for k in (step, max(1, len(rows) // (DENSER_FACTOR * NULL_SAMPLE))))
+    rows = rows[:: max(1, len(rows) // NULL_SAMPLE)]
+    pts = points[rows]
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
     normal = np.asarray(supports[best][0], dtype=np.float64)
-    return SlowBendNull(pts, normal / np.linalg.norm(normal), noise,
-                        denser if step > 1 else None)
-
-
-def _finite(points: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Return the rows of ``points`` (N, 3) that are finite."""
-    return points[np.all(np.isfinite(points), axis=1)]
-
-
-def _squared_distances(centres: NDArray, points: NDArray) -> NDArray:
-    """(C, P) squared distances [m^2] from ``centres`` (C, 3) to ``points`` (P, 3).
-
-    In the inputs' float type.
-    """
-    d2 = np.einsum("ij,ij->i", centres, centres)[:, None] \
-        + np.einsum("ij,ij->i", points, points)[None, :] - 2.0 * (centres @ points.T)
-    return np.maximum(d2, 0.0, out=d2)
+    return SlowBendNull(pts, normal / np.linalg.norm(normal), noise)
 
 
 def bends_beyond(bend: FaceBend, null: SlowBend, min_arc: float) -> bool:
