@@ -317,8 +317,7 @@ def test_only_a_plane_or_a_smaller_round_part_may_be_a_piece():
                 radius=CAN[0], height=CAN[1])
     box = _prim(PrimitiveType.CUBOID, (0.1, 0.16, 0.8), (0.0, 1.0, 0.0),
                 length=0.1, width=0.1, height=0.1)
-    strip = dataclasses.replace(_prim(PrimitiveType.CYLINDER, (0.0, 0.16, 0.8), (0.0, 1.0, 0.0),
-                                      radius=CAN[0], height=CAN[1]), id=1)
+    strip = dataclasses.replace(can, id=1)
     plane = dataclasses.replace(_prim(PrimitiveType.PLANE, (0.0, 0.1, 0.8), (0.0, 1.0, 0.0),
                                       length=0.08, width=0.08), id=1)
     assert _may_be_piece_of(strip, can, 300, 3000)

@@ -154,8 +154,8 @@ def join_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
             own, mine = parts[body.id], parts[piece.id]
             if piece.id in gone or (among is not None and not {body.id, piece.id} & among) \
                     or not _may_be_piece_of(piece, body, len(mine.rows), len(own.rows)) \
-                    or not _may_extend(by_id[body.id], piece, mine.points, at_body) \
-                    or not _touching(own, mine, params, noise):
+                    or not _touching(own, mine, params, noise) \
+                    or not _may_extend(by_id[body.id], piece, mine.points, at_body):
                 continue
             union = _Part(pts, np.concatenate([own.rows, mine.rows]))
             oparams = _params_at(params, noise, union.points)
