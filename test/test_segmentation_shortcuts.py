@@ -13,12 +13,12 @@ import pytest
 from scipy.spatial import cKDTree
 
 from geomodel_ros.core import faces, segmentation
-from geomodel_ros.core.faces import (estimate_normals, neighborhood_moments, pca_normals,
-                                     smallest_eigenpairs_sym)
+from geomodel_ros.core.faces import (estimate_normals, link_folds, neighborhood_moments,
+                                     pca_normals, smallest_eigenpairs_sym)
 from geomodel_ros.core.fastmath import knn
 from geomodel_ros.core.segmentation import (SEAM_NEIGHBORS, SEAM_RADIUS_SPACINGS,
                                             _concave_patches, _group_median,
-                                            _group_median_negative, _image_seam, _link_folds,
+                                            _group_median_negative, _image_seam,
                                             _patch_normals, _rest_neighbourhood, _step_free)
 
 
@@ -227,7 +227,7 @@ def test_link_folds_are_the_mean_depth_below_the_two_tangent_planes():
     normals /= np.linalg.norm(normals, axis=1)[:, None]
     i, j = rng.integers(0, 500, 4000), rng.integers(0, 500, 4000)
     below_i, below_j, _ = _step_free(pts, normals, i, j, np.zeros(500))
-    np.testing.assert_array_equal(_link_folds(pts, normals, i, j), 0.5 * (below_i + below_j))
+    np.testing.assert_array_equal(link_folds(pts, normals, i, j), 0.5 * (below_i + below_j))
 
 
 def test_concave_patches_are_those_whose_median_fold_is_negative():
@@ -248,7 +248,7 @@ def test_concave_patches_are_those_whose_median_fold_is_negative():
     m, k = nbrs.shape
     i, j = np.repeat(np.arange(m), k), nbrs.ravel()
     inside = (patches[i] == patches[j]) & (i != j) & (sqdist.ravel() <= 0.01 ** 2)
-    fold = _link_folds(pts, normals, i[inside], j[inside])
+    fold = link_folds(pts, normals, i[inside], j[inside])
     want = [np.median(fold[patches[i[inside]] == p]) < 0.0 for p in range(3)]
     np.testing.assert_array_equal(got, want)
     # Only the patches asked about are judged; the others are not concave.

@@ -20,14 +20,14 @@ from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from geomodel_ros.core.errors import InputError
-from geomodel_ros.core.fastmath import centroid, knn, link_components, robust_sigma
+from geomodel_ros.core.fastmath import centroid, knn, link_components, robust_sigma, take_rows
 from geomodel_ros.core.ransac import PlaneModel, fit_plane_svd, refine
 
 __all__ = ["WorkingCloud", "FaceSet", "voxelize", "count_voxels", "estimate_normals",
            "build_working_cloud",
            "smallest_eigenpairs", "smallest_eigenpairs_sym", "neighborhood_moments",
            "split_faces", "face_labels", "faces_from_labels", "pca_normals", "working_voxel_size",
-           "split_plane_unions", "face_plane"]
+           "split_plane_unions", "face_plane", "link_folds"]
 
 
 #: Voxel boxes of up to this many cells, or of up to DENSE_CELLS_PER_POINT cells per
@@ -828,3 +828,17 @@ def faces_from_labels(cloud: WorkingCloud, point_face_labels: NDArray[np.int64])
     compact = compact.ravel().astype(np.int64)
     n_faces = int(compact.max()) + 1 if compact.size else 0
     return FaceSet(compact, _adjacency(compact, cloud.neighbors, n_faces))
+
+
+def link_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
+               i: NDArray[np.int64], j: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Fold [m] (L,) of the links i -> j (L,) between ``points`` (M, 3) [m].
+
+    (below_i + below_j) / 2, each point's height below the other's tangent plane along
+    its unit normal (``normals`` (M, 3), oriented towards the sensor): about l^2 / (2 r)
+    on a surface of radius r bent away from the sensor (seen from outside), 0 on a plane,
+    negative on a surface bent towards it (seen from inside).
+    """
+    d = take_rows(points, i) - take_rows(points, j)
+    return 0.5 * (np.einsum("ij,ij->i", take_rows(normals, i), d)
+                  - np.einsum("ij,ij->i", take_rows(normals, j), d))

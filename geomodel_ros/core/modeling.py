@@ -211,7 +211,10 @@ def _fitted(points: NDArray[np.float64], object_id: int, params: ModelingParams,
     if prim is None:
         return _unknown(object_id, points, "; ".join(reasons), summaries)
     prim = with_confidence(prim, points, params.ransac_threshold)
-    prim = dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons))
+    # A strategy may fit a part of the points (a container's wall seen from outside); the
+    # object holds all of them.
+    prim = dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons),
+                               point_count=len(points))
     if not alternatives or prim.type is not PrimitiveType.PLANE or \
             params.noise_model != "auto":
         return prim

@@ -37,8 +37,8 @@ from geomodel_ros.core.errors import InputError, as_points
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from geomodel_ros.core.faces import (THREADED_QUERIES, WorkingCloud, estimate_normals,
-                                     face_labels, neighborhood_moments, pca_normals,
-                                     smallest_eigenpairs_sym, voxelize)
+                                     face_labels, link_folds, neighborhood_moments,
+                                     pca_normals, smallest_eigenpairs_sym, voxelize)
 from geomodel_ros.core.input import without_far_points
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.fastmath import (MAX_INT16_LABEL, group_by_label, knn_among,
@@ -1201,7 +1201,7 @@ def _border_votes(points: NDArray[np.float64], normals: NDArray[np.float64],
         noise_w, quantum = whole
         inner = np.flatnonzero(within & ~ok)
         inner = inner[::max(1, len(inner) // NULL_LINKS)]
-        null = _link_folds(points, normals, i[inner], j[inner])
+        null = link_folds(points, normals, i[inner], j[inner])
         noise_in = np.minimum(noise_w[i[inner]], noise_w[j[inner]])
         has = noise_in > 0  # no noise unit where the noise is unknown (0)
         units = null[has] / noise_in[has]
@@ -1506,7 +1506,7 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
                      which: NDArray[np.int64] | None = None) -> NDArray[np.bool_]:
     """Tell which patches are concave as seen from the sensor (a container's inner wall).
 
-    The fold of a link inside a patch (:func:`_link_folds`) is about l^2 / (2 r) on a
+    The fold of a link inside a patch (:func:`~.faces.link_folds`) is about l^2 / (2 r) on a
     surface of radius r bent away from the sensor (convex), 0 on a plane and negative on
     one bent towards it (concave); a patch is concave where the median fold of its links
     is negative. No margin: the sign alone is what tells a surface seen from inside from
@@ -1548,21 +1548,13 @@ def _concave_patches(points: NDArray[np.float64], normals: NDArray[np.float64],
     concave = np.zeros(n_p, dtype=bool)
     if not len(inside):
         return concave
-    fold = _link_folds(points, normals, i[inside], j[inside])
+    fold = link_folds(points, normals, i[inside], j[inside])
     own = own[inside]
     present = np.bincount(own, minlength=n_p) > 0
     ids = np.flatnonzero(present)
     # The rank of each link's patch among those present (np.unique's inverse, no sort).
     concave[ids] = _group_median_negative((np.cumsum(present) - 1)[own], fold, len(ids))
     return concave
-
-
-def _link_folds(points: NDArray[np.float64], normals: NDArray[np.float64],
-                i: NDArray[np.int64], j: NDArray[np.int64]) -> NDArray[np.float64]:
-    """Fold [m] of the links i -> j: (below_i + below_j) / 2 (:func:`_step_free`'s)."""
-    d = take_rows(points, i) - take_rows(points, j)
-    return 0.5 * (np.einsum("ij,ij->i", take_rows(normals, i), d)
-                  - np.einsum("ij,ij->i", take_rows(normals, j), d))
 
 
 def _group_median(group: NDArray[np.int64], values: NDArray[np.float64], n: int
@@ -1635,7 +1627,7 @@ def _creased_borders(inv: NDArray[np.int64], n_pairs: int, i: NDArray[np.int64],
     lower : (L,) bool array
         That point is in the pair's lower patch (it counts on that side of the border).
     links : (4, L) float64 array
-        Per link: fold [m] (:func:`_link_folds`), frame noise [m] (the smaller of its two
+        Per link: fold [m] (:func:`~.faces.link_folds`), frame noise [m] (the smaller of its two
         ends'), smallest fold of a crease [m] (the per-link concavity tolerance), depth
         quantisation [m] (the mean of its two ends' :func:`level_quantum`).
     spread : float

@@ -19,7 +19,10 @@ object that no strategy typed but whose surface showed itself curved two ways (a
 rejected for a bowed profile, or curvatures neither developable nor spherical) is tried
 as a sphere (:class:`DoublyCurvedAsSphere`); and, after everything else, a mixed object,
 or an object of planar faces only, with every face taken as curved
-(:class:`AllFacesCurvedAfterAll`).
+(:class:`AllFacesCurvedAfterAll`). An object still untyped then meets
+:data:`LAST_STRATEGIES`: the box of its point normals' modes (:class:`NormalsBoxAfterAll`)
+and an open container's wall fitted without the faces seen from inside it
+(:class:`OuterWallAfterAll`).
 """
 
 from __future__ import annotations
@@ -29,19 +32,19 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Iterator, Protocol, Sequence
+from typing import Callable, Iterator, Protocol, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
-from geomodel_ros.core.faces import faces_from_labels
+from geomodel_ros.core.faces import faces_from_labels, link_folds
 from geomodel_ros.core.fastmath import centroid
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.fitting.cloud import (ObjectCloud, ObjectFace, as_planar,
                                              bends_beyond_noise, describe_faces)
 from geomodel_ros.core.fitting.curved import CurvedFit, fit_curved
-from geomodel_ros.core.confidence import surface_distance, surface_normals
+from geomodel_ros.core.confidence import round_outline, surface_distance, surface_normals
 from geomodel_ros.core.fitting.axial import (across_axis, cap_facing, rim_arc,
                                               seen_from_outside)
 from geomodel_ros.core.fitting.measure import every_kth
@@ -107,6 +110,13 @@ MIN_FLAT_MEAN_NORM = 1e-9
 #: The planar faces of a mixed object may be patches of its curved surface when its curved
 #: faces hold more than this share of its working points (the curved surface dominates).
 CURVED_MAJORITY = 0.5
+#: Faces seen from inside are a container's inner wall only when this share of their
+#: points lie within its wall (:func:`inner_wall_refusal`; a simple majority would leave
+#: a third object's face half inside by chance) ...
+INNER_WALL_SHARE = 0.8
+#: ... at most this share of the radius inside the outer wall (ceramic and plastic ware:
+#: walls of 3-8 mm on radii of 30-130 mm).
+WALL_SHARE = 0.25
 #: Planar faces without a rule are fitted as the box of the point normals' modes only
 #: when at least this share of the working points' normals face one of its sides (a
 #: simple majority: a box's normals gather on its sides, and only its edges' mixed
@@ -233,7 +243,8 @@ class Attempt:
     """One try of a strategy: fit ``decision``'s candidates to ``cloud``.
 
     ``note`` (if any) is added to the reasons before the fits', ``prefix`` before each
-    fit's reason; ``axis_prior`` (3,) constrains round fits.
+    fit's reason; ``axis_prior`` (3,) constrains round fits. ``accept`` (if any) judges
+    the model fitted: a reason refuses it, None accepts it.
     """
 
     cloud: ObjectCloud
@@ -241,6 +252,7 @@ class Attempt:
     axis_prior: NDArray[np.float64] | None = None
     note: str | None = None
     prefix: str = ""
+    accept: Callable[[Primitive], str | None] | None = None
 
 
 class Strategy(Protocol):
@@ -1426,6 +1438,117 @@ def _thickness(points: NDArray[np.float64]) -> float:
     return float(np.ptp(points @ fit_plane_svd(points).normal))
 
 
+def concave_faces(cloud: ObjectCloud) -> list[int]:
+    """Return the curved faces of ``cloud`` seen concave from the sensor (seen from inside).
+
+    The fold of a link between two working points of a face
+    (:func:`~geomodel_ros.core.faces.link_folds`) is positive on a surface bent away from
+    the sensor (seen from outside), negative on one bent towards it: a cup's or bowl's
+    inner wall seen over its rim. A face is concave where the median fold of its links to
+    its own working points is negative (the segmentation's test of its patches,
+    :func:`~geomodel_ros.core.segmentation._concave_patches`).
+    """
+    wc = cloud.wc
+    if wc.neighbors.shape[1] < 2:
+        return []
+    out = []
+    for n, f in enumerate(cloud.faces):
+        if f.info.planar or len(f.working) < 2:
+            continue
+        rows = f.working
+        own = np.zeros(len(wc.points), dtype=bool)
+        own[rows] = True
+        j = wc.neighbors[rows]
+        link = own[j] & (j != rows[:, None])
+        i = np.broadcast_to(rows[:, None], j.shape)[link]
+        j = j[link]
+        if not len(i):
+            continue
+        if np.median(link_folds(wc.points, wc.normals, i, j)) < 0.0:
+            out.append(n)
+    return out
+
+
+class OuterWallAfterAll:
+    """An open container's wall fitted without the faces seen from inside it.
+
+    Seen over its rim, a cup or bowl shows its inner wall beside its outer one: a curved
+    face seen concave from the sensor (:func:`concave_faces`), a wall thickness inside the
+    outer surface and tapered the other way near the floor. Every round fit of both
+    together scatters beyond the noise or leaves inliers out (noise-free clutter: cups
+    of r 50 mm at 0.6 m, `unknown`). When nothing else fitted an object that has curved
+    faces seen from outside and from inside, its model is fitted to the faces seen from
+    outside (with its planar ones) and kept only when the faces left out are its inner
+    wall (:func:`inner_wall_refusal`); the object keeps all its points. Only with
+    ``noise_model = auto``.
+    """
+
+    name = "the outer wall of an open container"
+
+    def applies(self, situation: Situation) -> bool:
+        """Return True when some but not all curved faces are seen from inside."""
+        cloud = situation.cloud
+        if cloud.params.noise_model != "auto":
+            return False
+        curved = [n for n, f in enumerate(cloud.faces) if not f.info.planar]
+        inner = concave_faces(cloud)
+        return 0 < len(inner) < len(curved)
+
+    def attempt(self, situation: Situation) -> Attempt | None:
+        """Fit the model graph's decision on the object without its concave faces."""
+        cloud = situation.cloud
+        inner = set(concave_faces(cloud))
+        kept = [n for n in range(len(cloud.faces)) if n not in inner]
+        drop = np.zeros(len(cloud.points), dtype=bool)
+        for n in inner:
+            drop[cloud.faces[n].points] = True
+        new_index = np.cumsum(~drop) - 1
+        faces = [dataclasses.replace(cloud.faces[n],
+                                     points=new_index[cloud.faces[n].points]) for n in kept]
+        outer = dataclasses.replace(cloud, points=cloud.points[~drop], faces=faces,
+                                    adjacency=cloud.adjacency[np.ix_(kept, kept)])
+        # Curvatures from the faces kept only (``decide`` takes an all-curved object's
+        # from every working point, the inner wall's among them).
+        planar = any(f.info.planar for f in faces)
+        decision = decide(outer) if planar else curved_faces_alone(outer)
+        if not decision.candidates and planar:
+            decision = curved_faces_alone(outer)
+        if not decision.candidates:
+            return None
+        left_out = cloud.points[drop]
+        threshold = cloud.params.ransac_threshold
+        return Attempt(outer, decision,
+                       note=f"{len(inner)} curved face(s) seen from inside left out",
+                       accept=lambda prim: inner_wall_refusal(prim, left_out, threshold))
+
+
+def inner_wall_refusal(prim: Primitive, inner: NDArray[np.float64], threshold: float
+                       ) -> str | None:
+    """Return why ``inner`` (n, 3) [m] is no inner wall of the round model ``prim``, or None.
+
+    An open container's inner wall lies inside its outer wall, a wall's thickness in:
+    at least :data:`INNER_WALL_SHARE` of the points lie within the model's heights
+    (``threshold`` [m] beyond its ends) and between its surface (``threshold`` outside
+    it) and :data:`WALL_SHARE` of the radius there inside it. A concave face of
+    another object (a bowl's inner wall beside a can fitted alone) lies elsewhere.
+    """
+    outline = round_outline(prim)
+    if outline is None:
+        return f"{prim.type.value} has no wall of revolution for the faces seen from inside"
+    half_height, radius_at, _ = outline
+    local = (inner - prim.center) @ prim.rotation
+    z = local[:, 2]
+    r = radius_at(np.clip(z, -half_height, half_height))
+    depth = r - np.hypot(local[:, 0], local[:, 1])
+    wall = (np.abs(z) <= half_height + threshold) & (depth >= -threshold) \
+        & (depth <= WALL_SHARE * r + threshold)
+    share = float(np.mean(wall)) if len(wall) else 0.0
+    if share < INNER_WALL_SHARE:
+        return (f"{prim.type.value} refused: {share:.0%} of the faces seen from inside lie "
+                f"within its wall (< {INNER_WALL_SHARE:.0%})")
+    return None
+
+
 #: The strategies in the order they are tried.
 STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
                                     FlatCurvedFacesAsPlanar(), UprightAboveSupport(),
@@ -1433,7 +1556,7 @@ STRATEGIES: tuple[Strategy, ...] = (ModelGraphCandidates(), CurvedFacesAlone(),
                                     PlanarFacesWithoutRule(), DoublyCurvedAsSphere(),
                                     AllFacesCurvedAfterAll())
 #: Tried after the cylinder below a lid, for an object no strategy fitted.
-LAST_STRATEGIES: tuple[Strategy, ...] = (NormalsBoxAfterAll(),)
+LAST_STRATEGIES: tuple[Strategy, ...] = (NormalsBoxAfterAll(), OuterWallAfterAll())
 
 
 def run_strategies(situation: Situation, strategies: Sequence[Strategy] = STRATEGIES,
@@ -1480,6 +1603,10 @@ def _first_fit(situation: Situation, strategies: Sequence[Strategy], reasons: li
         prim, tried = fit_first(attempt.cloud, attempt.decision, attempt.axis_prior,
                                 situation.rejected)
         reasons.extend(attempt.prefix + r for r in tried)
+        refused = None if prim is None or attempt.accept is None else attempt.accept(prim)
+        if refused is not None:
+            reasons.append(attempt.prefix + refused)
+            continue
         if prim is not None:
             faces = tuple(f.summary for f in attempt.cloud.faces)
             prim, faces = prefer_box(situation, prim, faces, reasons)
