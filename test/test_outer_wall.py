@@ -1,6 +1,6 @@
 """An open container seen over its rim: its wall fitted without the faces seen from inside.
 
-Module: core.fitting.strategies (concave_faces, OuterWallAfterAll, tried last).
+Module: core.fitting.strategies (seen_from_inside, OuterWallAfterAll, tried last).
 
 A cup seen from above shows its inner wall beside its outer one; every round fit of both
 scatters beyond the noise (they lie a wall thickness apart and taper differently), and the
@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from geomodel_ros.core.faces import link_folds
 from geomodel_ros.core.fitting.strategies import (LAST_STRATEGIES, STRATEGIES,
                                                   NormalsBoxAfterAll, OuterWallAfterAll,
-                                                  concave_faces, inner_wall_refusal)
+                                                  inner_wall_refusal, seen_from_inside)
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
@@ -73,12 +74,19 @@ def _cloud(parts, noise_model="auto"):
     return SimpleNamespace(wc=wc, faces=faces, params=ModelingParams(noise_model=noise_model))
 
 
+def _marked_faces(parts):
+    """Return, per face of ``parts``, the share of its working points seen from inside."""
+    cloud = _cloud(parts)
+    marked = seen_from_inside(cloud)
+    return [float(np.mean(marked[f.working])) for f in cloud.faces]
+
+
 def test_a_surface_seen_from_inside_is_concave_and_one_seen_from_outside_is_not():
     outer, inner = _band(front=True), _band(front=False)
-    assert concave_faces(_cloud([(*outer, False), (*inner, False)])) == [1]
-    assert concave_faces(_cloud([(*inner, False), (*outer, False)])) == [0]
+    assert _marked_faces([(*outer, False), (*inner, False)]) == [0.0, 1.0]
+    assert _marked_faces([(*inner, False), (*outer, False)]) == [1.0, 0.0]
     # Planar faces are not judged, even when bent towards the sensor.
-    assert concave_faces(_cloud([(*outer, False), (*inner, True)])) == []
+    assert _marked_faces([(*outer, False), (*inner, True)]) == [0.0, 0.0]
 
 
 def test_the_sign_survives_depth_noise():
@@ -87,7 +95,35 @@ def test_the_sign_survives_depth_noise():
     # ones isolate the points' part.
     outer = _band(front=True, noise=0.5 * MM, seed=1)
     inner = _band(front=False, noise=0.5 * MM, seed=2)
-    assert concave_faces(_cloud([(*outer, False), (*inner, False)])) == [1]
+    assert _marked_faces([(*outer, False), (*inner, False)]) == [0.0, 1.0]
+
+
+def test_the_inner_part_of_a_face_that_grew_over_the_rim_is_found():
+    # Far away the rim is thinner than a working voxel and the two walls grow into one
+    # face; its links' median fold is positive (the outer wall is the larger part), yet
+    # the inner wall's points are seen from inside.
+    outer, inner = _band(front=True, n=60), _band(front=False, n=30)
+    pts, normals = np.vstack([outer[0], inner[0]]), np.vstack([outer[1], inner[1]])
+    cloud = _cloud([(pts, normals, False)])
+    marked = seen_from_inside(cloud)
+    n_outer = len(outer[0])
+    assert not marked[:n_outer].any()
+    assert marked[n_outer:].all()
+
+
+def test_scattered_negative_folds_mark_nothing():
+    # An outer wall alone whose normals scatter (0.2 per component, about 16 deg): almost
+    # a fifth of its points' mean folds are negative, scattered, and no inner part.
+    pts, normals = _band(front=True, seed=3)
+    normals = normals + np.random.default_rng(4).normal(0.0, 0.2, normals.shape)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    cloud = _cloud([(pts, normals, False)])
+    nbrs = cloud.wc.neighbors
+    i, j = np.repeat(np.arange(len(pts)), nbrs.shape[1]), nbrs.ravel()
+    fold = link_folds(pts, normals, i[i != j], j[i != j])
+    mean = np.bincount(i[i != j], weights=fold) / np.bincount(i[i != j])
+    assert np.mean(mean < 0.0) > 0.1
+    assert not seen_from_inside(cloud).any()
 
 
 def test_it_applies_only_with_faces_seen_from_both_sides():
@@ -113,12 +149,14 @@ def test_it_is_tried_last():
     assert kinds.index(OuterWallAfterAll) > kinds.index(NormalsBoxAfterAll)
 
 
-@pytest.mark.parametrize("seed, gt", [(31, 5), (31, 7), (38, 4)])
+@pytest.mark.parametrize("seed, gt", [(31, 5), (31, 7), (38, 4), (42, 5)])
 def test_cups_seen_over_their_rim_are_cylinders_of_their_wall(seed, gt):
-    # Noise-free clutter cups at 0.55-0.65 m, seen from above: the inner wall shows as
-    # much as the outer one, and every fit of both failed (`unknown` before). A cylinder
-    # holds a cup whose rim is at most 3 mm wider than its base (the frustum unit's taper
-    # test leaves it so); its radius lies between the two, its height is the cup's.
+    # Noise-free clutter cups at 0.55-0.85 m, seen from above: the inner wall shows as
+    # much as the outer one (as a face of its own, or, for seed 42's cup at 0.85 m, grown
+    # into one face with it over the rim), and every fit of both failed (`unknown`
+    # before). A cylinder may hold a cup whose rim is a few millimetres wider than its
+    # base (the frustum unit's taper test decides); its radius then lies between the
+    # two, its height is the cup's.
     scene = render_clutter(seed)
     true = scene.objects[gt]
     truth = scene.label_image.ravel()
@@ -136,7 +174,7 @@ def test_cups_seen_over_their_rim_are_cylinders_of_their_wall(seed, gt):
     assert cup.dimensions["height"] == pytest.approx(true.dimensions["height"], abs=3 * MM)
     axis_error = math.degrees(math.acos(min(1.0, abs(float(
         cup.rotation[:, 2] @ true.rotation[:, 2])))))
-    assert axis_error < 2.0
+    assert axis_error < 3.0
     assert "seen from inside left out" in cup.reason
 
 

@@ -36,6 +36,8 @@ from typing import Callable, Iterator, Protocol, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError
 
 from geomodel_ros.core.faces import faces_from_labels, link_folds
@@ -114,6 +116,9 @@ CURVED_MAJORITY = 0.5
 #: points lie within its wall (:func:`inner_wall_refusal`; a simple majority would leave
 #: a third object's face half inside by chance) ...
 INNER_WALL_SHARE = 0.8
+#: A face seen from outside holds an inner part when this share of it is seen from inside
+#: (:func:`seen_from_inside`; a rim's rounding or noise marks scattered points only).
+INNER_PART_SHARE = 0.2
 #: ... at most this share of the radius inside the outer wall (ceramic and plastic ware:
 #: walls of 3-8 mm on radii of 30-130 mm).
 WALL_SHARE = 0.25
@@ -1438,21 +1443,25 @@ def _thickness(points: NDArray[np.float64]) -> float:
     return float(np.ptp(points @ fit_plane_svd(points).normal))
 
 
-def concave_faces(cloud: ObjectCloud) -> list[int]:
-    """Return the curved faces of ``cloud`` seen concave from the sensor (seen from inside).
+def seen_from_inside(cloud: ObjectCloud) -> NDArray[np.bool_]:
+    """Mark the working points (M,) of ``cloud``'s curved faces seen from inside.
 
     The fold of a link between two working points of a face
     (:func:`~geomodel_ros.core.faces.link_folds`) is positive on a surface bent away from
     the sensor (seen from outside), negative on one bent towards it: a cup's or bowl's
     inner wall seen over its rim. A face is concave where the median fold of its links to
     its own working points is negative (the segmentation's test of its patches,
-    :func:`~geomodel_ros.core.segmentation._concave_patches`).
+    :func:`~geomodel_ros.core.segmentation._concave_patches`): all its points are marked.
+    A face that is not holds its inner part when the two walls grew into one face over
+    the rim: the points whose own links' mean fold is negative, their largest connected
+    group (links within the face) when it holds at least ``min_face_points`` and
+    :data:`INNER_PART_SHARE` of the face.
     """
     wc = cloud.wc
+    marked = np.zeros(len(wc.points), dtype=bool)
     if wc.neighbors.shape[1] < 2:
-        return []
-    out = []
-    for n, f in enumerate(cloud.faces):
+        return marked
+    for f in cloud.faces:
         if f.info.planar or len(f.working) < 2:
             continue
         rows = f.working
@@ -1460,25 +1469,46 @@ def concave_faces(cloud: ObjectCloud) -> list[int]:
         own[rows] = True
         j = wc.neighbors[rows]
         link = own[j] & (j != rows[:, None])
-        i = np.broadcast_to(rows[:, None], j.shape)[link]
+        src = np.broadcast_to(np.arange(len(rows))[:, None], j.shape)[link]
+        i = rows[src]
         j = j[link]
         if not len(i):
             continue
-        if np.median(link_folds(wc.points, wc.normals, i, j)) < 0.0:
-            out.append(n)
-    return out
+        fold = link_folds(wc.points, wc.normals, i, j)
+        if np.median(fold) < 0.0:
+            marked[rows] = True
+            continue
+        count = np.bincount(src, minlength=len(rows))
+        mean = np.bincount(src, weights=fold, minlength=len(rows)) / np.maximum(count, 1)
+        inner = (mean < 0.0) & (count > 0)
+        if np.count_nonzero(inner) < max(cloud.params.min_face_points,
+                                         INNER_PART_SHARE * len(rows)):
+            continue
+        local = np.full(len(wc.points), -1, dtype=np.int64)
+        local[rows] = np.arange(len(rows))
+        both = inner[src] & inner[local[j]]
+        graph = csr_matrix((np.ones(np.count_nonzero(both)), (src[both], local[j][both])),
+                           shape=(len(rows), len(rows)))
+        _, comp = connected_components(graph, directed=False)
+        comp = np.where(inner, comp, -1)
+        sizes = np.bincount(comp[inner])
+        best = int(np.argmax(sizes))
+        if sizes[best] >= max(cloud.params.min_face_points, INNER_PART_SHARE * len(rows)):
+            marked[rows[comp == best]] = True
+    return marked
 
 
 class OuterWallAfterAll:
-    """An open container's wall fitted without the faces seen from inside it.
+    """An open container's wall fitted without what is seen from inside it.
 
     Seen over its rim, a cup or bowl shows its inner wall beside its outer one: a curved
-    face seen concave from the sensor (:func:`concave_faces`), a wall thickness inside the
-    outer surface and tapered the other way near the floor. Every round fit of both
-    together scatters beyond the noise or leaves inliers out (noise-free clutter: cups
-    of r 50 mm at 0.6 m, `unknown`). When nothing else fitted an object that has curved
-    faces seen from outside and from inside, its model is fitted to the faces seen from
-    outside (with its planar ones) and kept only when the faces left out are its inner
+    surface seen concave from the sensor (:func:`seen_from_inside`: a face of its own, or
+    part of one that grew over the rim), a wall thickness inside the outer surface and
+    tapered the other way near the floor. Every round fit of both together scatters
+    beyond the noise or leaves inliers out (noise-free clutter: cups of r 50 mm at 0.6 m,
+    `unknown`). When nothing else fitted an object whose curved faces are seen from
+    outside and from inside, its model is fitted to its faces without the points seen
+    from inside (with its planar faces) and kept only when those points are its inner
     wall (:func:`inner_wall_refusal`); the object keeps all its points. Only with
     ``noise_model = auto``.
     """
@@ -1486,25 +1516,38 @@ class OuterWallAfterAll:
     name = "the outer wall of an open container"
 
     def applies(self, situation: Situation) -> bool:
-        """Return True when some but not all curved faces are seen from inside."""
+        """Return True when curved faces are seen from inside and from outside."""
         cloud = situation.cloud
         if cloud.params.noise_model != "auto":
             return False
-        curved = [n for n, f in enumerate(cloud.faces) if not f.info.planar]
-        inner = concave_faces(cloud)
-        return 0 < len(inner) < len(curved)
+        inner = seen_from_inside(cloud)
+        curved = np.zeros(len(inner), dtype=bool)
+        for f in cloud.faces:
+            if not f.info.planar:
+                curved[f.working] = True
+        return bool(inner.any()) and \
+            np.count_nonzero(curved & ~inner) >= cloud.params.min_face_points
 
     def attempt(self, situation: Situation) -> Attempt | None:
-        """Fit the model graph's decision on the object without its concave faces."""
+        """Fit the model graph's decision on the object without the parts seen from inside."""
         cloud = situation.cloud
-        inner = set(concave_faces(cloud))
-        kept = [n for n in range(len(cloud.faces)) if n not in inner]
-        drop = np.zeros(len(cloud.points), dtype=bool)
-        for n in inner:
-            drop[cloud.faces[n].points] = True
+        inner = seen_from_inside(cloud)
+        drop = inner[cloud.wc.point_to_working]
         new_index = np.cumsum(~drop) - 1
-        faces = [dataclasses.replace(cloud.faces[n],
-                                     points=new_index[cloud.faces[n].points]) for n in kept]
+        kept, faces = [], []
+        for n, f in enumerate(cloud.faces):
+            keep_w = ~inner[f.working]
+            if np.count_nonzero(keep_w) < cloud.params.min_face_points:
+                continue
+            normals = f.info.point_normals
+            info = dataclasses.replace(f.info, size=int(np.count_nonzero(keep_w)),
+                                       point_normals=normals[keep_w] if len(normals) == len(
+                                           f.working) else normals)
+            pts = f.points[~drop[f.points]]
+            faces.append(ObjectFace(info, f.summary, f.working[keep_w], new_index[pts]))
+            kept.append(n)
+        if not any(not f.info.planar for f in faces):
+            return None
         outer = dataclasses.replace(cloud, points=cloud.points[~drop], faces=faces,
                                     adjacency=cloud.adjacency[np.ix_(kept, kept)])
         # Curvatures from the faces kept only (``decide`` takes an all-curved object's
@@ -1517,8 +1560,9 @@ class OuterWallAfterAll:
             return None
         left_out = cloud.points[drop]
         threshold = cloud.params.ransac_threshold
+        n_inner = sum(1 for f in cloud.faces if inner[f.working].any())
         return Attempt(outer, decision,
-                       note=f"{len(inner)} curved face(s) seen from inside left out",
+                       note=f"the parts of {n_inner} curved face(s) seen from inside left out",
                        accept=lambda prim: inner_wall_refusal(prim, left_out, threshold))
 
 
