@@ -29,10 +29,15 @@ def best_object(scene, gt_id, params=None):
     ``scene``: a rendered scene with its organized cloud and label image
     (:mod:`geomodel_ros.tools.synth`); fails when none of the object's pixels was segmented.
     """
+    return best_object_and_labels(scene, gt_id, params)[0]
+
+
+def best_object_and_labels(scene, gt_id, params=None):
+    """:func:`best_object` with the frame's labels (one per pixel, row-major)."""
     labels, result = model_scene(scene.organized, params or ModelingParams())
     mine = labels[(scene.label_image.ravel() == gt_id) & (labels >= 0)]
     assert len(mine), "the object was not segmented at all"
-    return {o.id: o for o in result.objects}[int(np.bincount(mine).argmax())]
+    return {o.id: o for o in result.objects}[int(np.bincount(mine).argmax())], labels
 
 
 def can_cylinder(scene, gt_id, tol_radius, tol_height):

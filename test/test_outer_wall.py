@@ -20,10 +20,10 @@ from geomodel_ros.core.faces import link_folds
 from geomodel_ros.core.fitting.strategies import (LAST_STRATEGIES, STRATEGIES,
                                                   NormalsBoxAfterAll, OuterWallAfterAll,
                                                   inner_wall_refusal, seen_from_inside)
-from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.tools.synth.clutter import KINECT_NOISE, render_clutter
+from suite_helpers import best_object_and_labels
 
 MM = 1e-3
 #: The sensor sits at the origin; the test surfaces lie 0.6 m in front of it.
@@ -159,15 +159,10 @@ def test_cups_seen_over_their_rim_are_cylinders_of_their_wall(seed, gt):
     # two, its height is the cup's.
     scene = render_clutter(seed)
     true = scene.objects[gt]
-    truth = scene.label_image.ravel()
-    labels, result = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
-                                 organized_shape=scene.label_image.shape)
-    own = labels[truth == gt]
-    best = int(np.bincount(own[own >= 0]).argmax())
-    cup = {o.id: o for o in result.objects}[best]
+    cup, labels = best_object_and_labels(scene, gt)
     # The object keeps its inner wall: its label covers the cup's pixels, and it counts them.
-    assert np.mean(own == best) > 0.95
-    assert cup.point_count == np.count_nonzero(labels == best)
+    assert np.mean(labels[scene.label_image.ravel() == gt] == cup.id) > 0.95
+    assert cup.point_count == np.count_nonzero(labels == cup.id)
     assert cup.type == PrimitiveType.CYLINDER
     lo, hi = sorted((true.dimensions["radius"], true.dimensions["top_radius"]))
     assert lo - 1 * MM <= cup.dimensions["radius"] <= hi + 1 * MM
@@ -221,13 +216,10 @@ def test_a_can_beside_a_bowls_inner_wall_is_not_fitted_alone():
     # outside it. Refused, the split keeps the box apart (a cuboid within 2 mm per side).
     scene = render_clutter(46, KINECT_NOISE)
     truth = scene.label_image.ravel()
-    labels, result = model_scene(scene.organized.reshape(-1, 3), ModelingParams(),
-                                 organized_shape=scene.label_image.shape)
-    own = labels[truth == 6]
-    best = int(np.bincount(own[own >= 0]).argmax())
-    box = {o.id: o for o in result.objects}[best]
-    assert np.mean(own == best) > 0.95
-    assert np.count_nonzero((labels == best) & (truth == 2)) < 0.01 * np.count_nonzero(truth == 2)
+    box, labels = best_object_and_labels(scene, 6)
+    assert np.mean(labels[truth == 6] == box.id) > 0.95
+    assert np.count_nonzero((labels == box.id) & (truth == 2)) < 0.01 * np.count_nonzero(
+        truth == 2)
     assert box.type == PrimitiveType.CUBOID
     true = sorted(scene.objects[6].dimensions.values())
     assert sorted(box.dimensions.values()) == pytest.approx(true, abs=2 * MM)
