@@ -19,7 +19,8 @@ from scipy.spatial import cKDTree
 from geomodel_ros.core.faces import link_folds
 from geomodel_ros.core.fitting.strategies import (LAST_STRATEGIES, STRATEGIES,
                                                   NormalsBoxAfterAll, OuterWallAfterAll,
-                                                  inner_wall_refusal, seen_from_inside)
+                                                  inner_wall_refusal, inside_and_outside,
+                                                  seen_from_inside)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.tools.synth.clutter import KINECT_NOISE, render_clutter
@@ -126,20 +127,23 @@ def test_scattered_negative_folds_mark_nothing():
     assert not seen_from_inside(cloud).any()
 
 
-def test_it_applies_only_with_faces_seen_from_both_sides():
-    s = OuterWallAfterAll()
+def test_it_is_tried_only_with_faces_seen_from_both_sides():
     outer, inner, flat = _band(front=True), _band(front=False), _plane()
 
-    def applies(parts, noise_model="auto"):
-        return s.applies(SimpleNamespace(cloud=_cloud(parts, noise_model)))
+    def both_ways(parts):
+        return inside_and_outside(_cloud(parts)) is not None
 
-    assert applies([(*outer, False), (*flat, True), (*inner, False)])
+    assert both_ways([(*outer, False), (*flat, True), (*inner, False)])
     # A can: its side seen from outside only.
-    assert not applies([(*outer, False), (*flat, True)])
+    assert not both_ways([(*outer, False), (*flat, True)])
     # Nothing seen from outside: no wall to fit.
-    assert not applies([(*inner, False), (*flat, True)])
-    # ``fixed`` keeps the strategies as they were.
-    assert not applies([(*outer, False), (*inner, False)], noise_model="fixed")
+    assert not both_ways([(*inner, False), (*flat, True)])
+    # Only objects with curved faces, and ``fixed`` keeps the strategies as they were.
+    s = OuterWallAfterAll()
+    assert s.applies(SimpleNamespace(cloud=_cloud([(*outer, False), (*inner, False)])))
+    assert not s.applies(SimpleNamespace(cloud=_cloud([(*flat, True)])))
+    assert not s.applies(SimpleNamespace(cloud=_cloud([(*outer, False), (*inner, False)],
+                                                      noise_model="fixed")))
 
 
 def test_it_is_tried_last():

@@ -116,12 +116,12 @@ CURVED_MAJORITY = 0.5
 #: points lie within its wall (:func:`inner_wall_refusal`; a simple majority would leave
 #: a third object's face half inside by chance) ...
 INNER_WALL_SHARE = 0.8
-#: A face seen from outside holds an inner part when this share of it is seen from inside
-#: (:func:`seen_from_inside`; a rim's rounding or noise marks scattered points only).
-INNER_PART_SHARE = 0.2
 #: ... at most this share of the radius inside the outer wall (ceramic and plastic ware:
 #: walls of 3-8 mm on radii of 30-130 mm).
 WALL_SHARE = 0.25
+#: A face seen from outside holds an inner part when this share of it is seen from inside
+#: (:func:`seen_from_inside`; a rim's rounding or noise marks scattered points only).
+INNER_PART_SHARE = 0.2
 #: Planar faces without a rule are fitted as the box of the point normals' modes only
 #: when at least this share of the working points' normals face one of its sides (a
 #: simple majority: a box's normals gather on its sides, and only its edges' mixed
@@ -1498,6 +1498,22 @@ def seen_from_inside(cloud: ObjectCloud) -> NDArray[np.bool_]:
     return marked
 
 
+def inside_and_outside(cloud: ObjectCloud) -> NDArray[np.bool_] | None:
+    """Return :func:`seen_from_inside` of ``cloud`` when its curved faces are seen both ways.
+
+    None unless some working points of its curved faces are seen from inside and at least
+    ``min_face_points`` of them from outside.
+    """
+    inner = seen_from_inside(cloud)
+    curved = np.zeros(len(inner), dtype=bool)
+    for f in cloud.faces:
+        if not f.info.planar:
+            curved[f.working] = True
+    if not inner.any() or np.count_nonzero(curved & ~inner) < cloud.params.min_face_points:
+        return None
+    return inner
+
+
 class OuterWallAfterAll:
     """An open container's wall fitted without what is seen from inside it.
 
@@ -1516,22 +1532,20 @@ class OuterWallAfterAll:
     name = "the outer wall of an open container"
 
     def applies(self, situation: Situation) -> bool:
-        """Return True when curved faces are seen from inside and from outside."""
+        """Return True for an object with curved faces (the attempt looks inside them)."""
         cloud = situation.cloud
-        if cloud.params.noise_model != "auto":
-            return False
-        inner = seen_from_inside(cloud)
-        curved = np.zeros(len(inner), dtype=bool)
-        for f in cloud.faces:
-            if not f.info.planar:
-                curved[f.working] = True
-        return bool(inner.any()) and \
-            np.count_nonzero(curved & ~inner) >= cloud.params.min_face_points
+        return cloud.params.noise_model == "auto" and any(not f.info.planar
+                                                           for f in cloud.faces)
 
     def attempt(self, situation: Situation) -> Attempt | None:
-        """Fit the model graph's decision on the object without the parts seen from inside."""
+        """Fit the model graph's decision on the object without the parts seen from inside.
+
+        None unless its curved faces are seen both ways (:func:`inside_and_outside`).
+        """
         cloud = situation.cloud
-        inner = seen_from_inside(cloud)
+        inner = inside_and_outside(cloud)
+        if inner is None:
+            return None
         drop = inner[cloud.wc.point_to_working]
         new_index = np.cumsum(~drop) - 1
         kept, faces = [], []
