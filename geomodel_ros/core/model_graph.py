@@ -47,8 +47,9 @@ from scipy import stats
 from geomodel_ros.core.fitting.paired_cost import LOWER_LEVEL, MIN_BLOCKS
 from geomodel_ros.core.params import ModelingParams
 
-__all__ = ["FaceInfo", "GraphDecision", "curvature_candidates", "decide_type", "side_tilt",
-           "ratio_halfwidth", "NO_CURVATURE", "BETWEEN_BOUNDS"]
+__all__ = ["FaceInfo", "GraphDecision", "BoxCorner", "box_corner", "curvature_candidates",
+           "cuboid_decision", "decide_type", "side_tilt", "ratio_halfwidth", "NO_CURVATURE",
+           "BETWEEN_BOUNDS", "NOT_ALIGNED"]
 
 
 @dataclass(frozen=True)
@@ -121,11 +122,68 @@ MIXED_VETO_SHARE = 2 * SLIVER_SHARE
 CONE_ANGLE_SPREAD = 2
 #: Part of the reason of a planar decision whose faces meet in a concave corner.
 CONCAVE_CORNER = " meeting in a concave corner"
+#: Reason of a planar decision whose faces meet at right angles in a corner but not all
+#: lie within the angle tolerance of the corner's three axes.
+NOT_ALIGNED = "planar faces not aligned with three orthogonal axes"
 #: Reason of :func:`curvature_candidates` when no point has a curvature to judge.
 NO_CURVATURE = "no curvature"
 #: Part of the reason of :func:`curvature_candidates` when the ratio lay between the bounds
 #: and its interval proposed the candidates (``GraphDecision.between_bounds``).
 BETWEEN_BOUNDS = "between the bounds"
+
+
+@dataclass(frozen=True)
+class BoxCorner:
+    """The box axes a corner of planar faces proposes (:func:`box_corner`).
+
+    Attributes
+    ----------
+    main : int, the largest face
+    assignment : (F,) int64, the axis (0, 1, 2) nearest to each face's normal
+    aligned : (F,) bool, the faces within the angle tolerance of their axis
+    sliver : (F,) bool, faces below SLIVER_SHARE of the points (they fit no axis)
+    """
+
+    main: int
+    assignment: NDArray[np.int64]
+    aligned: NDArray[np.bool_]
+    sliver: NDArray[np.bool_]
+
+
+def box_corner(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float
+               ) -> BoxCorner | None:
+    """Return the box axes of the largest face and its largest perpendicular neighbour.
+
+    The third axis is their cross product; every face goes to the axis nearest to its
+    normal. None when no neighbour of the largest face is perpendicular to it within
+    ``tol`` [rad].
+    """
+    sizes = np.array([f.size for f in faces])
+    main = int(np.argmax(sizes))
+    normals = np.array([f.normal for f in faces])
+    cos_main = np.abs(normals @ normals[main])
+    adjacent_perp = np.flatnonzero(adjacency[main] & (cos_main <= math.sin(tol)))
+    if not adjacent_perp.size:
+        return None
+    second = int(adjacent_perp[np.argmax(sizes[adjacent_perp])])
+    third = np.cross(normals[main], normals[second])
+    third /= np.linalg.norm(third)
+    cos_axes = np.abs(normals @ np.array([normals[main], normals[second], third]).T)
+    return BoxCorner(main, np.argmax(cos_axes, axis=1), cos_axes.max(axis=1) >= math.cos(tol),
+                     sizes < SLIVER_SHARE * sizes.sum())
+
+
+def cuboid_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], corner: BoxCorner,
+                    usable: NDArray[np.bool_], reason: str) -> GraphDecision:
+    """Return the cuboid decision on the axes of ``corner`` with the ``usable`` (F,) faces.
+
+    Faces not usable fit no axis (-1). Whether two faces on different axes meet in a
+    concave corner (:func:`_concave_corner`) is judged on every face but the slivers.
+    """
+    concave = _concave_corner(faces, adjacency, np.where(corner.sliver, -1, corner.assignment))
+    assignment = np.where(usable, corner.assignment, -1)
+    return GraphDecision("planar", ("cuboid",), corner.main, tuple(int(a) for a in assignment),
+                         reason + (CONCAVE_CORNER if concave else ""), concave_corner=concave)
 
 
 def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: float,
@@ -136,25 +194,13 @@ def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: f
     normals = np.array([f.normal for f in faces])
     cos_main = np.abs(normals @ normals[main])
     parallel = cos_main >= math.cos(tol)
-    perpendicular = cos_main <= math.sin(tol)
-    adjacent_perp = np.flatnonzero(adjacency[main] & perpendicular)
-    if adjacent_perp.size:
-        second = int(adjacent_perp[np.argmax(sizes[adjacent_perp])])
-        third = np.cross(normals[main], normals[second])
-        third /= np.linalg.norm(third)
-        axes = np.array([normals[main], normals[second], third])
-        cos_axes = np.abs(normals @ axes.T)
-        assignment = np.argmax(cos_axes, axis=1)
-        aligned = cos_axes.max(axis=1) >= math.cos(tol)
+    corner = box_corner(faces, adjacency, tol)
+    if corner is not None:
+        aligned = corner.aligned
         if np.all(aligned | sliver):
-            concave = _concave_corner(faces, adjacency, np.where(sliver, -1, assignment))
-            assignment = np.where(aligned, assignment, -1)
-            return GraphDecision("planar", ("cuboid",), main, tuple(int(a) for a in assignment),
-                                 "planar faces with perpendicular adjacent normals"
-                                 + (CONCAVE_CORNER if concave else ""),
-                                 concave_corner=concave)
-        return GraphDecision("planar", (), main, (),
-                             "planar faces not aligned with three orthogonal axes")
+            return cuboid_decision(faces, adjacency, corner, aligned,
+                                   "planar faces with perpendicular adjacent normals")
+        return GraphDecision("planar", (), main, (), NOT_ALIGNED)
     if (parallel | sliver).all():
         # Coplanar: every parallel face's centre lies on the main face's plane (distances
         # are measured where the faces are, not at the sensor's origin).
