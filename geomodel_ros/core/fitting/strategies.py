@@ -1325,11 +1325,12 @@ def faces_in_box_frame(cloud: ObjectCloud) -> NDArray[np.bool_] | None:
     """Return which faces (F,) the box frame of ``cloud``'s planar faces holds, or None.
 
     The frame: the axes of the corner of the largest face and its largest perpendicular
-    neighbour (:func:`~geomodel_ros.core.model_graph.box_corner`), each face on its nearest
-    axis, made orthogonal as the cuboid unit makes them (:func:`~.obb.orthonormalize_axes`,
-    weighted by the faces' working points). A face is held when at least
+    neighbour (:func:`~geomodel_ros.core.model_graph.box_corner`), made orthogonal as the
+    cuboid unit makes them (:func:`~.obb.orthonormalize_axes`, weighted by the faces'
+    working points) from the faces within the angle tolerance of them: the turned faces do
+    not turn the frame. Every face lies across its nearest axis; it is held when at least
     ``min_inlier_ratio`` of its working points lie within ``ransac_threshold`` of the plane
-    across its axis through their centroid. None without such a corner.
+    across that axis through their centroid. None without such a corner.
     """
     params = cloud.params
     infos = [f.info for f in cloud.faces]
@@ -1337,8 +1338,9 @@ def faces_in_box_frame(cloud: ObjectCloud) -> NDArray[np.bool_] | None:
     if corner is None:
         return None
     weights = np.array([float(len(f.working)) for f in cloud.faces])
-    rot = obb.orthonormalize_axes(np.array([i.normal for i in infos]), weights,
-                                  corner.assignment)
+    aligned = corner.aligned & ~corner.sliver
+    rot = obb.orthonormalize_axes(np.array([i.normal for i in infos])[aligned],
+                                  weights[aligned], corner.assignment[aligned])
     held = np.zeros(len(infos), dtype=bool)
     for k, (f, axis) in enumerate(zip(cloud.faces, corner.assignment)):
         across = cloud.wc.points[f.working] @ rot[:, axis]
@@ -1357,7 +1359,7 @@ class FacesInBoxFrame:
     face 10 and 14 deg off its axis: `unknown`). What the tolerance stands for is whether
     the box's plane holds the face's points: the box frame of all the faces is tried
     when it holds every face but slivers (:func:`faces_in_box_frame`, the cuboid unit's
-    inlier bar); a sliver it does not hold fits no axis, as in the graph. Tried last
+    inlier bar); a sliver the frame does not hold fits no axis, as in the graph. Tried last
     (:data:`LAST_STRATEGIES`: a can whose lid and side facets pass as such faces has its
     cylinder below the lid first). Only with ``noise_model = auto``.
     """
@@ -1379,7 +1381,7 @@ class FacesInBoxFrame:
         corner = box_corner(infos, cloud.adjacency, cloud.params.angle_tolerance)
         if corner is None or not np.all(held | corner.sliver):
             return None
-        decision = cuboid_decision(infos, cloud.adjacency, corner, held,
+        decision = cuboid_decision(infos, cloud.adjacency, corner, corner.aligned,
                                    "the faces' box frame holds each face within the noise")
         return Attempt(cloud, decision, note="their box frame holds each face within the noise")
 
