@@ -81,18 +81,23 @@ def _cloud(parts, noise_model="auto"):
                            params=params)
 
 
+def _held(cloud):
+    """Return which faces (F,) the box frame holds (:func:`faces_in_box_frame`)."""
+    return faces_in_box_frame(cloud)[1]
+
+
 def test_a_small_face_turned_within_the_noise_is_held_and_a_large_one_is_not():
     # Turned 12 deg (beyond the 8 deg tolerance): a side of half-width 15 mm strays at
     # most 15 sin(12 deg) = 3.1 mm from its frame plane, within the 5 mm threshold; one of
     # half-width 60 mm strays up to 12.5 mm, and only the 2 x 24 mm of it within
     # 5 / sin(12 deg) = 24 mm of its middle, about 40 %, lies within the threshold (below
     # the 80 % bar).
-    assert faces_in_box_frame(_cloud(_box_faces(math.radians(12.0), 0.015))).tolist() == \
+    assert _held(_cloud(_box_faces(math.radians(12.0), 0.015))).tolist() == \
         [True, True, True]
-    assert faces_in_box_frame(_cloud(_box_faces(math.radians(12.0), 0.060))).tolist() == \
+    assert _held(_cloud(_box_faces(math.radians(12.0), 0.060))).tolist() == \
         [True, True, False]
     # A chamfer at 45 deg is no side, small as it is (15 sin 45 = 10.6 mm).
-    assert not faces_in_box_frame(_cloud(_box_faces(math.radians(45.0), 0.015)))[2]
+    assert not _held(_cloud(_box_faces(math.radians(45.0), 0.015)))[2]
 
 
 def test_a_turned_face_does_not_turn_the_frame_however_many_points_it_has():
@@ -102,7 +107,7 @@ def test_a_turned_face_does_not_turn_the_frame_however_many_points_it_has():
     # over much of its 70 mm half-width (5 deg: 6.1 mm at the edges, 8 deg: 9.7 mm;
     # the frame of all three faces leaves 54 % of it within the threshold).
     faces = _box_faces(math.radians(15.0), 0.015, size=0.07, side_n=59)
-    assert faces_in_box_frame(_cloud(faces)).tolist() == [True, True, True]
+    assert _held(_cloud(faces)).tolist() == [True, True, True]
 
 
 def test_the_attempt_is_a_cuboid_on_the_corners_axes_only_when_every_face_is_held():

@@ -59,9 +59,9 @@ from geomodel_ros.core.fitting.sphere import sphere_test
 from geomodel_ros.core.fitting.units import fit_first
 from geomodel_ros.core.fitting.verify import bowed_profile, standing_on
 from geomodel_ros.core import obb
-from geomodel_ros.core.model_graph import (BETWEEN_BOUNDS, NO_CURVATURE, NOT_ALIGNED, FaceInfo,
-                                           GraphDecision, box_corner, cuboid_decision,
-                                           curvature_candidates, decide_type)
+from geomodel_ros.core.model_graph import (BETWEEN_BOUNDS, NO_CURVATURE, NOT_ALIGNED,
+                                           BoxCorner, FaceInfo, GraphDecision, box_corner,
+                                           cuboid_decision, curvature_candidates, decide_type)
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive, PrimitiveType
 from geomodel_ros.core.ransac import (CylinderModel, PlaneModel, SphereModel, fit_plane_svd,
@@ -1321,8 +1321,8 @@ class PlanarFacesWithoutRule:
         return Attempt(rival.cloud, rival.decision, note=f"{self.note_prefix}; {rival.note}")
 
 
-def faces_in_box_frame(cloud: ObjectCloud) -> NDArray[np.bool_] | None:
-    """Return which faces (F,) the box frame of ``cloud``'s planar faces holds, or None.
+def faces_in_box_frame(cloud: ObjectCloud) -> tuple[BoxCorner, NDArray[np.bool_]] | None:
+    """Return the corner of ``cloud``'s planar faces and which faces (F,) its frame holds.
 
     The frame: the axes of the corner of the largest face and its largest perpendicular
     neighbour (:func:`~geomodel_ros.core.model_graph.box_corner`), made orthogonal as the
@@ -1346,7 +1346,7 @@ def faces_in_box_frame(cloud: ObjectCloud) -> NDArray[np.bool_] | None:
         across = cloud.wc.points[f.working] @ rot[:, axis]
         held[k] = np.mean(np.abs(across - across.mean()) <= params.ransac_threshold) \
             >= params.min_inlier_ratio
-    return held
+    return corner, held
 
 
 class FacesInBoxFrame:
@@ -1357,9 +1357,10 @@ class FacesInBoxFrame:
     neighbour. A small face seen obliquely turns further under a real sensor's noise
     (osd_learn learn17 and learn18: a box under another, seen in pieces round it, one
     face 10 and 14 deg off its axis: `unknown`). What the tolerance stands for is whether
-    the box's plane holds the face's points: the box frame of all the faces is tried
-    when it holds every face but slivers (:func:`faces_in_box_frame`, the cuboid unit's
-    inlier bar); a sliver the frame does not hold fits no axis, as in the graph. Tried last
+    the box's plane holds the face's points: the box frame of the faces within the
+    tolerance is tried when it holds every face but slivers (:func:`faces_in_box_frame`,
+    the cuboid unit's inlier bar); the turned faces fit no axis (their points size the
+    box), nor does a sliver, as in the graph. Tried last
     (:data:`LAST_STRATEGIES`: a can whose lid and side facets pass as such faces has its
     cylinder below the lid first). Only with ``noise_model = auto``.
     """
@@ -1374,14 +1375,11 @@ class FacesInBoxFrame:
     def attempt(self, situation: Situation) -> Attempt | None:
         """Fit the cuboid on the corner's axes when their frame holds the faces."""
         cloud = situation.cloud
-        held = faces_in_box_frame(cloud)
-        if held is None:
+        framed = faces_in_box_frame(cloud)
+        if framed is None or not np.all(framed[1] | framed[0].sliver):
             return None
-        infos = [f.info for f in cloud.faces]
-        corner = box_corner(infos, cloud.adjacency, cloud.params.angle_tolerance)
-        if corner is None or not np.all(held | corner.sliver):
-            return None
-        decision = cuboid_decision(infos, cloud.adjacency, corner, corner.aligned,
+        decision = cuboid_decision([f.info for f in cloud.faces], cloud.adjacency, framed[0],
+                                   framed[0].aligned,
                                    "the faces' box frame holds each face within the noise")
         return Attempt(cloud, decision, note="their box frame holds each face within the noise")
 
