@@ -1376,12 +1376,15 @@ class FacesInBoxFrame:
         """Fit the cuboid on the corner's axes when their frame holds the faces."""
         cloud = situation.cloud
         framed = faces_in_box_frame(cloud)
-        if framed is None or not np.all(framed[1] | framed[0].sliver):
+        if framed is None:
             return None
-        decision = cuboid_decision([f.info for f in cloud.faces], cloud.adjacency, framed[0],
-                                   framed[0].aligned,
-                                   "the faces' box frame holds each face within the noise")
-        return Attempt(cloud, decision, note="their box frame holds each face within the noise")
+        corner, held = framed
+        if not np.all(held | corner.sliver):
+            return None
+        note = "their box frame holds each face within the noise"
+        decision = cuboid_decision([f.info for f in cloud.faces], cloud.adjacency, corner,
+                                   corner.aligned, note)
+        return Attempt(cloud, decision, note=note)
 
 
 class NormalsBoxAfterAll(PlanarFacesWithoutRule):
