@@ -14,6 +14,7 @@ hand-built.
 from __future__ import annotations
 
 import math
+import re
 from types import SimpleNamespace
 
 import numpy as np
@@ -41,6 +42,78 @@ def test_a_can_whose_lid_is_partly_hidden_is_the_cylinder_below_it(seed, gt_id):
     # The axis along the can's.
     assert abs(obj.rotation[:, 2] @ scene.objects[gt_id].rotation[:, 2]) > math.cos(
         math.radians(1.0))
+
+
+#: Student quantile of paired_cost.lower_beyond_noise over 16 blocks (15 degrees of freedom).
+T_16_BLOCKS = 2.131
+
+
+@pytest.mark.parametrize("noise, seed, gt_id", [(None, 50, 15), (None, 104, 11),
+                                                (KINECT_NOISE, 103, 12),
+                                                (KINECT_NOISE, 104, 11)])
+def test_a_can_whose_side_is_a_narrow_strip_is_the_cylinder_below_its_lid(noise, seed, gt_id):
+    # Cans r 34.1, 28.3, 27.8 mm seen from above with part of the lid hidden and a strip of
+    # the side below it (noise-free seed 50: 111 of 685 points): the box round them held
+    # its own except on the strip, a few of the 16 blocks of the paired test, where no
+    # excess is significant (the statistic is 4 sqrt(m / (16 - m)) for an excess alike in
+    # m blocks). Cuboids before; the cylinder holds the points closer on average.
+    tol = 0.3 * MM if noise is None else 1.0 * MM
+    obj = can_cylinder(render_clutter(seed, noise), gt_id, tol, tol)
+    found = re.search(r"the cylinder below its largest plane \(cost ([0-9.]+)\) replaces "
+                      r"cuboid \(cost ([0-9.]+), t = ([-0-9.]+)\)", obj.reason)
+    assert found, obj.reason
+    c_cyl, c_box, stat = map(float, found.groups())
+    assert c_cyl < c_box
+    assert stat < T_16_BLOCKS  # not significant over the blocks: the mean decided
+
+
+def _noise_free_can_and_its_box():
+    """Return the situation of noise-free seed 50's can 15 and the box fitted to it."""
+    seen = []
+    real = strategies.prefer_round
+
+    def spy(situation, prim, faces, reasons):
+        if prim.type == "cuboid":
+            seen.append((situation, prim))
+        return real(situation, prim, faces, reasons)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(strategies, "prefer_round", spy)
+        scene = render_clutter(50)
+        obj = best_object(scene, 15)
+    assert obj.type == "cylinder", obj.reason
+    found = [(s, p) for s, p in seen if s.cloud.oid == obj.id]
+    assert len(found) == 1
+    return found[0]
+
+
+def test_the_lid_cylinder_replaces_the_box_only_when_it_costs_less_on_average(monkeypatch):
+    situation, box = _noise_free_can_and_its_box()
+    cloud = situation.cloud
+    real = strategies.truncated_costs
+    box_costs = real(box, cloud)
+    # The first cylinder costed is the first look on thinned faces (its real costs, so the
+    # attempt goes on as it does); the second, the fitted cylinder, is given the box's
+    # costs shifted by a thousandth of the band's cost on every point: a difference alike
+    # in every block, the paired test's statistic 0 or infinite, the mean alone tells.
+    for shift, verdict in ((1e-3, "does not replace"), (0.0, "does not replace"),
+                           (-1e-3, "replaces")):
+        calls = []
+
+        def costs(prim, c, _s=shift):
+            if prim.type != "cylinder":
+                return real(prim, c)
+            calls.append(prim)
+            return real(prim, c) if len(calls) == 1 else box_costs + _s
+
+        monkeypatch.setattr(strategies, "truncated_costs", costs)
+        reasons = []
+        got = strategies._lid_cylinder_rival(cloud, box, reasons)
+        assert len(calls) == 2
+        assert (got is not None) == (verdict == "replaces"), (shift, reasons)
+        assert got is None or got[0].type == "cylinder"
+        assert "the cylinder below its largest plane (cost " in reasons[-1]
+        assert f") {verdict} cuboid" in reasons[-1]
 
 
 def test_a_box_and_a_can_in_one_segment_make_no_lid_of_the_boxs_top():

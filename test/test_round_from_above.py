@@ -243,19 +243,26 @@ def test_a_square_top_a_half_lid_or_a_face_along_no_axis_of_the_box_give_no_cyli
     assert _disc_cylinder_of(disc, normal=(0.0, -0.6, -0.8)) is None  # 37 deg off its axes
 
 
-@pytest.mark.parametrize("noise,seed,gt_id", [
-    (None, 6, 2), (KINECT_REAL_NOISE, 3, 3), (KINECT_REAL_NOISE, 19, 12),
-    (KINECT_REAL_NOISE, 53, 5)])
-def test_cans_seen_by_their_lids_are_the_cylinders_of_the_lids(noise, seed, gt_id):
+DISC_FACE, BELOW_LID = "the cylinder of its disc face", "the cylinder below its largest plane"
+
+
+@pytest.mark.parametrize("noise,seed,gt_id,route", [
+    (None, 6, 2, BELOW_LID), (KINECT_REAL_NOISE, 3, 3, BELOW_LID),
+    (KINECT_REAL_NOISE, 19, 12, DISC_FACE), (KINECT_REAL_NOISE, 53, 5, DISC_FACE)])
+def test_cans_seen_by_their_lids_are_the_cylinders_of_the_lids(noise, seed, gt_id, route):
     # Standing cans whose lid the camera sees whole (noise-free seed 6: 96 % of the can's
     # pixels) and their side only in grazing slivers or facets that pass as planar: no
     # round fit verifies and the box round the lid did (cuboids before); the lid's circle
-    # gives the cylinder (radius within 1.6 mm, height the box's, within 2.5 mm).
+    # gives the cylinder (radius within 1.6 mm, height the box's, within 2.5 mm). Where
+    # the cylinder below the lid, fitted to the side with its axis along the lid's normal,
+    # holds the points closer than the box on average, it is taken first (noise-free seed
+    # 6: cost 0.000 against 0.010 but t = 2.0 over the blocks; kinect-real seed 3: 0.030
+    # against 0.091, t = 1.3); otherwise the cylinder of the disc face.
     scene = render_clutter(seed, noise)
     assert scene.kinds[gt_id] == "can"
     obj = _best(scene, gt_id)
     assert obj.type == "cylinder", obj.reason
-    assert "the cylinder of its disc face" in obj.reason
+    assert route in obj.reason
     truth = scene.objects[gt_id].dimensions
     assert obj.dimensions["radius"] == pytest.approx(truth["radius"], abs=2.0 * MM)
     assert obj.dimensions["height"] == pytest.approx(truth["height"], abs=3.0 * MM)
