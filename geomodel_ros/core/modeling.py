@@ -33,6 +33,7 @@ from geomodel_ros.core.fitting.cloud import (SUPPORT_END_FACTOR, ObjectCloud, Ob
                                              build_faces, build_flat_face, independent_noise)
 from geomodel_ros.core.fitting.slow_bend import SlowBendNull, slow_bend_null
 from geomodel_ros.core.fitting.measure import every_kth
+from geomodel_ros.core.fitting.top_face import solid_below_top
 from geomodel_ros.core.fitting.strategies import (Situation, decide, round_of_plane,
                                                   run_strategies)
 from geomodel_ros.core.input import downsample, in_range, working_params
@@ -228,16 +229,20 @@ def _fitted(points: NDArray[np.float64], object_id: int, params: ModelingParams,
 
 def _round_alternative(situation: Situation, plane: Primitive, reasons: list[str]
                        ) -> Primitive | None:
-    """Return the round model that replaces the ``plane`` of ``situation``, or None.
+    """Return the model that replaces the ``plane`` of ``situation``, or None.
 
-    :func:`~.strategies.round_of_plane`, with its confidence, faces and ``reasons`` (the
-    plane's, then the comparison).
+    :func:`~.strategies.round_of_plane`, else the solid a lone top face stands for
+    (:func:`~.top_face.solid_below_top`), with its confidence, faces and ``reasons`` (the
+    plane's, then the comparison or the completion).
     """
     found = round_of_plane(situation, plane, reasons)
-    if found is None:
-        return None
-    rnd, faces = found
     cloud = situation.cloud
+    if found is None:
+        solid = solid_below_top(cloud, plane, reasons)
+        if solid is None:
+            return None
+        found = solid, plane.faces
+    rnd, faces = found
     rnd = with_confidence(rnd, cloud.points, cloud.params.ransac_threshold)
     return dataclasses.replace(rnd, faces=faces, reason="; ".join(reasons))
 
@@ -474,13 +479,14 @@ def model_objects(points: NDArray, labels: NDArray, params: ModelingParams | Non
 
 
 def _settle_planes(result: ModelingResult, supports: dict[int, Plane]) -> None:
-    """Put the round model of each plane that lay through a round body in its place; in place.
+    """Put the model each plane stands for in its place; in place.
 
     The segmentation's steps (joins of plane pieces, splits) are done with the planes the
-    modeling fitted; for each plane left that is no support the round alternative is
-    judged (``Primitive.round_alternative``, :func:`~.strategies.round_of_plane`, on the
-    modeling's worker threads) and reported when it holds. Every object leaves without
-    the alternative.
+    modeling fitted; for each plane left that is no support the alternative is judged
+    (``Primitive.round_alternative``: the round model of a plane that lay through a round
+    body, :func:`~.strategies.round_of_plane`, else the solid below a lone top face,
+    :func:`~.top_face.solid_below_top`; on the modeling's worker threads) and reported
+    when it holds. Every object leaves without the alternative.
     """
     todo = [o for o in result.objects if o.round_alternative is not None
             and o.type is PrimitiveType.PLANE and o.id not in supports]

@@ -157,9 +157,10 @@ class Primitive:
         built outside the modeling, e.g. read back from messages).
     round_alternative : callable or None
         Inside the modeling only (None on its output, not in :meth:`to_dict`): a plane's
-        judge, called once the segmentation is done, of the round model the plane gives
-        way to, returning it or None
-        (:func:`~geomodel_ros.core.fitting.strategies.round_of_plane`).
+        judge, called once the segmentation is done, of the model the plane gives way to,
+        returning it or None (the round model of
+        :func:`~geomodel_ros.core.fitting.strategies.round_of_plane`, else the solid of
+        :func:`~geomodel_ros.core.fitting.top_face.solid_below_top`).
     """
 
     id: int

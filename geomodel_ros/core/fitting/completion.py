@@ -66,6 +66,9 @@ MIN_KNOWN_SHARE = 0.5
 #: Fewest other returns on a ledge or inside the extension that count as a surface (a few
 #: flying pixels do not).
 MIN_OTHER_RETURNS = 20
+#: Least turn round a section's centre [rad] over which returns at one level beside it
+#: form a ledge the object may stand on (a quarter turn; :func:`_ledge_round`).
+LEDGE_TURN = math.pi / 2
 #: A segment of the scene is one large plane when at least this share of its points lie
 #: within ``seg_plane_threshold`` of its plane (a box's segment, two faces or more, holds
 #: at most about half of its points on one plane) and its points cover
@@ -275,15 +278,21 @@ def plane_beyond(cloud: ObjectCloud, axis: NDArray[np.float64], origin: NDArray[
     return None if best is None or closed[best[1]] else best[1:]
 
 
-def hidden_extension(cloud: ObjectCloud, ext: Extension) -> bool:
+def hidden_extension(cloud: ObjectCloud, ext: Extension, behind_itself: bool = False) -> bool:
     """Return True when the evidence says ``ext`` is a hidden part of the object.
 
     See the module docstring: rays to its sensor-facing sides blocked (not seen
     through), no ledge of other returns at the observed end, nothing else inside it.
+    With ``behind_itself`` (an object seen by its top face alone, its lower end nowhere
+    seen): an extension none of whose sides faces the sensor lies behind the object's own
+    end (a can's lid seen from within the circle of its side), no ray can tell, and it is
+    judged by the ledge and occupancy tests alone; and a ledge at any level between the
+    ends holds the object up (the top of a box it stands on, seen round its footprint).
+    Without it such an extension is not hidden.
     """
     view = cloud.view
     probes = ext.probes()
-    if view is None or len(probes) == 0:
+    if view is None or (len(probes) == 0 and not behind_itself):
         return False
     rng = float(np.linalg.norm(cloud.center))
     cell = CELL_SPACINGS * cloud.spacing / max(rng, np.finfo(float).tiny)
@@ -294,9 +303,11 @@ def hidden_extension(cloud: ObjectCloud, ext: Extension) -> bool:
     # tolerance (where a ledge would be), and returns the points in the range band of
     # the extension (for the ledge and occupancy tests).
     ring = ext.end_centre() + _outline_world(ext, contact)
-    r_probes = np.linalg.norm(probes, axis=1)
+    r_probes = np.linalg.norm(probes if len(probes) else ring, axis=1)
     band = (float(r_probes.min()) - contact, float(r_probes.max()) + ext.diameter() + contact)
     got = view.returns(np.concatenate([probes, ring]), cell, band)
+    if len(probes) == 0:
+        return not _held_or_filled(cloud, ext, got.points[got.labels != cloud.oid], True)
     nearest, r_t = got.nearest[:len(probes)], got.ranges[:len(probes)]
     # A return counts as on a side within the sizing's outlier band, plus the depth
     # spread of one cell on a surface seen at an angle.
@@ -312,7 +323,7 @@ def hidden_extension(cloud: ObjectCloud, ext: Extension) -> bool:
     n_known = int(np.count_nonzero(seen | unseen))
     if n_known < MIN_KNOWN_SHARE * len(probes) or through > MAX_THROUGH_SHARE * n_known:
         return False
-    return not _held_or_filled(cloud, ext, got.points[got.labels != cloud.oid])
+    return not _held_or_filled(cloud, ext, got.points[got.labels != cloud.oid], behind_itself)
 
 
 def _outline_world(ext: Extension, grow: float) -> NDArray[np.float64]:
@@ -322,18 +333,51 @@ def _outline_world(ext: Extension, grow: float) -> NDArray[np.float64]:
     return s[:, :1] * ext.frame[:, 0] + s[:, 1:] * ext.frame[:, 1]
 
 
-def _held_or_filled(cloud: ObjectCloud, ext: Extension, others: NDArray[np.float64]) -> bool:
-    """Whether other returns (k, 3) form a ledge at the observed end or fill the extension."""
+def _held_or_filled(cloud: ObjectCloud, ext: Extension, others: NDArray[np.float64],
+                    any_level: bool = False) -> bool:
+    """Whether other returns (k, 3) form a ledge at the observed end or fill the extension.
+
+    With ``any_level`` a ledge at one level anywhere between the observed end and the
+    plane counts too (returns under or right beside the section there, the plane's own
+    band left out, round it: :func:`_ledge_round`).
+    """
     tol = SUPPORT_END_FACTOR * cloud.params.seg_plane_threshold
     q = ext.local(others)
     t = q[:, 2]
-    at_end = np.abs(t - ext.t_end) <= tol
-    ledge = at_end & (ext.section.outside(q[:, :2]) <= tol)  # under or right beside it
     lo, hi = sorted((ext.t_end, ext.t_plane))
+    outside = ext.section.outside(q[:, :2])
+    ledge = (np.abs(t - ext.t_end) <= tol) & (outside <= tol)  # under or right beside it
+    if any_level and not int(np.count_nonzero(ledge)) >= MIN_OTHER_RETURNS:
+        beside = outside <= tol + np.maximum(ext.grow(t), 0.0)
+        on = beside & (np.abs(t - ext.t_plane) > tol) & (t >= lo - tol) & (t <= hi + tol)
+        if _ledge_round(ext, q[on], float(2.0 * tol)):
+            return True
     between = (t > lo + tol) & (t < hi - tol)
     inside = between & ext.section.contains(q[:, :2], tol - ext.grow(t))
     return int(np.count_nonzero(ledge)) >= MIN_OTHER_RETURNS or \
         int(np.count_nonzero(inside)) >= MIN_OTHER_RETURNS
+
+
+def _ledge_round(ext: Extension, q: NDArray[np.float64], step: float) -> bool:
+    """Whether returns beside the section (local coordinates (k, 3)) form a ledge round it.
+
+    Levels ``step`` [m] deep from the observed end towards the plane; a level holds a
+    ledge when MIN_OTHER_RETURNS of the returns lie in it and they reach round the
+    section's centre over at least LEDGE_TURN: a surface the object stands on reaches
+    under it and shows round it wherever the sensor sees past the object, while a
+    neighbour standing beside it touches one side (its points within a narrow turn).
+    """
+    if len(q) < MIN_OTHER_RETURNS:
+        return False
+    level = np.floor(np.abs(q[:, 2] - ext.t_end) / step).astype(np.int64)
+    c = ext.section.centre()
+    turn = np.arctan2(q[:, 1] - c[1], q[:, 0] - c[0])
+    for k in np.flatnonzero(np.bincount(level) >= MIN_OTHER_RETURNS):
+        a = np.sort(turn[level == k])
+        gaps = np.diff(np.append(a, a[0] + 2.0 * math.pi))
+        if 2.0 * math.pi - float(gaps.max()) >= LEDGE_TURN:
+            return True
+    return False
 
 
 def complete_box(cloud: ObjectCloud, rot: NDArray[np.float64], lo: NDArray[np.float64],
@@ -377,14 +421,16 @@ def complete_box(cloud: ObjectCloud, rot: NDArray[np.float64], lo: NDArray[np.fl
 
 def complete_axial(cloud: ObjectCloud, origin: NDArray[np.float64], axis: NDArray[np.float64],
                    radius: float, lo: float, hi: float, slope: float = 0.0,
-                   ends: tuple[int, ...] = (0, 1)) -> tuple[float, float, int | None]:
+                   ends: tuple[int, ...] = (0, 1), behind_itself: bool = False
+                   ) -> tuple[float, float, int | None]:
     """Extend a standing round solid's hidden end down to the support plane beyond it.
 
     The side ``origin + t * axis``, ``lo <= t <= hi`` [m], of radius ``radius + slope *
     t`` [m] at ``t``: a cylinder (``slope`` 0), or a cone or frustum with its apex at
     ``origin`` (``radius`` 0, ``slope`` the tangent of its half-angle), whose hidden part
     keeps its taper down to the plane. Only the ``ends`` listed (0 the low end, 1 the high
-    end) may be completed (a cone's apex is no end to complete). A lying cylinder (axis
+    end) may be completed (a cone's apex is no end to complete); ``behind_itself``: as
+    :func:`hidden_extension`'s. A lying cylinder (axis
     parallel to the support) has no plane beyond its ends and is returned unchanged.
     Returns the ends and the end completed (None when neither was).
     """
@@ -395,6 +441,6 @@ def complete_axial(cloud: ObjectCloud, origin: NDArray[np.float64], axis: NDArra
     t_end = (lo, hi)[end]
     ext = Extension(frame_with_z(axis), origin, CircleSection(radius + slope * t_end), t_end,
                     t_plane, slope)
-    if not hidden_extension(cloud, ext):
+    if not hidden_extension(cloud, ext, behind_itself):
         return lo, hi, None
     return (t_plane, hi, end) if end == 0 else (lo, t_plane, end)
