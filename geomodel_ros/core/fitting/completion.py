@@ -347,7 +347,7 @@ def _held_or_filled(cloud: ObjectCloud, ext: Extension, others: NDArray[np.float
     lo, hi = sorted((ext.t_end, ext.t_plane))
     outside = ext.section.outside(q[:, :2])
     ledge = (np.abs(t - ext.t_end) <= tol) & (outside <= tol)  # under or right beside it
-    if any_level and not int(np.count_nonzero(ledge)) >= MIN_OTHER_RETURNS:
+    if any_level and int(np.count_nonzero(ledge)) < MIN_OTHER_RETURNS:
         beside = outside <= tol + np.maximum(ext.grow(t), 0.0)
         on = beside & (np.abs(t - ext.t_plane) > tol) & (t >= lo - tol) & (t <= hi + tol)
         if _ledge_round(ext, q[on], float(2.0 * tol)):

@@ -76,7 +76,7 @@ __all__ = ["Situation", "Attempt", "Strategy", "STRATEGIES", "LAST_STRATEGIES", 
            "support_below", "truncated_cost", "truncated_costs", "cavity_floor",
            "prefer_box",
            "prefer_round", "round_rival", "round_of_plane", "thinned", "all_faces_curved",
-           "as_curved"]
+           "as_curved", "outline_circle"]
 
 #: Principal curvatures are fitted as quadrics (six terms) over at least this many
 #: neighbours of each working point.
@@ -902,6 +902,25 @@ def _round_outline(rim: NDArray[np.float64], centre: NDArray[np.float64], radius
                 < np.median(_rectangle_distance(rim)))
 
 
+def outline_circle(uv: NDArray[np.float64]) -> tuple[NDArray[np.float64], float] | None:
+    """Return the circle (centre (2,), radius [m]) a flat face's outline follows, or None.
+
+    ``uv``: the face's points in its plane (k, 2) [m]. Its outline is their convex hull,
+    its circle the least-squares one through the hull's vertices, followed when the
+    vertices lie nearer it than the least-area rectangle round them
+    (:func:`_round_outline`).
+    """
+    try:
+        hull = ConvexHull(uv)
+    except (QhullError, ValueError):
+        return None
+    rim = uv[hull.vertices]
+    circle = _circle_2d(rim)
+    if circle is None or not _round_outline(rim, *circle):
+        return None
+    return circle
+
+
 def _lid_on_circle(cloud: ObjectCloud, lid: ObjectFace, cylinder: Primitive) -> bool:
     """Whether the outline of ``lid`` (a planar face) follows the circle of ``cylinder``.
 
@@ -925,7 +944,7 @@ def _round_faces(cloud: ObjectCloud, box: Primitive
     """Yield the planar faces across one of the box's axes whose outline follows a circle.
 
     Largest first; each face's outline is the convex hull of its points in its plane, its
-    circle the least-squares one through the hull's vertices (:func:`_round_outline`).
+    circle the least-squares one through the hull's vertices (:func:`outline_circle`).
     Yields the box axis's index k, the face's normal (3,), its plane's frame (3, 3) and
     centroid (3,), and the circle's centre (2,) in that frame and radius [m].
     """
@@ -939,17 +958,9 @@ def _round_faces(cloud: ObjectCloud, box: Primitive
         pts = cloud.points[face.points]
         frame = frame_with_z(n)
         c0 = centroid(pts)
-        uv = (pts - c0) @ frame[:, :2]
-        try:
-            hull = ConvexHull(uv)
-        except (QhullError, ValueError):
-            continue
-        circle = _circle_2d(uv[hull.vertices])
-        if circle is None:
-            continue
-        centre2, radius = circle
-        if _round_outline(uv[hull.vertices], centre2, radius):
-            yield k, n, frame, c0, centre2, radius
+        circle = outline_circle((pts - c0) @ frame[:, :2])
+        if circle is not None:
+            yield k, n, frame, c0, *circle
 
 
 def disc_cylinder(cloud: ObjectCloud, box: Primitive,

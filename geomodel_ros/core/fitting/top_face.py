@@ -23,14 +23,15 @@ box the object stands on, seen round its footprint); the plane is then kept.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
 
 from geomodel_ros.core.confidence import surface_distance
 from geomodel_ros.core.fitting.cloud import ObjectCloud
 from geomodel_ros.core.fitting.completion import (Extension, RectangleSection, complete_axial,
                                                   hidden_extension, plane_beyond)
-from geomodel_ros.core.fitting.strategies import _circle_2d, _round_outline
+from geomodel_ros.core.fitting.strategies import outline_circle
 from geomodel_ros.core.geometry import frame_with_z
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 
@@ -83,27 +84,17 @@ def solid_below_top(cloud: ObjectCloud, plane: Primitive, reasons: list[str]
     height = solid.dimensions["height"]
     reasons.append(f"a top face alone {height * 1000:.1f} mm above its support, the space "
                    f"below hidden: the {solid.type.value} down to the support")
-    return Primitive(solid.id, solid.type, solid.center, solid.rotation, solid.dimensions,
-                     solid.point_count, float(np.sqrt(np.mean(d * d))),
-                     completed=solid.completed)
+    return dataclasses.replace(solid, rmse=float(np.sqrt(np.mean(d * d))))
 
 
 def _top_circle(cloud: ObjectCloud, plane: Primitive) -> tuple[np.ndarray, float] | None:
     """Return the centre (3,) [m] on the plane and radius of the face's round outline, or None.
 
-    The object's points in the plane's frame; the circle through the vertices of their
-    convex hull (least squares) when they lie nearer it than the least-area rectangle
-    round them.
+    The object's points in the plane's frame (:func:`~.strategies.outline_circle`).
     """
     rot = plane.rotation
-    uv = (cloud.points - plane.center) @ rot[:, :2]
-    try:
-        hull = ConvexHull(uv)
-    except (QhullError, ValueError):
-        return None
-    rim = uv[hull.vertices]
-    circle = _circle_2d(rim)
-    if circle is None or not _round_outline(rim, circle[0], circle[1]):
+    circle = outline_circle((cloud.points - plane.center) @ rot[:, :2])
+    if circle is None:
         return None
     centre2, radius = circle
     return plane.center + rot[:, :2] @ centre2, float(radius)
