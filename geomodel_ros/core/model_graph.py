@@ -196,9 +196,8 @@ def _planar_decision(faces: list[FaceInfo], adjacency: NDArray[np.bool_], tol: f
     parallel = cos_main >= math.cos(tol)
     corner = box_corner(faces, adjacency, tol)
     if corner is not None:
-        aligned = corner.aligned
-        if np.all(aligned | sliver):
-            return cuboid_decision(faces, adjacency, corner, aligned,
+        if np.all(corner.aligned | corner.sliver):
+            return cuboid_decision(faces, adjacency, corner, corner.aligned,
                                    "planar faces with perpendicular adjacent normals")
         return GraphDecision("planar", (), main, (), NOT_ALIGNED)
     if (parallel | sliver).all():
