@@ -269,9 +269,12 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     model's place in turn (two cans side by side whose crease the segmentation missed).
     So do they for a typed object when its group gives no split, or it has none: the
     model of the whole may hold both bodies within its band (a box and a lying can as
-    one cone, kinect-real clutter seed 32). The segment is split when both parts are
-    typed and neither faces of one box nor bands of one round body's side, each model
-    explains its own part (inlier ratio >= ``min_inlier_ratio``) and neither part lies in
+    one cone, kinect-real clutter seed 32). Last, the two sides of each of the object's
+    levels (``Primitive.levels``: a box's top with part of the segment rising beyond it,
+    :mod:`~geomodel_ros.core.fitting.levels`) are modeled apart (a box on a box with a
+    side flush, one box holding both). The segment is split when both parts are typed
+    and neither faces of one box nor bands of one round body's side, each model explains
+    its own part (inlier ratio >= ``min_inlier_ratio``) and neither part lies in
     the other's body (:func:`_two_bodies`, :func:`_in_body`: a cup's inner wall, a bowl's
     floor, a can's rim or lid are no objects of their own). The second part gets a new id
     (above every label); ``result`` is updated in place, and the ids of both parts of
@@ -289,8 +292,8 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     for o in candidates:
         part = parts[o.id]
         split = None
-        for group, face in _seeds(o, part.points, labels, params, noise, model):
-            split = _two_models(o, part, group, face, next_id, labels, params, noise,
+        for group, kind in _seeds(o, part.points, labels, params, noise, model):
+            split = _two_models(o, part, group, kind, next_id, labels, params, noise,
                                 model)
             if split is not None:
                 break
@@ -350,36 +353,43 @@ def _off_group(o: Primitive, points: NDArray[np.float64], oparams: ModelingParam
 
 def _seeds(o: Primitive, points: NDArray[np.float64], labels: NDArray[np.int64],
            params: ModelingParams, noise: NoiseEstimate | None, model: PartModeler
-           ) -> Iterator[tuple[NDArray[np.bool_], bool]]:
-    """Yield the masks (n,) of ``points`` from which a second part is sought.
+           ) -> Iterator[tuple[NDArray[np.bool_], str]]:
+    """Yield the masks (n,) of ``points`` from which a second part is sought, and their kind.
 
-    With each, whether it is a face. A typed object's group off its model
-    (:func:`_off_group`) first; then the object's largest faces (at most
-    :data:`FACE_SEEDS`, each at least ``seg_min_cluster_points``), whose models take the
-    place of the object's (:func:`_two_models`). The faces are found only when asked.
+    ``"off"``: a typed object's group off its model (:func:`_off_group`), first; then
+    ``"face"``: the object's largest faces (at most :data:`FACE_SEEDS`, each at least
+    ``seg_min_cluster_points``), whose models take the place of the object's
+    (:func:`_two_models`); the faces are found only when asked. Last, ``"level"``: the
+    points rising beyond each of the object's levels (``Primitive.levels``, lowest first:
+    :func:`~geomodel_ros.core.fitting.levels.object_levels`), the two sides of which are
+    modeled apart.
     """
     oparams = _params_at(params, noise, points)
     if o.type != PrimitiveType.UNKNOWN:
         group = _off_group(o, points, oparams)
         if group is not None:
-            yield group, False
+            yield group, "off"
     for face in model.faces(points, model.context(labels))[:FACE_SEEDS]:
         if len(face) < oparams.seg_min_cluster_points:
             break
         mask = np.zeros(len(points), dtype=bool)
         mask[face] = True
-        yield mask, True
+        yield mask, "face"
+    for level in o.levels:
+        yield level.above(points, oparams.ransac_threshold), "level"
 
 
-def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], face: bool,
+def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], kind: str,
                 new_id: int, labels: NDArray[np.int64], params: ModelingParams,
                 noise: NoiseEstimate | None, model: PartModeler
                 ) -> tuple[Primitive, Primitive, NDArray[np.bool_]] | None:
     """Model ``part`` (object ``o``) as two; return both models and the second's mask.
 
-    ``group`` (n,) starts the second part, ``o``'s model the first. With ``face``,
-    ``group`` is one of the part's faces (:func:`_seeds`) whose own model takes ``o``'s
-    place, and the group off that model (:func:`_off_group`) starts the second part;
+    ``group`` (n,) starts the second part, ``o``'s model the first (``kind`` ``"off"``).
+    With ``"level"``, ``group`` holds the points beyond a level and the rest's own model
+    is the first. With ``"face"``, ``group`` is one of the part's faces (:func:`_seeds`)
+    whose own model takes ``o``'s place, and the group off that model
+    (:func:`_off_group`) starts the second part;
     for a typed ``o`` only a round or box model does (the rest of a body off one of its
     own planar faces holds that face: on kinect-real clutter such splits were refused
     after their refits, 100-400 ms each, but for two boxes in one cuboid).
@@ -410,7 +420,13 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], face: bool,
             SPLIT_STREAM, o.id, job[2]), both), [
             (~in_second, o.id, 1 + 2 * k), (in_second, new_id, 2 + 2 * k)])
 
-    if face:  # the face's model takes o's place
+    if kind == "level":  # the two sides of the level modeled apart
+        first = model(points[~group], o.id, (SPLIT_STREAM, o.id, 2 * SPLIT_ROUNDS + 1),
+                      context(group))
+        if first.type == PrimitiveType.UNKNOWN:
+            return None
+        second = fit_second(group)
+    elif kind == "face":  # the face's model takes o's place
         first = model(points[group], o.id, (SPLIT_STREAM, o.id, 2 * SPLIT_ROUNDS + 1),
                       context(~group))
         if first.type == PrimitiveType.UNKNOWN or (

@@ -33,6 +33,7 @@ from geomodel_ros.core.fitting.cloud import (SUPPORT_END_FACTOR, ObjectCloud, Ob
                                              build_faces, build_flat_face, independent_noise)
 from geomodel_ros.core.fitting.slow_bend import SlowBendNull, slow_bend_null
 from geomodel_ros.core.fitting.measure import every_kth
+from geomodel_ros.core.fitting.levels import object_levels
 from geomodel_ros.core.fitting.top_face import solid_below_top
 from geomodel_ros.core.fitting.strategies import (Situation, decide, round_of_plane,
                                                   run_strategies)
@@ -216,6 +217,9 @@ def _fitted(points: NDArray[np.float64], object_id: int, params: ModelingParams,
     # object holds all of them.
     prim = dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons),
                                point_count=len(points))
+    if prim.type is not PrimitiveType.PLANE:
+        prim = dataclasses.replace(prim, levels=object_levels(points, cloud.faces,
+                                                              setting.supports, params))
     if not alternatives or prim.type is not PrimitiveType.PLANE or \
             params.noise_model != "auto":
         return prim
@@ -486,15 +490,16 @@ def _settle_planes(result: ModelingResult, supports: dict[int, Plane]) -> None:
     (``Primitive.round_alternative``: the round model of a plane that lay through a round
     body, :func:`~.strategies.round_of_plane`, else the solid below a lone top face,
     :func:`~.top_face.solid_below_top`; on the modeling's worker threads) and reported
-    when it holds. Every object leaves without the alternative.
+    when it holds. Every object leaves without the alternative and its levels.
     """
     todo = [o for o in result.objects if o.round_alternative is not None
             and o.type is PrimitiveType.PLANE and o.id not in supports]
     found = dict(zip((o.id for o in todo),
                      parallel_map(lambda o: o.round_alternative(), todo)))
     result.objects = [found[o.id] if found.get(o.id) is not None else
-                      o if o.round_alternative is None else
-                      dataclasses.replace(o, round_alternative=None) for o in result.objects]
+                      o if o.round_alternative is None and not o.levels else
+                      dataclasses.replace(o, round_alternative=None, levels=())
+                      for o in result.objects]
 
 
 def _model_rows(pts: NDArray[np.float64], idx_all: NDArray[np.int64], lab: NDArray[np.int64],

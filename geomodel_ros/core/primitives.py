@@ -161,6 +161,11 @@ class Primitive:
         returning it or None (the round model of
         :func:`~geomodel_ros.core.fitting.strategies.round_of_plane`, else the solid of
         :func:`~geomodel_ros.core.fitting.top_face.solid_below_top`).
+    levels : tuple of Level
+        Inside the modeling only (empty on its output, not in :meth:`to_dict`): the heights
+        above a support where one body of the segment may stand on another
+        (:func:`~geomodel_ros.core.fitting.levels.object_levels`), for the segment's split
+        (:func:`~geomodel_ros.core.compounds.split_compounds`).
     """
 
     id: int
@@ -176,6 +181,7 @@ class Primitive:
     confidence: Confidence | None = None
     round_alternative: Callable[[], Primitive | None] | None = field(default=None, repr=False,
                                                                      compare=False)
+    levels: tuple = field(default=(), repr=False, compare=False)
 
     def __post_init__(self) -> None:
         """Hold a known type name as its :class:`PrimitiveType`."""
