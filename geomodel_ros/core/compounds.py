@@ -271,8 +271,9 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     model of the whole may hold both bodies within its band (a box and a lying can as
     one cone, kinect-real clutter seed 32). Last, the two sides of each of the object's
     levels (``Primitive.levels``: a box's top with part of the segment rising beyond it,
-    :mod:`~geomodel_ros.core.fitting.levels`) are modeled apart (a box on a box with a
-    side flush, one box holding both). The segment is split when both parts are typed
+    :mod:`~geomodel_ros.core.fitting.levels`) are modeled apart, whether or not points
+    lie off the model (a box on a box with a side flush, one box holding both; a can on a
+    box it reaches down through). The segment is split when both parts are typed
     and neither faces of one box nor bands of one round body's side, each model explains
     its own part (inlier ratio >= ``min_inlier_ratio``) and neither part lies in
     the other's body (:func:`_two_bodies`, :func:`_in_body`: a cup's inner wall, a bowl's
@@ -280,8 +281,9 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     (above every label); ``result`` is updated in place, and the ids of both parts of
     every split are added to ``changed`` when given.
     """
-    candidates = [o for o in result.objects if o.id not in supports
-                  and o.type != PrimitiveType.PLANE and _may_hold_two(o, params, noise)]
+    may = {o.id: _may_hold_two(o, params, noise) for o in result.objects
+           if o.id not in supports and o.type != PrimitiveType.PLANE}
+    candidates = [o for o in result.objects if may.get(o.id) or (o.id in may and o.levels)]
     if not candidates:
         return labels
     labels = labels.copy()
@@ -292,7 +294,7 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     for o in candidates:
         part = parts[o.id]
         split = None
-        for group, kind in _seeds(o, part.points, labels, params, noise, model):
+        for group, kind in _seeds(o, part.points, labels, params, noise, model, may[o.id]):
             split = _two_models(o, part, group, kind, next_id, labels, params, noise,
                                 model)
             if split is not None:
@@ -352,12 +354,13 @@ def _off_group(o: Primitive, points: NDArray[np.float64], oparams: ModelingParam
 
 
 def _seeds(o: Primitive, points: NDArray[np.float64], labels: NDArray[np.int64],
-           params: ModelingParams, noise: NoiseEstimate | None, model: PartModeler
-           ) -> Iterator[tuple[NDArray[np.bool_], str]]:
+           params: ModelingParams, noise: NoiseEstimate | None, model: PartModeler,
+           off: bool = True) -> Iterator[tuple[NDArray[np.bool_], str]]:
     """Yield the masks (n,) of ``points`` from which a second part is sought, and their kind.
 
-    ``"off"``: a typed object's group off its model (:func:`_off_group`), first; then
-    ``"face"``: the object's largest faces (at most :data:`FACE_SEEDS`, each at least
+    With ``off`` (enough points off the model, :func:`_may_hold_two`): ``"off"``, a typed
+    object's group off its model (:func:`_off_group`), first; then ``"face"``, the
+    object's largest faces (at most :data:`FACE_SEEDS`, each at least
     ``seg_min_cluster_points``), whose models take the place of the object's
     (:func:`_two_models`); the faces are found only when asked. Last, ``"level"``: the
     points rising beyond each of the object's levels (``Primitive.levels``, lowest first:
@@ -365,16 +368,17 @@ def _seeds(o: Primitive, points: NDArray[np.float64], labels: NDArray[np.int64],
     modeled apart.
     """
     oparams = _params_at(params, noise, points)
-    if o.type != PrimitiveType.UNKNOWN:
-        group = _off_group(o, points, oparams)
-        if group is not None:
-            yield group, "off"
-    for face in model.faces(points, model.context(labels))[:FACE_SEEDS]:
-        if len(face) < oparams.seg_min_cluster_points:
-            break
-        mask = np.zeros(len(points), dtype=bool)
-        mask[face] = True
-        yield mask, "face"
+    if off:
+        if o.type != PrimitiveType.UNKNOWN:
+            group = _off_group(o, points, oparams)
+            if group is not None:
+                yield group, "off"
+        for face in model.faces(points, model.context(labels))[:FACE_SEEDS]:
+            if len(face) < oparams.seg_min_cluster_points:
+                break
+            mask = np.zeros(len(points), dtype=bool)
+            mask[face] = True
+            yield mask, "face"
     for level in o.levels:
         yield level.above(points, oparams.ransac_threshold), "level"
 
@@ -441,6 +445,7 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], kind: str,
     in_second = group
     kept = None  # the last pair of typed models fitted each to its own part
     if not _typed(second) or _one_body(first, second, params.angle_tolerance) \
+            or _layers(kind, first, second, points, params, noise) \
             or _part_in_body(first, second, in_second, points, params, noise):
         return None
     for k in range(SPLIT_ROUNDS):
@@ -458,9 +463,42 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], kind: str,
         # leaves the part its last model for the next round's hand-off.
         first, second = (new if _typed(new) else old
                          for new, old in zip(refit, (first, second)))
-    if kept is None or not _two_bodies(*kept, points, params, noise):
+    if kept is None or not _two_bodies(*kept, points, params, noise) or \
+            _layers(kind, kept[0], kept[1], points, params, noise):
         return None
     return kept
+
+
+def _layers(kind: str, first: Primitive, second: Primitive, points: NDArray[np.float64],
+            params: ModelingParams, noise: NoiseEstimate | None) -> bool:
+    """Tell whether a level's two models are two layers of one box (:func:`_layers_of_a_box`).
+
+    Only for ``kind`` ``"level"``: a level across one box (its lower part narrower to the
+    sensor behind an object in front) cuts it in two.
+    """
+    return kind == "level" and _layers_of_a_box(
+        first, second, params.angle_tolerance, _params_at(params, noise, points).ransac_threshold)
+
+
+def _layers_of_a_box(first: Primitive, second: Primitive, angle_tolerance: float,
+                     threshold: float) -> bool:
+    """Tell whether two cuboids may be two layers of one box.
+
+    Their axes parallel (within ``angle_tolerance`` [rad]) and the faces of one within
+    ``threshold`` [m] of the other's along two of its axes: one section, the two on top
+    of each other or side by side.
+    """
+    if first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID:
+        return False
+    turn = np.abs(first.rotation.T @ second.rotation)  # |cos| between the axes
+    if not np.all(turn.max(axis=1) >= math.cos(angle_tolerance)):
+        return False
+    names = ("length", "width", "height")
+    half1 = 0.5 * np.array([first.dimensions[k] for k in names])
+    half2 = 0.5 * np.array([second.dimensions[k] for k in names])[turn.argmax(axis=1)]
+    off = first.rotation.T @ (second.center - first.center)
+    same = (np.abs(off - half2 + half1) <= threshold) & (np.abs(off + half2 - half1) <= threshold)
+    return int(np.count_nonzero(same)) >= 2
 
 
 def _typed(*prims: Primitive) -> bool:

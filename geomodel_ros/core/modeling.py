@@ -218,8 +218,9 @@ def _fitted(points: NDArray[np.float64], object_id: int, params: ModelingParams,
     prim = dataclasses.replace(prim, faces=summaries, reason="; ".join(reasons),
                                point_count=len(points))
     if prim.type is not PrimitiveType.PLANE:
-        prim = dataclasses.replace(prim, levels=object_levels(points, cloud.faces,
-                                                              setting.supports, params))
+        prim = dataclasses.replace(prim, levels=object_levels(
+            points, cloud.faces, setting.supports, params,
+            None if setting.view is None else (setting.view, object_id, setting.spacing)))
     if not alternatives or prim.type is not PrimitiveType.PLANE or \
             params.noise_model != "auto":
         return prim

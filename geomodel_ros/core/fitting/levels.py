@@ -32,14 +32,23 @@ from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, Delaunay, QhullError
 
 from geomodel_ros.core.fitting.cloud import ObjectFace, Plane
+from geomodel_ros.core.fitting.completion import CELL_SPACINGS
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.view import SceneView
 
-__all__ = ["LEVEL_INSIDE_SHARE", "Level", "object_levels", "support_below"]
+__all__ = ["LEVEL_INSIDE_SHARE", "Level", "object_levels", "silhouette_step", "support_below"]
 
 #: A level face's points within the footprint of what rises beyond it: at most this
 #: share for that to stand on the face's body.
 LEVEL_INSIDE_SHARE = 0.5
+#: A slice's width spans its points across the view between this percentile and its
+#: complement.
+WIDTH_PERCENTILE = 3.0
+#: Slices with fewer points have no width.
+MIN_SLICE_POINTS = 20
+#: Slices are at least this many point spacings thick (a few rows of the image).
+SLICE_SPACINGS = 3.0
 #: The points stand above a support when at most this share of them lie more than a
 #: RANSAC threshold below its plane.
 BELOW_SHARE = 0.1
@@ -87,13 +96,16 @@ def support_below(points: NDArray[np.float64], supports: tuple[Plane, ...] | lis
 
 
 def object_levels(points: NDArray[np.float64], faces: list[ObjectFace],
-                  supports: tuple[Plane, ...] | list[Plane], params: ModelingParams
-                  ) -> tuple[Level, ...]:
+                  supports: tuple[Plane, ...] | list[Plane], params: ModelingParams,
+                  seen: tuple[SceneView, int, float] | None = None) -> tuple[Level, ...]:
     """Return the levels of an object's ``points`` (n, 3) [m] (see the module docstring).
 
     ``faces`` are its faces (:func:`~.cloud.build_faces`), ``supports`` the scene's support
-    planes, ``params`` the object's (its ``ransac_threshold`` at its range). Levels within
-    a threshold of one found before are left out; lowest first.
+    planes, ``params`` the object's (its ``ransac_threshold`` at its range). With
+    ``seen`` (the scene's view, the sensor at the origin, the object's label in it and
+    its points' median spacing [m]) the step of the object's width across the view adds
+    one (:func:`silhouette_step`). Levels within a threshold of one found before are left
+    out; lowest first.
     """
     least = params.seg_min_cluster_points
     if not supports or len(points) < 2 * least:
@@ -101,9 +113,7 @@ def object_levels(points: NDArray[np.float64], faces: list[ObjectFace],
     thr = params.ransac_threshold
     cos_tol = math.cos(params.angle_tolerance)
     flats = [f for f in faces if f.info.planar and len(f.points) >= least]
-    # Only a support some flat face parallels can be the one below a level.
-    below = support_below(points, [(n, d) for n, d in supports if any(
-        abs(float(f.info.normal @ n)) >= cos_tol for f in flats)], thr)
+    below = support_below(points, supports, thr)
     if below is None:
         return ()
     normal, offset = below
@@ -117,14 +127,117 @@ def object_levels(points: NDArray[np.float64], faces: list[ObjectFace],
         above = height > level + thr
         rising = int(np.count_nonzero(above))
         if level <= thr or rising < least or len(points) - rising < least or \
-                any(abs(level - seen) <= thr for seen in levels):
+                any(abs(level - h) <= thr for h in levels):
             continue
         if flat is None:
             e1, e2 = perpendicular_basis(normal)
             flat = np.stack([points @ e1, points @ e2], axis=1)
         if _share_within(flat[above], flat[face.points]) <= LEVEL_INSIDE_SHARE:
             levels.append(level)
+    if seen is not None:
+        view, oid, spacing = seen
+        step = silhouette_step(points, height, (normal, offset),
+                               max(thr, SLICE_SPACINGS * spacing), least,
+                               (view, oid, CELL_SPACINGS * spacing))
+        if step is not None and all(abs(step - h) > thr for h in levels):
+            levels.append(step)
     return tuple(Level(normal, float(offset), h) for h in sorted(levels))
+
+
+def silhouette_step(points: NDArray[np.float64], height: NDArray[np.float64],
+                    support: Plane, tol: float, least: int,
+                    seen: tuple[SceneView, int, float] | None = None) -> float | None:
+    """Return the height [m] where the object's width across the view steps, or None.
+
+    ``points`` (n, 3) [m] seen from the origin, ``height`` (n,) [m] theirs above the
+    ``support`` plane (unit normal, offset). The points are cut into slices ``tol`` [m] thick; a
+    slice's width is the extent of its points across the ray to the object (horizontal,
+    between the :data:`WIDTH_PERCENTILE` and its complement). A body standing on another
+    of another width shows two runs of slices each of one width within ``tol`` / 2, their
+    mean widths ``tol`` apart or more, at least two slices and ``least`` points each (a
+    taper changes the width within the runs); between them one or two slices (the lower
+    body's top and the upper body's foot), and above them the top slice (a lid, a top
+    face) are not compared. The level is the bottom of the slices between; of several
+    such steps the largest. A box, a can, a lying can keep one width; a cone's, a cup's,
+    a sphere's, a bowl's change from slice to slice. With ``seen`` (the scene's view, the
+    object's label in it and an angular cell [m at 1 m]) the sensor must see past the
+    narrower run where the wider one would reach (:func:`_seen_past`): an object in front
+    that hides part of a body's width makes a step too.
+    """
+    normal, offset = support
+    across = np.cross(normal, points.mean(axis=0))
+    norm = float(np.linalg.norm(across))
+    if norm == 0.0:
+        return None
+    x = points @ (across / norm)
+    k = np.floor(height / tol).astype(np.int64)
+    keep = k >= 0
+    order = np.lexsort((x[keep], k[keep]))
+    ks, xs = k[keep][order], x[keep][order]
+    ids, start, count = np.unique(ks, return_index=True, return_counts=True)
+    full = count >= MIN_SLICE_POINTS
+    ids, start, count = ids[full], start[full], count[full]
+    lo = xs[start + np.floor((count - 1) * WIDTH_PERCENTILE / 100).astype(np.int64)]
+    hi = xs[start + np.ceil((count - 1) * (1 - WIDTH_PERCENTILE / 100)).astype(np.int64)]
+    width = hi - lo
+    best: tuple[float, float] | None = None
+    for gap in (1, 2):  # the slices between the two runs (a top's ring, a foot)
+        for j in range(2 + gap, len(ids) - 2):
+            below, above = width[:j - gap], width[j:-1]
+            if ids[j] - ids[j - gap] != gap or count[:j - gap].sum() < least or \
+                    count[j:].sum() < least:
+                continue
+            jump = abs(float(np.mean(below) - np.mean(above)))
+            if jump >= tol and max(np.ptp(below), np.ptp(above)) <= 0.5 * tol and \
+                    (best is None or jump > best[0]):
+                best = (jump, float(ids[j - gap]) * tol, j - gap, j)
+    if best is None:
+        return None
+    _, level, end, start = best
+    if seen is not None:
+        # The narrower run's slices, and the widest slice's extent across the view.
+        wide_lo, wide_hi = lo[:end].min(), hi[:end].max()
+        narrow = slice(start, len(ids) - 1)
+        if width[:end].mean() < width[start:-1].mean():
+            wide_lo, wide_hi = lo[start:-1].min(), hi[start:-1].max()
+            narrow = slice(0, end)
+        rows_in = np.isin(k, ids[narrow])
+        if not _seen_past(points[rows_in], (normal, offset), across / norm,
+                          (float(lo[narrow].max()), float(hi[narrow].min())),
+                          (float(wide_lo), float(wide_hi)), tol, seen):
+            return None
+    return level
+
+
+def _seen_past(run: NDArray[np.float64], support: Plane, across: NDArray[np.float64],
+               narrow: tuple[float, float], wide: tuple[float, float], tol: float,
+               seen: tuple[SceneView, int, float]) -> bool:
+    """Tell whether the sensor sees past a narrower run of slices where a wider would reach.
+
+    ``run`` (m, 3) [m] are the narrower run's points; probes at their median height and
+    depth along ``across`` (3,) (unit, horizontal) between its extent ``narrow`` and the
+    wider run's ``wide`` [m], more than ``tol`` [m] beyond the narrower one's. Seen past
+    when more probes see a return behind them (or none, inside the image) than one in
+    front of them from another object: a body standing on a wider one shows the
+    background beside it; an object in front hiding part of a body, itself.
+    """
+    view, oid, cell = seen
+    normal, offset = support
+    ahead = np.cross(across, normal)
+    lift = float(np.median(run @ normal))
+    depth = float(np.median(run @ ahead))
+    xs = np.concatenate([np.arange(wide[0], narrow[0] - tol, 0.5 * tol),
+                         np.arange(narrow[1] + tol, wide[1], 0.5 * tol)])
+    if len(xs) == 0:
+        return False
+    probes = np.outer(xs, across) + depth * ahead + lift * normal
+    r_t = np.linalg.norm(probes, axis=1)
+    got = view.returns(probes, cell / max(float(np.median(r_t)), np.finfo(float).tiny))
+    band = tol + cell
+    in_front = (got.nearest < got.ranges - band) & (got.nearest_label != oid)
+    past = ~np.isfinite(got.nearest) & ~view.beyond_image(probes) | \
+        (got.nearest > got.ranges + band)
+    return int(np.count_nonzero(past)) > int(np.count_nonzero(in_front))
 
 
 def _share_within(outline: NDArray[np.float64], points: NDArray[np.float64]) -> float:
