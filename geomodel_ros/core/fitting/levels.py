@@ -171,26 +171,39 @@ def silhouette_step(points: NDArray[np.float64], height: NDArray[np.float64],
         return None
     x = points @ (across / norm)
     k = np.floor(height / tol).astype(np.int64)
-    keep = k >= 0
-    order = np.lexsort((x[keep], k[keep]))
-    ks, xs = k[keep][order], x[keep][order]
+    keep = np.flatnonzero(k >= 0)
+    if len(keep) == 0:
+        return None
+    # One sort by slice, then across (the extent of x is below 1 + its span).
+    xk = x[keep]
+    order = np.argsort(k[keep] * (float(np.ptp(xk)) + 1.0) + (xk - xk.min()))
+    ks, xs = k[keep][order], xk[order]
     ids, start, count = np.unique(ks, return_index=True, return_counts=True)
     full = count >= MIN_SLICE_POINTS
     ids, start, count = ids[full], start[full], count[full]
+    m = len(ids)
+    if m < 6:  # two slices below, one between, two above and the top slice
+        return None
     lo = xs[start + np.floor((count - 1) * WIDTH_PERCENTILE / 100).astype(np.int64)]
     hi = xs[start + np.ceil((count - 1) * (1 - WIDTH_PERCENTILE / 100)).astype(np.int64)]
     width = hi - lo
-    best: tuple[float, float] | None = None
-    for gap in (1, 2):  # the slices between the two runs (a top's ring, a foot)
-        for j in range(2 + gap, len(ids) - 2):
-            below, above = width[:j - gap], width[j:-1]
-            if ids[j] - ids[j - gap] != gap or count[:j - gap].sum() < least or \
-                    count[j:].sum() < least:
-                continue
-            jump = abs(float(np.mean(below) - np.mean(above)))
-            if jump >= tol and max(np.ptp(below), np.ptp(above)) <= 0.5 * tol and \
-                    (best is None or jump > best[0]):
-                best = (jump, float(ids[j - gap]) * tol, j - gap, j)
+    # Every split at once: the run below ends before slice e, the one above starts at j and
+    # ends before the top slice; prefix sums and running extremes give their means and spans.
+    sum_w, sum_n = np.r_[0.0, np.cumsum(width)], np.r_[0, np.cumsum(count)]
+    low_max, low_min = np.maximum.accumulate(width), np.minimum.accumulate(width)
+    body = width[:-1][::-1]
+    up_max = np.maximum.accumulate(body)[::-1]
+    up_min = np.minimum.accumulate(body)[::-1]
+    splits = [(j - gap, j) for gap in (1, 2) for j in range(2 + gap, m - 2)]
+    e, j = (np.array(v, dtype=np.int64) for v in zip(*splits))
+    jump = np.abs(sum_w[e] / e - (sum_w[m - 1] - sum_w[j]) / (m - 1 - j))
+    spread = np.maximum(low_max[e - 1] - low_min[e - 1], up_max[j] - up_min[j])
+    ok = (ids[j] - ids[e] == j - e) & (sum_n[e] >= least) & (sum_n[m] - sum_n[j] >= least) \
+        & (jump >= tol) & (spread <= 0.5 * tol)
+    best: tuple[float, float, int, int] | None = None
+    if np.any(ok):
+        i = int(np.flatnonzero(ok)[np.argmax(jump[ok])])
+        best = (float(jump[i]), float(ids[e[i]]) * tol, int(e[i]), int(j[i]))
     if best is None:
         return None
     _, level, end, start = best
