@@ -20,6 +20,13 @@ modeled as the two parts on either side of the level
 they are two bodies. (The tops of faces perpendicular to the support, a box's sides below
 a narrower body, were measured too and are no levels: a box's own side seen at a grazing
 angle may end below its top.)
+
+A body standing on a box whose top it hides (a can on a box seen from the side) leaves no
+such face, but its silhouette steps: the object's width across the view keeps one value
+below the box's top and another above it (:func:`silhouette_step`). An object in front
+that hides part of one body's width makes a step too; the sensor must then see past the
+narrower part where the wider one would reach (the background beside a can on a box, not
+an occluder in front).
 """
 
 from __future__ import annotations
@@ -200,26 +207,23 @@ def silhouette_step(points: NDArray[np.float64], height: NDArray[np.float64],
     spread = np.maximum(low_max[e - 1] - low_min[e - 1], up_max[j] - up_min[j])
     ok = (ids[j] - ids[e] == j - e) & (sum_n[e] >= least) & (sum_n[m] - sum_n[j] >= least) \
         & (jump >= tol) & (spread <= 0.5 * tol)
-    best: tuple[float, float, int, int] | None = None
-    if np.any(ok):
-        i = int(np.flatnonzero(ok)[np.argmax(jump[ok])])
-        best = (float(jump[i]), float(ids[e[i]]) * tol, int(e[i]), int(j[i]))
-    if best is None:
+    if not np.any(ok):
         return None
-    _, level, end, start = best
+    best = int(np.flatnonzero(ok)[np.argmax(jump[ok])])  # the largest jump, the first of ties
+    end, up = int(e[best]), int(j[best])
     if seen is not None:
-        # The narrower run's slices, and the widest slice's extent across the view.
+        # The narrower run's slices, and the wider run's extent across the view.
         wide_lo, wide_hi = lo[:end].min(), hi[:end].max()
-        narrow = slice(start, len(ids) - 1)
-        if width[:end].mean() < width[start:-1].mean():
-            wide_lo, wide_hi = lo[start:-1].min(), hi[start:-1].max()
+        narrow = slice(up, m - 1)
+        if width[:end].mean() < width[up:-1].mean():
+            wide_lo, wide_hi = lo[up:-1].min(), hi[up:-1].max()
             narrow = slice(0, end)
         rows_in = np.isin(k, ids[narrow])
         if not _seen_past(points[rows_in], (normal, offset), across / norm,
                           (float(lo[narrow].max()), float(hi[narrow].min())),
                           (float(wide_lo), float(wide_hi)), tol, seen):
             return None
-    return level
+    return float(ids[end]) * tol
 
 
 def _seen_past(run: NDArray[np.float64], support: Plane, across: NDArray[np.float64],
