@@ -19,7 +19,7 @@ import pytest
 from geomodel_ros.core.compounds import _layers_of_a_box
 from geomodel_ros.core.fitting.cloud import ObjectFace, build_faces
 from geomodel_ros.core.fitting.levels import (Level, object_levels, silhouette_step,
-                                              support_below)
+                                              nearest_support_below)
 from geomodel_ros.core.model_graph import FaceInfo
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import FaceSummary, Primitive
@@ -228,9 +228,9 @@ def test_the_support_below_is_the_nearest_the_points_stand_above():
     floor = (np.array([0.0, 0.0, 1.0]), 0.0)
     table = (np.array([0.0, 0.0, 1.0]), -0.7)
     shelf = (np.array([0.0, 0.0, 1.0]), -0.8)  # half of the points lie below it
-    assert support_below(points, [floor, shelf, table], 0.005)[1] == table[1]
-    assert support_below(points, [floor, shelf], 0.005)[1] == floor[1]
-    assert support_below(points, [shelf], 0.005) is None
+    assert nearest_support_below(points, [floor, shelf, table], 0.005)[1] == table[1]
+    assert nearest_support_below(points, [floor, shelf], 0.005)[1] == floor[1]
+    assert nearest_support_below(points, [shelf], 0.005) is None
 
 
 def test_a_level_tells_the_points_beyond_it():

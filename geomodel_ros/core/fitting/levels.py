@@ -44,7 +44,8 @@ from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.view import SceneView
 
-__all__ = ["LEVEL_INSIDE_SHARE", "Level", "object_levels", "silhouette_step", "support_below"]
+__all__ = ["LEVEL_INSIDE_SHARE", "Level", "nearest_support_below", "object_levels",
+           "silhouette_step"]
 
 #: A level face's points within the footprint of what rises beyond it: at most this
 #: share for that to stand on the face's body.
@@ -84,12 +85,14 @@ class Level:
         return points @ self.normal + self.offset > self.height + margin
 
 
-def support_below(points: NDArray[np.float64], supports: tuple[Plane, ...] | list[Plane],
+def nearest_support_below(points: NDArray[np.float64], supports: tuple[Plane, ...] | list[Plane],
                   threshold: float) -> Plane | None:
     """Return the nearest of the ``supports`` that ``points`` (n, 3) [m] stand above, or None.
 
     Nearest by the points' mean height; above it: all but :data:`BELOW_SHARE` of the
-    points on its sensor side or within ``threshold`` [m] of it.
+    points on its sensor side or within ``threshold`` [m] of it. (Not the first plane the
+    object lies on one side of, :func:`~.verify.standing_on`: a level's height is taken
+    above the support right below it, a table's top rather than the floor under it.)
     """
     best: tuple[float, Plane] | None = None
     for normal, offset in supports:
@@ -120,7 +123,7 @@ def object_levels(points: NDArray[np.float64], faces: list[ObjectFace],
     thr = params.ransac_threshold
     cos_tol = math.cos(params.angle_tolerance)
     flats = [f for f in faces if f.info.planar and len(f.points) >= least]
-    below = support_below(points, supports, thr)
+    below = nearest_support_below(points, supports, thr)
     if below is None:
         return ()
     normal, offset = below
