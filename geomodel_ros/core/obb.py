@@ -20,7 +20,7 @@ from geomodel_ros.core.fastmath import row_norms
 
 __all__ = ["ray_to_plane", "ray_scale_to_plane", "ray_offset_to_plane", "ray_offset_from",
            "ray_to_cylinder", "hull_candidates",
-           "min_area_rectangle", "orthonormalize_axes", "interval", "edge_gap"]
+           "min_area_rectangle", "orthonormalize_axes", "upright_axes", "interval", "edge_gap"]
 
 #: A ray that meets a plane at a cosine below this (more obliquely than about 78 deg)
 #: moves a point ill-conditioned (a small depth error becomes a large shift): such points
@@ -278,3 +278,31 @@ def orthonormalize_axes(normals: NDArray[np.float64], weights: NDArray[np.float6
         u[:, -1] *= -1
         r = u @ vt
     return r
+
+
+def upright_axes(up: NDArray[np.float64], normals: NDArray[np.float64],
+                 weights: NDArray[np.float64], assignment: NDArray[np.int64]
+                 ) -> NDArray[np.float64]:
+    """Rotation (3, 3) whose axis 2 is ``up`` (3,) and axes 0, 1 follow the side faces.
+
+    Only the ``normals`` (F, 3) of the faces on axes 0 and 1 count (``assignment`` (F,)),
+    by their components across ``up``, weighted by ``weights`` (F,) and by how far they
+    lie across it: the angle of axis 0 about ``up`` is the weighted circular mean of the
+    faces' directions modulo 180 deg (a normal's sign is free), those on axis 1 taken a
+    quarter turn back. Faces on axis 2 and those of no axis (-1) do not turn it.
+    Columns are the axes, det = +1; axis 0 is an arbitrary direction across ``up`` when
+    no side face is given.
+    """
+    z = up / np.linalg.norm(up)
+    e1 = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(z, e1)
+    side = (assignment == 0) | (assignment == 1)
+    theta = 0.0
+    if side.any():
+        u, v = normals[side] @ e1, normals[side] @ e2
+        angle = np.arctan2(v, u) - np.where(assignment[side] == 1, np.pi / 2, 0.0)
+        w = weights[side] * np.hypot(u, v)
+        theta = float(np.angle(np.sum(w * np.exp(2j * angle)))) / 2.0
+    x = np.cos(theta) * e1 + np.sin(theta) * e2
+    return np.column_stack([x, np.cross(z, x), z])

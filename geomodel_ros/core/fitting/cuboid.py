@@ -37,19 +37,42 @@ MAX_RAY_OUTLIER_SHARE = 0.5
 MIN_SIDE_POINTS = 20
 
 
-def _face_planes(cloud: ObjectCloud, faces: list[int]) -> tuple[list[PlaneModel], float]:
-    """Refine a plane on each of ``faces``; return them and the inlier ratio over all."""
+def _face_planes(cloud: ObjectCloud, faces: list[int],
+                 normals: NDArray[np.float64] | None = None
+                 ) -> tuple[list[PlaneModel], float]:
+    """Refine a plane on each of ``faces``; return them and the inlier ratio over all.
+
+    With ``normals`` (len(faces), 3) the planes keep them (a box frame fixed beforehand)
+    and only their offsets are refined.
+    """
     thr = cloud.params.ransac_threshold
     planes, inlier_ok, inlier_all = [], 0, 0
-    for i in faces:
+    for k, i in enumerate(faces):
         f = cloud.faces[i]
         w = cloud.wc.points[f.working]
-        model = refine(plane_from_face(f, w), w, thr)
-        model = refine(model, cloud.sample(f.points), thr)
+        if normals is None:
+            model = refine(plane_from_face(f, w), w, thr)
+            model = refine(model, cloud.sample(f.points), thr)
+        else:
+            model = _offset_refined(normals[k], w, thr)
+            model = _offset_refined(normals[k], cloud.sample(f.points), thr, model)
         inlier_ok += int((np.abs(model.distance(w)) <= thr).sum())
         inlier_all += len(w)
         planes.append(model)
     return planes, inlier_ok / max(inlier_all, 1)
+
+
+def _offset_refined(normal: NDArray[np.float64], points: NDArray[np.float64], thr: float,
+                    start: PlaneModel | None = None) -> PlaneModel:
+    """Return the plane of unit ``normal`` (3,) through the mean of ``points`` (n, 3) near it.
+
+    The mean of the points within ``thr`` [m] of ``start`` (of the plane through their
+    median without it).
+    """
+    h = points @ normal
+    d = -float(np.median(h)) if start is None else start.d
+    near = np.abs(h + d) <= thr
+    return PlaneModel(normal, -float(h[near].mean()) if near.any() else d)
 
 
 def _projections(cloud: ObjectCloud, planes: list[PlaneModel], nearest: NDArray[np.int64],
@@ -155,6 +178,11 @@ def _box_extent(cloud: ObjectCloud, planes: list[PlaneModel], assign: NDArray[np
 def fit_cuboid(task: FitTask) -> FitOutcome:
     """Fit a box to the faces of ``task.cloud`` whose axes ``task.axis_of_face`` gives.
 
+    With ``task.axis_prior`` the box's axis 2 is that direction and its axes 0 and 1
+    follow the side faces' normals about it (:func:`~geomodel_ros.core.obb.upright_axes`);
+    the faces' planes keep the frame's normals. Without it the frame is the one nearest
+    to every face's plane (:func:`~geomodel_ros.core.obb.orthonormalize_axes`).
+
     Sliver faces (axis -1) fit no axis; their points join the nearest real face. Every
     point goes to its nearest face plane (edge points may sit in the wrong face); points
     far from every face (flying pixels, strays) take no part in the sizing. An end hidden
@@ -163,13 +191,18 @@ def fit_cuboid(task: FitTask) -> FitOutcome:
     """
     cloud, axis_of_face = task.cloud, task.axis_of_face
     keep = [i for i, a in enumerate(axis_of_face) if a >= 0]
-    planes, ratio = _face_planes(cloud, keep)
+    assign = np.asarray([axis_of_face[i] for i in keep], dtype=np.int64)
+    weights = np.array([float(len(cloud.faces[i].working)) for i in keep])
+    if task.axis_prior is None:
+        planes, ratio = _face_planes(cloud, keep)
+        rot = obb.orthonormalize_axes(np.array([m.normal for m in planes]), weights, assign)
+    else:
+        rot = obb.upright_axes(task.axis_prior, np.array([cloud.faces[i].info.normal
+                                                          for i in keep]), weights, assign)
+        planes, ratio = _face_planes(cloud, keep, rot[:, assign].T)
     bad = check_inlier_ratio(ratio, cloud.params, CUBOID)
     if bad:
         return bad
-    assign = np.asarray([axis_of_face[i] for i in keep], dtype=np.int64)
-    weights = np.array([float(len(cloud.faces[i].working)) for i in keep])
-    rot = obb.orthonormalize_axes(np.array([m.normal for m in planes]), weights, assign)
     nearest, nearest_dist = nearest_surface([np.abs(m.distance(cloud.points)) for m in planes])
     nearest[nearest_dist > OUTLIER_FACTOR * cloud.params.ransac_threshold] = -1
     bad = check_coverage(nearest >= 0, CUBOID)
