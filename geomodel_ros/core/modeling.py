@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from geomodel_ros.core.band_claim import give_back_band_points
 from geomodel_ros.core.confidence import UNKNOWN_CONFIDENCE, with_confidence
 from geomodel_ros.core.decimation import decimate, spread_labels
 from geomodel_ros.core.errors import InputError, as_points
@@ -649,7 +650,10 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
     """Segment ``pts`` (N, 3) [m] and model every segment (the body of :func:`model_scene`).
 
     ``noise`` is the frame's estimate (None with ``noise_model = fixed``), which took
-    ``t_noise`` [s]; fragments are taken out of the objects (:func:`_drop_fragments`).
+    ``t_noise`` [s]. Once the objects are modeled, the support points whose viewing rays
+    enter an object's solid are given to it
+    (:func:`~geomodel_ros.core.band_claim.give_back_band_points`: its lower part in the
+    support's band); fragments are taken out of the objects (:func:`_drop_fragments`).
     ``organized_shape`` (H, W) is handed to the segmentation.
     """
     from geomodel_ros.core.compounds import join_pieces, split_compounds
@@ -669,6 +673,7 @@ def _segment_and_model(pts: NDArray[np.float64], params: ModelingParams,
         labels = join_pieces(pts, labels, result, params, seg.support_planes, noise, model,
                              among=split)
     _settle_planes(result, seg.support_planes)
+    labels = give_back_band_points(pts, labels, result, seg.support_planes, params, noise)
     result.timing["modeling_s"] = time.perf_counter() - t0
     labels = _drop_fragments(labels, result, params)
     result.timing.update(seg.timing)
