@@ -1295,6 +1295,13 @@ class BoxOfFlatCores:
                        note=f"no round model explains the points; {rival.note}")
 
 
+def planar_without_rule(situation: Situation) -> bool:
+    """Tell whether two or more planar faces fit no rule of the model graph (``auto`` noise)."""
+    d = situation.decision
+    return (situation.cloud.params.noise_model == "auto" and d.category == "planar"
+            and not d.candidates and len(situation.cloud.faces) > 1)
+
+
 class PlanarFacesWithoutRule:
     """The box of the point normals' modes for planar faces that fit no rule.
 
@@ -1319,9 +1326,7 @@ class PlanarFacesWithoutRule:
 
     def applies(self, situation: Situation) -> bool:
         """Return True for planar faces without a candidate (``auto`` noise)."""
-        d = situation.decision
-        return (situation.cloud.params.noise_model == "auto" and d.category == "planar"
-                and not d.candidates and len(situation.cloud.faces) > 1)
+        return planar_without_rule(situation)
 
     def attempt(self, situation: Situation) -> Attempt | None:
         """Fit the cuboid to the sides of the point normals' modes, if most face them."""
@@ -1454,9 +1459,7 @@ class UprightBoxOnSupport:
 
     def applies(self, situation: Situation) -> bool:
         """Return True for two or more planar faces without a candidate (``auto`` noise)."""
-        d = situation.decision
-        return (situation.cloud.params.noise_model == "auto" and d.category == "planar"
-                and not d.candidates and len(situation.cloud.faces) > 1)
+        return planar_without_rule(situation)
 
     def attempt(self, situation: Situation) -> Attempt | None:
         """Fit the cuboid upright on the support below when its frame holds every face."""
