@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
 from geomodel_ros.core.fastmath import row_norms
+from geomodel_ros.core.geometry import perpendicular_basis
 
 __all__ = ["ray_to_plane", "ray_scale_to_plane", "ray_offset_to_plane", "ray_offset_from",
            "ray_to_cylinder", "hull_candidates",
@@ -294,9 +295,7 @@ def upright_axes(up: NDArray[np.float64], normals: NDArray[np.float64],
     no side face is given.
     """
     z = up / np.linalg.norm(up)
-    e1 = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(z, e1)
+    e1, e2 = perpendicular_basis(z)
     side = (assignment == 0) | (assignment == 1)
     theta = 0.0
     if side.any():
