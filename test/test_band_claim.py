@@ -163,6 +163,57 @@ def test_the_support_s_point_count_loses_what_the_solid_gains():
     assert counts == {0: 1000 - len(wall), CAN_ID: 100 + len(wall)}
 
 
+def _cup_seen_from_above(own):
+    """Return a cup r 50 mm, 60 mm high, 0.5 m away on a desk 0.8 m below the sensor.
+
+    As the points (``own``, then its floor: a 5 x 5 grid on the desk inside its foot whose
+    rays cross the top's disc, 38-50 mm from the axis at most, so the sensor sees them
+    through the top), their labels (own CAN_ID, floor the desk's), the cup and the desk.
+    """
+    desk_y, r, h = 0.8, 0.05, 0.06
+    cup = Primitive(CAN_ID, PrimitiveType.CYLINDER, np.array([0.0, desk_y - h / 2, 0.5]),
+                    frame_with_z(UP), {"radius": r, "height": h}, 100, 0.0)
+    gx, gz = np.meshgrid(np.linspace(-0.02, 0.02, 5), np.linspace(0.50, 0.54, 5))
+    floor = np.column_stack([gx.ravel(), np.full(gx.size, desk_y), gz.ravel()])
+    pts = np.vstack([own, floor])
+    labels = np.r_[np.full(len(own), CAN_ID), np.zeros(len(floor), dtype=np.int64)]
+    return pts, labels, cup, (UP, desk_y)
+
+
+def test_a_cup_s_floor_seen_through_its_open_top_is_given_back():
+    # Its own points: the far inner wall 10-50 mm below the rim (rays through the top's
+    # disc, 20-40 mm beyond it): the top is open, and the floor points in the desk's band,
+    # whose rays pass through that top and reach the solid's inside, are the cup's.
+    a, y = np.meshgrid(np.radians(np.linspace(-30, 30, 7)), np.linspace(0.75, 0.79, 5))
+    wall = np.column_stack([0.045 * np.sin(a.ravel()), y.ravel(),
+                            0.5 + 0.045 * np.cos(a.ravel())])
+    pts, labels, cup, desk = _cup_seen_from_above(wall)
+    result = ModelingResult([cup], {})
+    out = give_back_band_points(pts, labels, result, {0: desk}, PARAMS, NOISE)
+    assert np.all(out == CAN_ID)
+    # Two points inside the foot nearer the sensor, (+-20, 490) mm: their rays cross the
+    # top's plane 50.5 mm from the axis, outside its disc, through the near wall, which
+    # would hide them: seen through the model, not given.
+    hidden = np.array([[-0.02, 0.8, 0.49], [0.02, 0.8, 0.49]])
+    out = give_back_band_points(np.vstack([pts, hidden]), np.r_[labels, 0, 0],
+                                ModelingResult([cup], {}), {0: desk}, PARAMS, NOISE)
+    assert out[-2:].tolist() == [0, 0]
+
+
+def test_a_floor_seen_through_a_closed_top_is_not_given():
+    # The same cup with a lid: its own points on the top's disc (within 40 mm of the
+    # axis, 1 mm beyond its plane, within the noise). A ray through a closed top would
+    # have met the lid: the points behind it are seen through the model, not the
+    # object's. Nor without any own points.
+    gx, gz = np.meshgrid(np.linspace(-0.03, 0.03, 7), np.linspace(0.47, 0.53, 7))
+    lid = np.column_stack([gx.ravel(), np.full(gx.size, 0.741), gz.ravel()])
+    for own in (lid, np.zeros((0, 3))):
+        pts, labels, cup, desk = _cup_seen_from_above(own)
+        result = ModelingResult([cup], {})
+        out = give_back_band_points(pts, labels, result, {0: desk}, PARAMS, NOISE)
+        assert np.all(out[len(own):] == 0)
+
+
 @pytest.mark.parametrize("kind", ["cylinder", "cone", "frustum", "sphere", "cuboid"])
 def test_inside_a_solid_is_inside_its_surface(kind):
     # Points 1 mm either side of the surface at mid-height (the side facing +x), and the

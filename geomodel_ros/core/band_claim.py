@@ -15,8 +15,14 @@ desk before or beside the object, never its solid (a ray meets the desk in front
 object's foot and goes on below it, where the solid is not), so a support point is given
 to an object when its ray, sampled within ``ransac_threshold`` (at the object's range) of
 the point's depth and on the sensor's side of the point's support plane, enters the
-object's solid (:func:`inside_solid`). Only a model larger than its object claims desk
-points (a ring as wide as the excess round its foot). Typed solids only (no planes, no
+object's solid there (:func:`inside_solid`): inside it somewhere in that window and
+outside it at the window's near end. A ray already inside the solid in front of the
+window passed through it and saw the point past it: the model is wrong there, unless the
+ray came in through the open end of a container (a cup's or bowl's floor in the band,
+seen over its rim): the end of a cylinder or frustum that faces the sensor is open when
+most of the object's own points whose rays cross it lie beyond it (:func:`_open_end`).
+Only a model larger than its object claims desk points (a ring as wide as the excess round
+its foot, within the window). Typed solids only (no planes, no
 ``unknown``), the supports' points only, each given at most once (to the first object
 in the result's order whose solid its ray meets); sizes and models stay as fitted, the
 point counts follow. With ``noise_model = fixed`` the window is the fixed threshold.
@@ -44,6 +50,12 @@ RAY_SAMPLES = 17
 #: The types whose solids claim points.
 SOLIDS = (PrimitiveType.CUBOID, PrimitiveType.CYLINDER, PrimitiveType.CONE,
           PrimitiveType.FRUSTUM, PrimitiveType.SPHERE)
+
+#: The types whose end may be open (cups, bowls, pots).
+CONTAINERS = (PrimitiveType.CYLINDER, PrimitiveType.FRUSTUM)
+#: An end is judged open or closed on at least this many of the object's points whose rays
+#: cross it (fewer: the end is seen edge-on or hardly at all, and counts as closed).
+MIN_OPEN_POINTS = 10
 
 _CUBOID_SIZES = DIMENSION_NAMES[PrimitiveType.CUBOID]
 
@@ -137,8 +149,14 @@ def give_back_band_points(pts: NDArray[np.float64], labels: NDArray[np.int64],
         above = height[:, None] + rate[:, None] * shift[None, :] > 0.0
         inside = inside_solid(o, s).reshape(len(near), RAY_SAMPLES)
         # The ray enters the solid within the window: a ray already inside it w in
-        # front of the point passed through the solid and saw the point past it.
-        given = near[~inside[:, 0] & (inside & above).any(axis=1)]
+        # front of the point passed through the solid and saw the point past it, but
+        # for one through the open end of a container.
+        entered = ~inside[:, 0]
+        cap = _open_end(o, take_rows(pts, np.flatnonzero(labels == o.id)), w) \
+            if o.type in CONTAINERS else None
+        if cap is not None:
+            entered |= _through_end(q, ray, *cap)
+        given = near[entered & (inside & above).any(axis=1)]
         if len(given):
             out[sup_rows[given]] = o.id
             free[given] = False
@@ -149,6 +167,57 @@ def give_back_band_points(pts: NDArray[np.float64], labels: NDArray[np.int64],
         result.objects = [dataclasses.replace(o, point_count=o.point_count + change[o.id])
                           if change.get(o.id) else o for o in result.objects]
     return out
+
+
+def _end_facing(p: Primitive) -> tuple[NDArray[np.float64], NDArray[np.float64], float] | None:
+    """Return the end of a round solid that faces the sensor (at the origin), or None.
+
+    As its centre (3,) [m], outward normal (3,) and radius [m].
+    """
+    outline = round_outline(p)
+    if outline is None:
+        return None
+    half_height, radius_at, _ = outline
+    axis = p.rotation[:, 2]
+    for sign in (1.0, -1.0):
+        centre = p.center + sign * half_height * axis
+        if float(sign * axis @ centre) < 0.0:
+            return centre, sign * axis, float(radius_at(np.array([sign * half_height]))[0])
+    return None
+
+
+def _through_end(q: NDArray[np.float64], ray: NDArray[np.float64], centre: NDArray[np.float64],
+                 normal: NDArray[np.float64], radius: float) -> NDArray[np.bool_]:
+    """Tell which rays (unit ``ray`` (n, 3) to points ``q``) cross the end disc before them."""
+    along = ray @ normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = float(centre @ normal) / along
+    hit = ray * t[:, None]
+    return (along < 0.0) & (t > 0.0) & (t < row_norms(q)) & \
+        (row_norms(hit - centre) < radius)
+
+
+def _open_end(p: Primitive, own: NDArray[np.float64], w: float
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64], float] | None:
+    """Return the end of ``p`` facing the sensor when it is open, or None.
+
+    Of the object's own points ``own`` (n, 3) [m] whose rays cross that end's disc (its
+    radius less ``w`` [m]), at least :data:`MIN_OPEN_POINTS`, most lie beyond it by more
+    than ``w``: the sensor sees through that end (a cup's or bowl's inner wall and
+    floor), where a closed end (a can's lid) holds them.
+    """
+    if p.type not in CONTAINERS or not len(own):
+        return None
+    end = _end_facing(p)
+    if end is None or end[2] <= w:
+        return None
+    centre, normal, radius = end
+    ray = own / row_norms(own)[:, None]
+    through = _through_end(own, ray, centre, normal, radius - w)
+    if np.count_nonzero(through) < MIN_OPEN_POINTS:
+        return None
+    beyond = row_norms(own[through]) - float(centre @ normal) / (ray[through] @ normal) > w
+    return end if np.mean(beyond) > 0.5 else None
 
 
 def _near(pts: NDArray[np.float64], rows: NDArray[np.int64], xz: list[NDArray[np.float32]],
