@@ -111,7 +111,8 @@ def give_back_band_points(pts: NDArray[np.float64], labels: NDArray[np.int64],
     solids = [o for o in result.objects if o.id not in supports and o.type in SOLIDS]
     if not solids:
         return labels
-    is_support = np.zeros(max(int(labels.max()), max(supports)) + 2, dtype=bool)
+    top = max(int(labels.max()), max(supports), max(o.id for o in solids))
+    is_support = np.zeros(top + 2, dtype=bool)
     is_support[np.fromiter(supports, dtype=np.int64) + 1] = True
     sup_rows = np.flatnonzero(is_support[labels + 1])
     if not len(sup_rows):
@@ -122,6 +123,11 @@ def give_back_band_points(pts: NDArray[np.float64], labels: NDArray[np.int64],
     plane_d = np.zeros(len(is_support) - 1)
     for sid, (normal, d) in supports.items():
         plane_normal[sid], plane_d[sid] = normal, d
+    # The points of the round solids whose end may be open, found in one pass.
+    is_container = np.zeros(len(is_support), dtype=bool)
+    is_container[[o.id + 1 for o in solids if o.type in CONTAINERS]] = True
+    container_rows = np.flatnonzero(is_container[labels + 1])
+    container_label = labels[container_rows]
     free = np.ones(len(sup_rows), dtype=bool)
     window = np.linspace(-1.0, 1.0, RAY_SAMPLES)
     out = labels.copy()
@@ -152,7 +158,7 @@ def give_back_band_points(pts: NDArray[np.float64], labels: NDArray[np.int64],
         # front of the point passed through the solid and saw the point past it, but
         # for one through the open end of a container.
         entered = ~inside[:, 0]
-        cap = _open_end(o, take_rows(pts, np.flatnonzero(labels == o.id)), w) \
+        cap = _open_end(o, take_rows(pts, container_rows[container_label == o.id]), w) \
             if o.type in CONTAINERS else None
         if cap is not None:
             entered |= _through_end(q, ray, *cap)
