@@ -79,12 +79,20 @@ def test_core_errors_reach_the_caller_unchanged(modeler):
     assert labels.max() >= 0
 
 
+def _dead(pid: int) -> bool:
+    """Tell whether process ``pid`` is gone or a zombie (reaped between two reads: gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().split()[2] == "Z"
+    except FileNotFoundError:
+        return True
+
+
 def test_a_killed_worker_fails_one_frame_and_the_next_is_modeled(modeler, scene_points):
     modeler.start()
     victim = _worker_pids(modeler)[0]
     os.kill(victim, signal.SIGKILL)
-    wait_until(lambda: not os.path.exists(f"/proc/{victim}") or
-               open(f"/proc/{victim}/stat").read().split()[2] == "Z", "the worker to die")
+    wait_until(lambda: _dead(victim), "the worker to die")
     with pytest.raises(RuntimeError, match="worker process died"):
         for _ in range(3):  # the pool notices the death within a call or two
             modeler(scene_points, ModelingParams())
