@@ -129,7 +129,6 @@ def give_back_band_points(pts: NDArray[np.float64], labels: NDArray[np.int64],
     container_rows = np.flatnonzero(is_container[labels + 1])
     container_label = labels[container_rows]
     free = np.ones(len(sup_rows), dtype=bool)
-    window = np.linspace(-1.0, 1.0, RAY_SAMPLES)
     out = labels.copy()
     gained: dict[int, int] = {}
     for o in solids:
@@ -143,26 +142,10 @@ def give_back_band_points(pts: NDArray[np.float64], labels: NDArray[np.int64],
         near, q = near[inner], q[inner]
         if not len(near):
             continue
-        # Samples along each ray within w of the point's depth (rows: points), kept on
-        # the sensor's side of the point's support plane.
-        ray = q / row_norms(q)[:, None]
-        shift = w * window
-        s = (q[:, None, :] + ray[:, None, :] * shift[None, :, None]).reshape(-1, 3)
         which = labels[sup_rows[near]]
-        normals = plane_normal[which]
-        height = np.einsum("ij,ij->i", q, normals) + plane_d[which]
-        rate = np.einsum("ij,ij->i", ray, normals)
-        above = height[:, None] + rate[:, None] * shift[None, :] > 0.0
-        inside = inside_solid(o, s).reshape(len(near), RAY_SAMPLES)
-        # The ray enters the solid within the window: a ray already inside it w in
-        # front of the point passed through the solid and saw the point past it, but
-        # for one through the open end of a container.
-        entered = ~inside[:, 0]
         cap = _open_end(o, take_rows(pts, container_rows[container_label == o.id]), w) \
             if o.type in CONTAINERS else None
-        if cap is not None:
-            entered |= _through_end(q, ray, *cap)
-        given = near[entered & (inside & above).any(axis=1)]
+        given = near[_rays_entering(o, q, plane_normal[which], plane_d[which], w, cap)]
         if len(given):
             out[sup_rows[given]] = o.id
             free[given] = False
@@ -173,6 +156,31 @@ def give_back_band_points(pts: NDArray[np.float64], labels: NDArray[np.int64],
         result.objects = [dataclasses.replace(o, point_count=o.point_count + change[o.id])
                           if change.get(o.id) else o for o in result.objects]
     return out
+
+
+def _rays_entering(o: Primitive, q: NDArray[np.float64], normals: NDArray[np.float64],
+                   offsets: NDArray[np.float64], w: float,
+                   cap: tuple[NDArray[np.float64], NDArray[np.float64], float] | None
+                   ) -> NDArray[np.bool_]:
+    """Tell which points ``q`` (n, 3) [m] the rays to which enter ``o``'s solid near them (n,).
+
+    Each ray is sampled at RAY_SAMPLES depths within ``w`` [m] of its point's, kept on the
+    sensor's side of the point's support plane (``normals`` (n, 3), ``offsets`` (n,)). It
+    enters there when some sample lies inside the solid and the nearest does not: a ray
+    already inside the solid in front of the window passed through it and saw the point
+    past it, but for one through the open end ``cap`` of a container (:func:`_open_end`).
+    """
+    ray = q / row_norms(q)[:, None]
+    shift = w * np.linspace(-1.0, 1.0, RAY_SAMPLES)
+    s = (q[:, None, :] + ray[:, None, :] * shift[None, :, None]).reshape(-1, 3)
+    height = np.einsum("ij,ij->i", q, normals) + offsets
+    rate = np.einsum("ij,ij->i", ray, normals)
+    above = height[:, None] + rate[:, None] * shift[None, :] > 0.0
+    inside = inside_solid(o, s).reshape(len(q), RAY_SAMPLES)
+    entered = ~inside[:, 0]
+    if cap is not None:
+        entered |= _through_end(q, ray, *cap)
+    return entered & (inside & above).any(axis=1)
 
 
 def _end_facing(p: Primitive) -> tuple[NDArray[np.float64], NDArray[np.float64], float] | None:
