@@ -23,7 +23,10 @@ from scipy.spatial import cKDTree
 
 from geomodel_ros.core.confidence import estimate_confidence, round_outline, surface_distance
 from geomodel_ros.core.fastmath import group_by_label, pair_components, take_rows
+from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.fitting.cloud import Plane
+from geomodel_ros.core.fitting.levels import nearest_support_below
+from geomodel_ros.core.footprint import RayDirections, footprint_split, seen_through
 from geomodel_ros.core.joins import ROUND_TYPES
 from geomodel_ros.core.model_graph import SLIVER_SHARE
 from geomodel_ros.core.noise import NoiseEstimate, is_fragment, object_params
@@ -73,6 +76,9 @@ INSIDE_DEPTH_FACTOR = 2.0
 #: a standing can reaches 2.4 radii (seed 25, kinect-real: 85 % within).
 CAP_SHARE = 0.9
 CAP_RIM = 0.25
+#: Seeds whose two sides are modeled apart (:func:`_two_models`): a level's, the line
+#: parting a footprint (:func:`_seeds`).
+APART = ("level", "footprint")
 #: An ``unknown`` object (no model to leave points off), or a typed one whose group off
 #: its model gives no split, is split from the models of at most this many of its
 #: largest faces, tried in turn (:func:`_seeds`).
@@ -273,7 +279,11 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     levels (``Primitive.levels``: a box's top with part of the segment rising beyond it,
     :mod:`~geomodel_ros.core.fitting.levels`) are modeled apart, whether or not points
     lie off the model (a box on a box with a side flush, one box holding both; a can on a
-    box it reaches down through). The segment is split when both parts are typed
+    box it reaches down through). Before all, a cuboid the sensor saw through (free space
+    inside it: two boxes side by side at different headings,
+    :mod:`~geomodel_ros.core.footprint`) is parted by the line across its footprint into
+    two boxes turned against each other, neither of them seen through. The segment is
+    split when both parts are typed
     and neither faces of one box nor bands of one round body's side, each model explains
     its own part (inlier ratio >= ``min_inlier_ratio``) and neither part lies in
     the other's body (:func:`_two_bodies`, :func:`_in_body`: a cup's inner wall, a bowl's
@@ -283,7 +293,10 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     """
     may = {o.id: _may_hold_two(o, params, noise) for o in result.objects
            if o.id not in supports and o.type != PrimitiveType.PLANE}
-    candidates = [o for o in result.objects if may.get(o.id) or (o.id in may and o.levels)]
+    seen_through = _SeenThrough(pts, params, noise)
+    seen = {o.id for o in result.objects if o.id in may and seen_through(o, labels)}
+    candidates = [o for o in result.objects
+                  if may.get(o.id) or (o.id in may and (o.levels or o.id in seen))]
     if not candidates:
         return labels
     labels = labels.copy()
@@ -294,9 +307,14 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     for o in candidates:
         part = parts[o.id]
         split = None
-        for group, kind in _seeds(o, part.points, labels, params, noise, model, may[o.id]):
+        for group, kind in _seeds(o, part.points, labels, params, noise, model, may[o.id],
+                                  o.id in seen, list(supports.values())):
             split = _two_models(o, part, group, kind, next_id, labels, params, noise,
                                 model)
+            # The footprint's boxes are two where neither model is seen through.
+            if split is not None and kind == "footprint" and seen_through.either(
+                    split[0], split[1], part.rows, split[2], next_id, labels):
+                split = None
             if split is not None:
                 break
         if split is None:
@@ -311,6 +329,45 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     if added:
         result.objects = [by_id[o.id] for o in result.objects] + added
     return labels
+
+
+class _SeenThrough:
+    """Which cuboid models of a frame the sensor saw through (rays found on first use).
+
+    A cuboid is seen through when at least ``seg_min_cluster_points`` returns of other
+    labels lie beyond its solid shrunk by half its ``ransac_threshold``
+    (:func:`~geomodel_ros.core.footprint.seen_through`): an object's worth of free space
+    inside it.
+    """
+
+    def __init__(self, pts: NDArray[np.float64], params: ModelingParams,
+                 noise: NoiseEstimate | None) -> None:
+        self.pts, self.params, self.noise = pts, params, noise
+        self._rays: RayDirections | None = None
+
+    def __call__(self, p: Primitive, labels: NDArray[np.int64]) -> bool:
+        """Tell whether the model ``p`` of label ``p.id`` (``labels`` (N,)) is seen through."""
+        if p.type != PrimitiveType.CUBOID:
+            return False
+        if self._rays is None:
+            self._rays = RayDirections(self.pts)
+        depth = float(np.linalg.norm(p.center))
+        w = (self.params if self.noise is None else object_params(
+            self.params, self.noise, depth)).ransac_threshold
+        return seen_through(p, self._rays, labels, w) >= self.params.seg_min_cluster_points
+
+    def either(self, first: Primitive, second: Primitive, rows: NDArray[np.int64],
+               in_second: NDArray[np.bool_], second_id: int, labels: NDArray[np.int64]
+               ) -> bool:
+        """Tell whether either model of a split is seen through.
+
+        ``rows`` (n,) of the split object (``first.id``), ``in_second`` (n,) marking those
+        of ``second`` (labelled ``second_id``) in a copy of ``labels``.
+        """
+        split = labels.copy()
+        split[rows] = first.id
+        split[rows[in_second]] = second_id
+        return self(first, split) or self(dataclasses.replace(second, id=second_id), split)
 
 
 def _may_hold_two(o: Primitive, params: ModelingParams, noise: NoiseEstimate | None
@@ -355,11 +412,17 @@ def _off_group(o: Primitive, points: NDArray[np.float64], oparams: ModelingParam
 
 def _seeds(o: Primitive, points: NDArray[np.float64], labels: NDArray[np.int64],
            params: ModelingParams, noise: NoiseEstimate | None, model: PartModeler,
-           off: bool = True) -> Iterator[tuple[NDArray[np.bool_], str]]:
+           off: bool = True, seen: bool = False, supports: list[Plane] | None = None
+           ) -> Iterator[tuple[NDArray[np.bool_], str]]:
     """Yield the masks (n,) of ``points`` from which a second part is sought, and their kind.
 
-    With ``off`` (enough points off the model, :func:`_may_hold_two`): ``"off"``, a typed
-    object's group off its model (:func:`_off_group`), first; then ``"face"``, the
+    With ``seen`` (a box the sensor saw through, :class:`_SeenThrough`), first
+    ``"footprint"``: one side of the line that parts the footprint of ``points`` on the
+    support below (of ``supports``) into two rectangles of least joint area
+    (:func:`~geomodel_ros.core.footprint.footprint_split`); both sides are modeled apart
+    and kept as the line parts them. With ``off`` (enough points off the model,
+    :func:`_may_hold_two`): ``"off"``, a typed object's group off its model
+    (:func:`_off_group`); then ``"face"``, the
     object's largest faces (at most :data:`FACE_SEEDS`, each at least
     ``seg_min_cluster_points``), whose models take the place of the object's
     (:func:`_two_models`); the faces are found only when asked. Last, ``"level"``: the
@@ -368,6 +431,14 @@ def _seeds(o: Primitive, points: NDArray[np.float64], labels: NDArray[np.int64],
     modeled apart.
     """
     oparams = _params_at(params, noise, points)
+    if seen:
+        support = nearest_support_below(points, supports or [], oparams.ransac_threshold)
+        if support is not None:
+            e1, e2 = perpendicular_basis(support[0])
+            side = footprint_split(np.stack([points @ e1, points @ e2], axis=1),
+                                   oparams.seg_min_cluster_points)
+            if side is not None:
+                yield side, "footprint"
     if off:
         if o.type != PrimitiveType.UNKNOWN:
             group = _off_group(o, points, oparams)
@@ -424,7 +495,7 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], kind: str,
             SPLIT_STREAM, o.id, job[2]), both), [
             (~in_second, o.id, 1 + 2 * k), (in_second, new_id, 2 + 2 * k)])
 
-    if kind == "level":  # the two sides of the level modeled apart
+    if kind in APART:  # the two sides of the level or the line modeled apart
         first = model(points[~group], o.id, (SPLIT_STREAM, o.id, 2 * SPLIT_ROUNDS + 1),
                       context(group))
         if first.type == PrimitiveType.UNKNOWN:
@@ -445,10 +516,12 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], kind: str,
     in_second = group
     kept = None  # the last pair of typed models fitted each to its own part
     if not _typed(second) or _one_body(first, second, params.angle_tolerance) \
-            or _layers(kind, first, second, points, params, noise) \
+            or _parts_of_one_box(kind, first, second, points, params, noise) \
             or _part_in_body(first, second, in_second, points, params, noise):
         return None
-    for k in range(SPLIT_ROUNDS):
+    if kind == "footprint":  # the line's parts are final
+        kept = (first, second, in_second)
+    for k in range(0 if kind == "footprint" else SPLIT_ROUNDS):
         nearer = surface_distance(second, points) < surface_distance(first, points)
         size = int(np.count_nonzero(nearer))
         if min(size, len(points) - size) < params.seg_min_cluster_points:
@@ -464,20 +537,38 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], kind: str,
         first, second = (new if _typed(new) else old
                          for new, old in zip(refit, (first, second)))
     if kept is None or not _two_bodies(*kept, points, params, noise) or \
-            _layers(kind, kept[0], kept[1], points, params, noise):
+            _parts_of_one_box(kind, kept[0], kept[1], points, params, noise):
         return None
     return kept
 
 
-def _layers(kind: str, first: Primitive, second: Primitive, points: NDArray[np.float64],
+def _parts_of_one_box(kind: str, first: Primitive, second: Primitive, points: NDArray[np.float64],
             params: ModelingParams, noise: NoiseEstimate | None) -> bool:
-    """Tell whether a level's two models are two layers of one box (:func:`_layers_of_a_box`).
+    """Tell whether two models of parts modeled apart may be parts of one box, or are no pair.
 
-    Only for ``kind`` ``"level"``: a level across one box (its lower part narrower to the
-    sensor behind an object in front) cuts it in two.
+    Only for the ``kind`` of :data:`APART`. A level across one box (its lower part
+    narrower to the sensor behind an object in front) cuts it into two layers
+    (:func:`_layers_of_a_box`). The footprint's line across one box whose model reached
+    too far (its hidden side completed too long, and so seen through) cuts it into two
+    cuboids of one heading, and one of them may keep the excess (Kinect-class clutter
+    seed 79: a box 145 x 49 x 103 mm parted into cuboids 66 and 49 mm deep): the boxes a
+    footprint parts are two boxes (the line was sought for two rectangles: a box's end
+    cut off comes back as a cylinder too, kinect-real seed 136) turned against each other
+    (:func:`_parallel_boxes`).
     """
+    if kind == "footprint":
+        return first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID \
+            or _parallel_boxes(first, second, params.angle_tolerance)
     return kind == "level" and _layers_of_a_box(
         first, second, params.angle_tolerance, _params_at(params, noise, points).ransac_threshold)
+
+
+def _parallel_boxes(first: Primitive, second: Primitive, angle_tolerance: float) -> bool:
+    """Tell whether two models are cuboids whose axes are parallel (within ``angle_tolerance``)."""
+    if first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID:
+        return False
+    turn = np.abs(first.rotation.T @ second.rotation)  # |cos| between the axes
+    return bool(np.all(turn.max(axis=1) >= math.cos(angle_tolerance)))
 
 
 def _layers_of_a_box(first: Primitive, second: Primitive, angle_tolerance: float,
@@ -488,11 +579,9 @@ def _layers_of_a_box(first: Primitive, second: Primitive, angle_tolerance: float
     ``threshold`` [m] of the other's along two of its axes: one section, the two on top
     of each other or side by side.
     """
-    if first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID:
+    if not _parallel_boxes(first, second, angle_tolerance):
         return False
-    turn = np.abs(first.rotation.T @ second.rotation)  # |cos| between the axes
-    if not np.all(turn.max(axis=1) >= math.cos(angle_tolerance)):
-        return False
+    turn = np.abs(first.rotation.T @ second.rotation)
     names = ("length", "width", "height")
     half1 = 0.5 * np.array([first.dimensions[k] for k in names])
     half2 = 0.5 * np.array([second.dimensions[k] for k in names])[turn.argmax(axis=1)]
