@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 
 from geomodel_ros.core.footprint import RayDirections, footprint_split, seen_through
+from geomodel_ros.core.modeling import model_scene
+from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 from geomodel_ros.tools.bench_clutter import OPTIONAL_NOISE
 from geomodel_ros.tools.synth.clutter import (KINECT_CAMERA, CAMERA_ELEVATION, camera_pose,
@@ -223,3 +225,16 @@ def test_a_box_whose_model_reaches_too_far_stays_whole():
     mine = labels[scene.label_image.ravel() == 14]
     assert np.count_nonzero((mine != obj.id) & (mine >= 0)) < 50
 
+
+def test_the_desk_below_a_wrong_round_model_stays_the_desk_s():
+    # From 45 deg above the desk and 1.5 rad round it under kinect-real noise the two
+    # boxes come as one segment modeled as a cylinder 279 mm in radius, 15 % of its turn
+    # seen: no container looked into, so no open top, and none of the 216,000 desk points
+    # below it is given to it as its floor (78,000 were).
+    scene = _two_boxes(camera_pose(0.9, math.radians(45.0), 1.5),
+                       OPTIONAL_NOISE["kinect-real"])
+    labels, result = model_scene(scene.organized, ModelingParams())
+    desk = scene.label_image.ravel() == 0
+    supports = set(result.supports)
+    taken = labels[desk & (labels >= 0) & ~np.isin(labels, list(supports))]
+    assert len(taken) < 0.01 * np.count_nonzero(desk)
