@@ -26,7 +26,7 @@ from geomodel_ros.core.fastmath import group_by_label, pair_components, take_row
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.fitting.cloud import Plane
 from geomodel_ros.core.fitting.levels import nearest_support_below
-from geomodel_ros.core.footprint import RayDirections, footprint_split, seen_through
+from geomodel_ros.core.footprint import Returns, footprint_split, seen_through
 from geomodel_ros.core.joins import ROUND_TYPES
 from geomodel_ros.core.model_graph import SLIVER_SHARE
 from geomodel_ros.core.noise import NoiseEstimate, is_fragment, object_params
@@ -332,7 +332,7 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
 
 
 class _SeenThrough:
-    """Which cuboid models of a frame the sensor saw through (rays found on first use).
+    """Which cuboid models of a frame the sensor saw through (returns set up on first use).
 
     A cuboid is seen through when at least ``seg_min_cluster_points`` returns of other
     labels lie beyond its solid shrunk by half its ``ransac_threshold``
@@ -343,18 +343,18 @@ class _SeenThrough:
     def __init__(self, pts: NDArray[np.float64], params: ModelingParams,
                  noise: NoiseEstimate | None) -> None:
         self.pts, self.params, self.noise = pts, params, noise
-        self._rays: RayDirections | None = None
+        self._returns: Returns | None = None
 
     def __call__(self, p: Primitive, labels: NDArray[np.int64]) -> bool:
         """Tell whether the model ``p`` of label ``p.id`` (``labels`` (N,)) is seen through."""
         if p.type != PrimitiveType.CUBOID:
             return False
-        if self._rays is None:
-            self._rays = RayDirections(self.pts)
+        if self._returns is None:
+            self._returns = Returns(self.pts)
         depth = float(np.linalg.norm(p.center))
         w = (self.params if self.noise is None else object_params(
             self.params, self.noise, depth)).ransac_threshold
-        return seen_through(p, self._rays, labels, w) >= self.params.seg_min_cluster_points
+        return seen_through(p, self._returns, labels, w) >= self.params.seg_min_cluster_points
 
     def either(self, first: Primitive, second: Primitive, rows: NDArray[np.int64],
                in_second: NDArray[np.bool_], second_id: int, labels: NDArray[np.int64]
