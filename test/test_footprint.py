@@ -234,8 +234,9 @@ def test_a_box_whose_model_reaches_too_far_stays_whole():
 def test_a_box_seen_through_is_not_cut_into_two_of_one_heading_or_a_box_and_no_box(
         noise, seed, gt_id):
     # Each box's model reaches too far on its hidden side and is seen through; the line
-    # across its footprint leaves two cuboids of one heading (seed 79, clutter noise) or a
-    # cuboid and a cylinder (held-out seed 136): no two boxes turned against each other.
+    # across its footprint leaves two cuboids of one heading, one of them still seen
+    # through (seed 79, clutter noise), or a cuboid and a cylinder (held-out seed 136):
+    # no two boxes that explain the free space.
     scene = render_clutter(seed, KINECT_NOISE if noise == "kinect-class"
                            else OPTIONAL_NOISE[noise], KINECT_CAMERA, CAMERA_ELEVATION)
     obj, labels = best_object_and_labels(scene, gt_id)

@@ -282,7 +282,7 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     box it reaches down through). Before all, a cuboid the sensor saw through (free space
     inside it: two boxes side by side at different headings,
     :mod:`~geomodel_ros.core.footprint`) is parted by the line across its footprint into
-    two boxes turned against each other, neither of them seen through. The segment is
+    two boxes, neither of them seen through. The segment is
     split when both parts are typed
     and neither faces of one box nor bands of one round body's side, each model explains
     its own part (inlier ratio >= ``min_inlier_ratio``) and neither part lies in
@@ -420,7 +420,7 @@ def _seeds(o: Primitive, points: NDArray[np.float64], labels: NDArray[np.int64],
     ``"footprint"``: one side of the line that parts the footprint of ``points`` on the
     support below (of ``supports``) into two rectangles of least joint area
     (:func:`~geomodel_ros.core.footprint.footprint_split`); both sides are modeled apart
-    and kept as the line parts them. With ``off`` (enough points off the model,
+    (and then handed points as any pair). With ``off`` (enough points off the model,
     :func:`_may_hold_two`): ``"off"``, a typed object's group off its model
     (:func:`_off_group`); then ``"face"``, the
     object's largest faces (at most :data:`FACE_SEEDS`, each at least
@@ -519,9 +519,7 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], kind: str,
             or _parts_of_one_box(kind, first, second, points, params, noise) \
             or _part_in_body(first, second, in_second, points, params, noise):
         return None
-    if kind == "footprint":  # the line's parts are final
-        kept = (first, second, in_second)
-    for k in range(0 if kind == "footprint" else SPLIT_ROUNDS):
+    for k in range(SPLIT_ROUNDS):
         nearer = surface_distance(second, points) < surface_distance(first, points)
         size = int(np.count_nonzero(nearer))
         if min(size, len(points) - size) < params.seg_min_cluster_points:
@@ -542,33 +540,21 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], kind: str,
     return kept
 
 
-def _parts_of_one_box(kind: str, first: Primitive, second: Primitive, points: NDArray[np.float64],
-            params: ModelingParams, noise: NoiseEstimate | None) -> bool:
-    """Tell whether two models of parts modeled apart may be parts of one box, or are no pair.
+def _parts_of_one_box(kind: str, first: Primitive, second: Primitive,
+                      points: NDArray[np.float64], params: ModelingParams,
+                      noise: NoiseEstimate | None) -> bool:
+    """Tell whether two models of parts modeled apart may be parts of one box, or no pair.
 
     Only for the ``kind`` of :data:`APART`. A level across one box (its lower part
     narrower to the sensor behind an object in front) cuts it into two layers
-    (:func:`_layers_of_a_box`). The footprint's line across one box whose model reached
-    too far (its hidden side completed too long, and so seen through) cuts it into two
-    cuboids of one heading, and one of them may keep the excess (Kinect-class clutter
-    seed 79: a box 145 x 49 x 103 mm parted into cuboids 66 and 49 mm deep): the boxes a
-    footprint parts are two boxes (the line was sought for two rectangles: a box's end
-    cut off comes back as a cylinder too, kinect-real seed 136) turned against each other
-    (:func:`_parallel_boxes`).
+    (:func:`_layers_of_a_box`). The footprint's line was sought for two rectangles: its
+    parts are two boxes or no pair (the end of a box whose model reached too far, cut
+    off, comes back as a cylinder: kinect-real seed 136).
     """
     if kind == "footprint":
-        return first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID \
-            or _parallel_boxes(first, second, params.angle_tolerance)
+        return first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID
     return kind == "level" and _layers_of_a_box(
         first, second, params.angle_tolerance, _params_at(params, noise, points).ransac_threshold)
-
-
-def _parallel_boxes(first: Primitive, second: Primitive, angle_tolerance: float) -> bool:
-    """Tell whether two models are cuboids whose axes are parallel (within ``angle_tolerance``)."""
-    if first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID:
-        return False
-    turn = np.abs(first.rotation.T @ second.rotation)  # |cos| between the axes
-    return bool(np.all(turn.max(axis=1) >= math.cos(angle_tolerance)))
 
 
 def _layers_of_a_box(first: Primitive, second: Primitive, angle_tolerance: float,
@@ -579,9 +565,11 @@ def _layers_of_a_box(first: Primitive, second: Primitive, angle_tolerance: float
     ``threshold`` [m] of the other's along two of its axes: one section, the two on top
     of each other or side by side.
     """
-    if not _parallel_boxes(first, second, angle_tolerance):
+    if first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID:
         return False
-    turn = np.abs(first.rotation.T @ second.rotation)
+    turn = np.abs(first.rotation.T @ second.rotation)  # |cos| between the axes
+    if not np.all(turn.max(axis=1) >= math.cos(angle_tolerance)):
+        return False
     names = ("length", "width", "height")
     half1 = 0.5 * np.array([first.dimensions[k] for k in names])
     half2 = 0.5 * np.array([second.dimensions[k] for k in names])[turn.argmax(axis=1)]

@@ -6,17 +6,17 @@ the segmentation keeps them as one segment and one upright cuboid holds both (ki
 clutter seeds 75, 80 and 98: boxes turned 13-45 deg to each other, one cuboid of their
 joint extents). No point lies off that model, but its solid holds free space: where the
 two footprints leave the rectangle round both empty, the sensor looked through the solid
-at the support or at objects behind it (:func:`seen_through`; 459-1057 points there,
-against at most 24 for a box segmented alone whose model is right).
+at the support or at objects behind it (:func:`seen_through`: 580-1,278 returns there,
+under 70 for the boxes segmented alone whose models are right).
 
 Two convex footprints side by side are parted by a straight line, and the line parallel
 to a side of one of them that parts their points best leaves two rectangles of least
 joint area (:func:`footprint_split`: a box cut in two keeps its area, two boxes turned to
 each other lose what the rectangle round both held empty). The two sides are then modeled
 apart and must pass every test of two bodies in one segment
-(:func:`~geomodel_ros.core.compounds.split_compounds`), among them that they are no two
-layers of one box: a single box whose model reaches too far (its hidden side completed
-too long, also seen through) comes back as two cuboids of one section and stays whole.
+(:func:`~geomodel_ros.core.compounds.split_compounds`), be two boxes, and leave no free
+space inside either: a single box whose model reaches too far (its hidden side completed
+too long, also seen through) keeps the excess in one of its parts and stays whole.
 """
 
 from __future__ import annotations
@@ -38,10 +38,6 @@ ANGLE_STEP = math.radians(2.0)
 #: The footprint is searched on about this many of the object's points (every k-th): the
 #: rectangles are set by the outline, which a thousand points trace to a few mm.
 SPLIT_SAMPLE = 1000
-#: ... and the lines whose parts' area on the sample comes within this share of the
-#: least are placed again on all the points (a sample's rectangles are a little smaller,
-#: by different amounts for different lines).
-NEAR_BEST = 0.05
 #: The rectangles' sides and the parting lines run along the hull's longest edges
 #: (summed per direction step), at most this many directions, and across them.
 LINE_DIRECTIONS = 4
@@ -119,8 +115,9 @@ def footprint_split(xy: NDArray[np.float64], min_points: int) -> NDArray[np.bool
     lines run along and across the hull's longest edges (:func:`_hull_directions`): a
     box's sides seen round the footprint are edges of its hull. Each side's area is that
     of its least rectangle over those directions, for all parting positions along a line
-    at once (running extremes of the points sorted across it). The lines are tried on
-    about :data:`SPLIT_SAMPLE` of the points, the best (:data:`NEAR_BEST`) on all.
+    at once (running extremes of the points sorted across it). The line's direction is
+    chosen on about :data:`SPLIT_SAMPLE` of the points (directions tied there each tried
+    again), its position on all of them.
     """
     n = len(xy)
     if n < 2 * min_points:
@@ -135,10 +132,10 @@ def footprint_split(xy: NDArray[np.float64], min_points: int) -> NDArray[np.bool
     areas = np.array([_best_cut(sample @ basis, j, least)[0] for j in range(len(turns))])
     if not np.isfinite(areas.min()):
         return None
-    # The lines within NEAR_BEST of the best on the sample are placed on all the points.
+    # Lines of different directions may part the sample alike (a tie); each is placed
+    # on all the points, where they differ.
     full = xy @ basis
-    found = [_best_cut(full, int(j), min_points)
-             for j in np.flatnonzero(areas <= (1.0 + NEAR_BEST) * areas.min())]
+    found = [_best_cut(full, int(j), min_points) for j in np.flatnonzero(areas == areas.min())]
     return min(found, key=lambda f: f[0])[1]
 
 
