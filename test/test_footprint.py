@@ -16,6 +16,7 @@ import math
 import numpy as np
 import pytest
 
+from geomodel_ros.core.compounds import _SeenThrough
 from geomodel_ros.core.footprint import Returns, footprint_split, seen_through
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams
@@ -154,6 +155,22 @@ def test_rows_without_a_return_and_other_types_count_nothing():
     assert seen_through(_box((0.0, 0.0, 1.0), 0.004), rays, labels, w) == 0
 
 
+@pytest.mark.parametrize("seen_first, seen_second", [(True, False), (False, True),
+                                                     (False, False)])
+def test_a_split_is_seen_through_when_either_part_is(seen_first, seen_second):
+    # The wall of the test above; a cube on the axis in front of it is seen through, one
+    # 0.5 m aside (nothing behind it) is not. The split object's own rows (the first
+    # two) are relabelled to the two parts; every other return is the wall's.
+    wall = _wall(1.5)
+    labels = np.full(len(wall), 7)
+    seen = _SeenThrough(wall, ModelingParams(), None)
+    first = _box((0.0, 0.0, 1.0) if seen_first else (0.5, 0.0, 1.0), 0.1, oid=1)
+    second = _box((0.0, 0.0, 1.0) if seen_second else (-0.5, 0.0, 1.0), 0.1, oid=1)
+    rows, in_second = np.array([0, 1]), np.array([False, True])
+    assert seen.either(first, second, rows, in_second, 9, labels) == (
+        seen_first or seen_second)
+
+
 # --------------------------------------------------------------------------- scenes
 def _touching(first, second, direction):
     """``second`` moved along ``direction`` [rad] until it just clears ``first``."""
@@ -267,6 +284,19 @@ def test_a_can_beside_a_box_from_low_is_parted_off_as_before():
     assert _iou(labels, scene, 12, can.id) > 0.95
     assert _iou(labels, scene, 1, int(np.bincount(
         labels[(scene.label_image.ravel() == 1) & (labels >= 0)]).argmax())) > 0.95
+
+
+def test_a_can_on_a_box_seen_through_is_parted_at_the_level_as_before():
+    # Kinect-real clutter seed 29: a can (r 30 mm) on a box (69 x 103 x 104 mm), one
+    # cuboid seen through. The footprint's line leaves a cylinder reaching down through
+    # the box and a plane: no two boxes. The level at the box's top parts them.
+    scene = render_clutter(29, OPTIONAL_NOISE["kinect-real"], KINECT_CAMERA, CAMERA_ELEVATION)
+    assert scene.bases[8] == 2
+    can, labels = best_object_and_labels(scene, 8)
+    assert can.type == "cylinder", can.reason
+    assert _iou(labels, scene, 8, can.id) > 0.9
+    box_id = int(np.bincount(labels[(scene.label_image.ravel() == 2) & (labels >= 0)]).argmax())
+    assert box_id != can.id
 
 
 def test_the_desk_below_a_wrong_round_model_stays_the_desk_s():
