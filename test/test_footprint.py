@@ -232,6 +232,18 @@ def test_kinect_real_clutter_boxes_side_by_side_are_two(seed, pair):
     assert found[0] != found[1]
 
 
+def test_the_line_s_parts_keep_their_sizes():
+    # Kinect-real seed 80's box 2 (141 x 64 x 103 mm at 1.2 m) beside box 1, whose top
+    # continues its own: handed points by distance across the contact round by round it
+    # came out 16 mm too deep. As the line parts them, its sizes are within the benchmark's
+    # p90 size error under that noise (6.5 mm).
+    scene = render_clutter(80, OPTIONAL_NOISE["kinect-real"], KINECT_CAMERA, CAMERA_ELEVATION)
+    obj, _ = best_object_and_labels(scene, 2)
+    truth = scene.objects[2].dimensions
+    assert _box_sizes(obj) == pytest.approx(
+        sorted(truth[k] for k in ("length", "width", "height")), abs=6.5 * MM)
+
+
 def test_a_box_whose_model_reaches_too_far_stays_whole():
     # Kinect-real clutter seed 72's box 14 (116 x 80 x 78 mm at 0.7 m): its cuboid is
     # 16 mm too wide and seen through (633 returns), but it is one box: the line's two
@@ -246,14 +258,16 @@ def test_a_box_whose_model_reaches_too_far_stays_whole():
 
 @pytest.mark.parametrize("noise, seed, gt_id", [
     ("kinect-class", 79, 6),   # 145 x 49 x 103 mm: parted into cuboids 66 and 49 mm deep
+    ("kinect-class", 8, 10),   # 92 x 111 x 54 mm: parted into two cuboids of one heading
+    ("kinect-class", 30, 6),   # 99 x 111 x 58 mm: likewise
     ("kinect-real", 136, 16),  # 144 x 45 x 51 mm: parted into a cuboid and a cylinder
 ])
 def test_a_box_seen_through_is_not_cut_into_two_of_one_heading_or_a_box_and_no_box(
         noise, seed, gt_id):
     # Each box's model reaches too far on its hidden side and is seen through; the line
-    # across its footprint leaves two cuboids of one heading, one of them still seen
-    # through (seed 79, clutter noise), or a cuboid and a cylinder (held-out seed 136):
-    # no two boxes that explain the free space.
+    # across its footprint leaves two cuboids of one heading (seeds 79, 8, 30, clutter
+    # noise) or a cuboid and a cylinder (held-out seed 136): no two boxes turned against
+    # each other.
     scene = render_clutter(seed, KINECT_NOISE if noise == "kinect-class"
                            else OPTIONAL_NOISE[noise], KINECT_CAMERA, CAMERA_ELEVATION)
     obj, labels = best_object_and_labels(scene, gt_id)

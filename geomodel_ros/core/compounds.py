@@ -282,7 +282,7 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     box it reaches down through). Before all, a cuboid the sensor saw through (free space
     inside it: two boxes side by side at different headings,
     :mod:`~geomodel_ros.core.footprint`) is parted by the line across its footprint into
-    two boxes, neither of them seen through. The segment is
+    two boxes turned against each other, neither of them seen through. The segment is
     split when both parts are typed
     and neither faces of one box nor bands of one round body's side, each model explains
     its own part (inlier ratio >= ``min_inlier_ratio``) and neither part lies in
@@ -420,7 +420,9 @@ def _seeds(o: Primitive, points: NDArray[np.float64], labels: NDArray[np.int64],
     ``"footprint"``: one side of the line that parts the footprint of ``points`` on the
     support below (of ``supports``) into two rectangles of least joint area
     (:func:`~geomodel_ros.core.footprint.footprint_split`); both sides are modeled apart
-    (and then handed points as any pair). With ``off`` (enough points off the model,
+    and kept as the line parts them (handed points by distance, two boxes whose tops
+    continue each other's pass points across the contact round by round: seed 80's box
+    took 16 mm of its neighbour). With ``off`` (enough points off the model,
     :func:`_may_hold_two`): ``"off"``, a typed object's group off its model
     (:func:`_off_group`); then ``"face"``, the
     object's largest faces (at most :data:`FACE_SEEDS`, each at least
@@ -519,7 +521,9 @@ def _two_models(o: Primitive, part: _Part, group: NDArray[np.bool_], kind: str,
             or _parts_of_one_box(kind, first, second, points, params, noise) \
             or _part_in_body(first, second, in_second, points, params, noise):
         return None
-    for k in range(SPLIT_ROUNDS):
+    if kind == "footprint":  # the line's parts are final
+        kept = (first, second, in_second)
+    for k in range(0 if kind == "footprint" else SPLIT_ROUNDS):
         nearer = surface_distance(second, points) < surface_distance(first, points)
         size = int(np.count_nonzero(nearer))
         if min(size, len(points) - size) < params.seg_min_cluster_points:
@@ -549,12 +553,24 @@ def _parts_of_one_box(kind: str, first: Primitive, second: Primitive,
     narrower to the sensor behind an object in front) cuts it into two layers
     (:func:`_layers_of_a_box`). The footprint's line was sought for two rectangles: its
     parts are two boxes or no pair (the end of a box whose model reached too far, cut
-    off, comes back as a cylinder: kinect-real seed 136).
+    off, comes back as a cylinder: kinect-real seed 136), and two boxes turned against
+    each other (:func:`_parallel_boxes`): a box cut across its own sides comes back as two
+    of one heading, neither seen through once points have changed hands (Kinect-class
+    seeds 8 and 30: boxes of 92 x 111 x 54 and 99 x 111 x 58 mm cut in two).
     """
     if kind == "footprint":
-        return first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID
+        return first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID \
+            or _parallel_boxes(first, second, params.angle_tolerance)
     return kind == "level" and _layers_of_a_box(
         first, second, params.angle_tolerance, _params_at(params, noise, points).ransac_threshold)
+
+
+def _parallel_boxes(first: Primitive, second: Primitive, angle_tolerance: float) -> bool:
+    """Tell whether two models are cuboids with parallel axes (within ``angle_tolerance``)."""
+    if first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID:
+        return False
+    turn = np.abs(first.rotation.T @ second.rotation)  # |cos| between the axes
+    return bool(np.all(turn.max(axis=1) >= math.cos(angle_tolerance)))
 
 
 def _layers_of_a_box(first: Primitive, second: Primitive, angle_tolerance: float,
@@ -565,11 +581,9 @@ def _layers_of_a_box(first: Primitive, second: Primitive, angle_tolerance: float
     ``threshold`` [m] of the other's along two of its axes: one section, the two on top
     of each other or side by side.
     """
-    if first.type != PrimitiveType.CUBOID or second.type != PrimitiveType.CUBOID:
+    if not _parallel_boxes(first, second, angle_tolerance):
         return False
-    turn = np.abs(first.rotation.T @ second.rotation)  # |cos| between the axes
-    if not np.all(turn.max(axis=1) >= math.cos(angle_tolerance)):
-        return False
+    turn = np.abs(first.rotation.T @ second.rotation)
     names = ("length", "width", "height")
     half1 = 0.5 * np.array([first.dimensions[k] for k in names])
     half2 = 0.5 * np.array([second.dimensions[k] for k in names])[turn.argmax(axis=1)]
