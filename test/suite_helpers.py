@@ -53,3 +53,15 @@ def can_cylinder(scene, gt_id, tol_radius, tol_height):
     assert abs(obj.dimensions["radius"] - truth["radius"]) <= tol_radius, obj.dimensions
     assert abs(obj.dimensions["height"] - truth["height"]) <= tol_height, obj.dimensions
     return obj
+
+
+def scene_iou(labels, scene, gt_id, obj_id):
+    """Return the IoU of rendered object ``gt_id``'s pixels and those labelled ``obj_id``."""
+    gt = scene.label_image.ravel() == gt_id
+    mine = labels == obj_id
+    return np.count_nonzero(gt & mine) / np.count_nonzero(gt | mine)
+
+
+def box_sizes(obj):
+    """Return a cuboid's three sizes, sorted [m]."""
+    return sorted(obj.dimensions[k] for k in ("length", "width", "height"))

@@ -25,7 +25,7 @@ from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.core.primitives import Confidence, ModelingResult, Primitive, PrimitiveType
 from geomodel_ros.tools.bench_clutter import OPTIONAL_NOISE
 from geomodel_ros.tools.synth.clutter import render_clutter
-from suite_helpers import best_object_and_labels
+from suite_helpers import best_object_and_labels, scene_iou
 
 MM = 1e-3
 DESK_Y = 0.4
@@ -256,12 +256,6 @@ def test_inside_a_solid_is_inside_its_surface(kind):
     assert not inside_solid(prim, ends).any()
 
 
-def _iou(labels, scene, gt_id, obj_id):
-    gt = scene.label_image.ravel() == gt_id
-    mine = labels == obj_id
-    return np.count_nonzero(gt & mine) / np.count_nonzero(gt | mine)
-
-
 @pytest.mark.parametrize(("seed", "gt_id", "least"), [(89, 8, 0.85), (85, 3, 0.9)])
 def test_kinect_real_cones_far_from_the_sensor_keep_their_lower_part(seed, gt_id, least):
     # Clutter seeds 89 and 85 under kinect-real noise: cones at 1.3-1.4 m whose lower
@@ -270,7 +264,7 @@ def test_kinect_real_cones_far_from_the_sensor_keep_their_lower_part(seed, gt_id
     assert scene.kinds[gt_id] == "cone"
     cone, labels = best_object_and_labels(scene, gt_id)
     assert cone.type == "cone", cone.reason
-    assert _iou(labels, scene, gt_id, cone.id) > least
+    assert scene_iou(labels, scene, gt_id, cone.id) > least
     # What it was given is its own: at most 5 % of its points are the desk's.
     mine = labels == cone.id
     assert np.count_nonzero(mine & (scene.label_image.ravel() == 0)) <= 0.05 * mine.sum()

@@ -25,7 +25,7 @@ from geomodel_ros.tools.bench_clutter import OPTIONAL_NOISE
 from geomodel_ros.tools.synth.clutter import (KINECT_CAMERA, KINECT_NOISE, CAMERA_ELEVATION,
                                               camera_pose, footprints_overlap, make_box,
                                               render_clutter, render_layout)
-from suite_helpers import best_object_and_labels
+from suite_helpers import best_object_and_labels, box_sizes, scene_iou
 
 MM = 1e-3
 #: Noise-free sizes: an edge is known to about a pixel, 1.6 mm at 0.9 m on the 640 x 480
@@ -191,16 +191,6 @@ def _two_boxes(pose, noise=None):
     return render_layout([first, second], [0, 0], pose, noise=noise, rng=3)
 
 
-def _iou(labels, scene, gt_id, obj_id):
-    mine = scene.label_image.ravel() == gt_id
-    theirs = labels == obj_id
-    return np.count_nonzero(mine & theirs) / np.count_nonzero(mine | theirs)
-
-
-def _box_sizes(obj):
-    return sorted(obj.dimensions[k] for k in ("length", "width", "height"))
-
-
 def test_two_boxes_turned_30_deg_against_each_other_are_two_boxes():
     # Noise-free from 0.9 m, 35 deg above the desk: one cuboid 112 x 140 x 287 mm held the
     # second box and part of the first.
@@ -209,8 +199,8 @@ def test_two_boxes_turned_30_deg_against_each_other_are_two_boxes():
     for gt_id, size in ((1, FIRST), (2, SECOND)):
         obj, labels = best_object_and_labels(scene, gt_id)
         assert obj.type == "cuboid", obj.reason
-        assert _iou(labels, scene, gt_id, obj.id) > 0.95
-        assert _box_sizes(obj) == pytest.approx(sorted(size), abs=EDGE_TOL)
+        assert scene_iou(labels, scene, gt_id, obj.id) > 0.95
+        assert box_sizes(obj) == pytest.approx(sorted(size), abs=EDGE_TOL)
         found.append(obj.id)
     assert found[0] != found[1]
 
@@ -227,7 +217,7 @@ def test_kinect_real_clutter_boxes_side_by_side_are_two(seed, pair):
     for gt_id in pair:
         obj, labels = best_object_and_labels(scene, gt_id)
         assert obj.type == "cuboid", obj.reason
-        assert _iou(labels, scene, gt_id, obj.id) > 0.85
+        assert scene_iou(labels, scene, gt_id, obj.id) > 0.85
         found.append(obj.id)
     assert found[0] != found[1]
 
@@ -240,7 +230,7 @@ def test_the_line_s_parts_keep_their_sizes():
     scene = render_clutter(80, OPTIONAL_NOISE["kinect-real"], KINECT_CAMERA, CAMERA_ELEVATION)
     obj, _ = best_object_and_labels(scene, 2)
     truth = scene.objects[2].dimensions
-    assert _box_sizes(obj) == pytest.approx(
+    assert box_sizes(obj) == pytest.approx(
         sorted(truth[k] for k in ("length", "width", "height")), abs=6.5 * MM)
 
 
@@ -251,7 +241,7 @@ def test_a_box_whose_model_reaches_too_far_stays_whole():
     scene = render_clutter(72, OPTIONAL_NOISE["kinect-real"], KINECT_CAMERA, CAMERA_ELEVATION)
     obj, labels = best_object_and_labels(scene, 14)
     assert obj.type == "cuboid", obj.reason
-    assert _iou(labels, scene, 14, obj.id) > 0.95
+    assert scene_iou(labels, scene, 14, obj.id) > 0.95
     mine = labels[scene.label_image.ravel() == 14]
     assert np.count_nonzero((mine != obj.id) & (mine >= 0)) < 50
 
@@ -272,7 +262,7 @@ def test_a_box_seen_through_is_not_cut_into_two_of_one_heading_or_a_box_and_no_b
                            else OPTIONAL_NOISE[noise], KINECT_CAMERA, CAMERA_ELEVATION)
     obj, labels = best_object_and_labels(scene, gt_id)
     assert obj.type == "cuboid", obj.reason
-    assert _iou(labels, scene, gt_id, obj.id) > 0.95
+    assert scene_iou(labels, scene, gt_id, obj.id) > 0.95
 
 
 def test_a_line_whose_parts_are_still_seen_through_parts_nothing():
@@ -283,7 +273,7 @@ def test_a_line_whose_parts_are_still_seen_through_parts_nothing():
                            CAMERA_ELEVATION)
     obj, labels = best_object_and_labels(scene, 6)
     assert obj.type == "cuboid", obj.reason
-    assert _iou(labels, scene, 6, obj.id) > 0.95
+    assert scene_iou(labels, scene, 6, obj.id) > 0.95
 
 
 def test_a_can_beside_a_box_from_low_is_parted_off_as_before():
@@ -295,8 +285,8 @@ def test_a_can_beside_a_box_from_low_is_parted_off_as_before():
                            (math.radians(15.0), math.radians(25.0)))
     can, labels = best_object_and_labels(scene, 12)
     assert can.type == "cylinder", can.reason
-    assert _iou(labels, scene, 12, can.id) > 0.95
-    assert _iou(labels, scene, 1, int(np.bincount(
+    assert scene_iou(labels, scene, 12, can.id) > 0.95
+    assert scene_iou(labels, scene, 1, int(np.bincount(
         labels[(scene.label_image.ravel() == 1) & (labels >= 0)]).argmax())) > 0.95
 
 
@@ -308,7 +298,7 @@ def test_a_can_on_a_box_seen_through_is_parted_at_the_level_as_before():
     assert scene.bases[8] == 2
     can, labels = best_object_and_labels(scene, 8)
     assert can.type == "cylinder", can.reason
-    assert _iou(labels, scene, 8, can.id) > 0.9
+    assert scene_iou(labels, scene, 8, can.id) > 0.9
     box_id = int(np.bincount(labels[(scene.label_image.ravel() == 2) & (labels >= 0)]).argmax())
     assert box_id != can.id
 

@@ -28,7 +28,7 @@ from geomodel_ros.core.view import SceneView
 from geomodel_ros.tools.bench_clutter import OPTIONAL_NOISE
 from geomodel_ros.tools.synth.clutter import (camera_pose, make_box, make_can, make_container,
                                               render_clutter, render_layout, stack_on)
-from suite_helpers import best_object_and_labels
+from suite_helpers import best_object_and_labels, box_sizes, scene_iou
 
 MM = 1e-3
 #: Noise-free sizes: an edge is known to about a pixel, 1.4 mm at 0.8 m on the 640 x 480
@@ -49,24 +49,14 @@ def _flush_on_base(upper, half_length):
     return base, stack_on(upper, base, (off * math.cos(YAW), off * math.sin(YAW)))
 
 
-def _iou(labels, scene, gt_id, obj_id):
-    mine = scene.label_image.ravel() == gt_id
-    theirs = labels == obj_id
-    return np.count_nonzero(mine & theirs) / np.count_nonzero(mine | theirs)
-
-
-def _box_sizes(obj):
-    return sorted(obj.dimensions[k] for k in ("length", "width", "height"))
-
-
 def test_a_box_on_a_box_with_a_side_flush_is_two_boxes():
     base, upper = _flush_on_base(make_box(*UPPER, yaw=YAW), 0.5 * UPPER[0])
     scene = render_layout([base, upper], [0, 1], VIEW, rng=3)
     for gt_id, size in ((1, BASE), (2, UPPER)):
         obj, labels = best_object_and_labels(scene, gt_id)
         assert obj.type == "cuboid", obj.reason
-        assert _iou(labels, scene, gt_id, obj.id) > 0.95
-        assert _box_sizes(obj) == pytest.approx(sorted(size), abs=EDGE_TOL)
+        assert scene_iou(labels, scene, gt_id, obj.id) > 0.95
+        assert box_sizes(obj) == pytest.approx(sorted(size), abs=EDGE_TOL)
 
 
 def test_a_can_on_a_box_flush_with_its_side_is_a_can_and_a_box():
@@ -75,13 +65,13 @@ def test_a_can_on_a_box_flush_with_its_side_is_a_can_and_a_box():
                           rng=3)
     box, labels = best_object_and_labels(scene, 1)
     assert box.type == "cuboid", box.reason
-    assert _box_sizes(box) == pytest.approx(sorted(BASE), abs=EDGE_TOL)
+    assert box_sizes(box) == pytest.approx(sorted(BASE), abs=EDGE_TOL)
     obj, labels = best_object_and_labels(scene, 2)
     assert obj.type == "cylinder", obj.reason
     assert obj.id != box.id
     assert obj.dimensions["radius"] == pytest.approx(0.02, abs=EDGE_TOL)
     assert obj.dimensions["height"] == pytest.approx(0.08, abs=EDGE_TOL)
-    assert _iou(labels, scene, 2, obj.id) > 0.95
+    assert scene_iou(labels, scene, 2, obj.id) > 0.95
 
 
 def test_clutter_seed_83s_box_on_a_box_is_two_boxes():
@@ -93,15 +83,15 @@ def test_clutter_seed_83s_box_on_a_box_is_two_boxes():
     for gt_id in (9, 10):
         obj, labels = best_object_and_labels(scene, gt_id)
         assert obj.type == "cuboid", obj.reason
-        assert _iou(labels, scene, gt_id, obj.id) > 0.95
+        assert scene_iou(labels, scene, gt_id, obj.id) > 0.95
         truth = scene.objects[gt_id].dimensions
-        assert _box_sizes(obj) == pytest.approx(
+        assert box_sizes(obj) == pytest.approx(
             sorted(truth[k] for k in ("length", "width", "height")), abs=EDGE_TOL)
     # Box 6 (63 x 106 x 143 mm) shows a side of 200 points at a grazing angle whose top
     # lies 10 mm below the box's: no level (the top of a side is none), the box stays whole.
     obj, labels = best_object_and_labels(scene, 6)
     assert obj.type == "cuboid", obj.reason
-    assert _iou(labels, scene, 6, obj.id) > 0.9
+    assert scene_iou(labels, scene, 6, obj.id) > 0.9
 
 
 def _levels(scene, gt_id, params=None):
@@ -167,7 +157,7 @@ def test_clutter_seed_38s_box_is_one_box():
     scene = render_clutter(38)
     obj, labels = best_object_and_labels(scene, 1)
     assert obj.type == "cuboid", obj.reason
-    assert _iou(labels, scene, 1, obj.id) > 0.95
+    assert scene_iou(labels, scene, 1, obj.id) > 0.95
 
 
 @pytest.mark.parametrize("item", [
@@ -283,14 +273,14 @@ def test_kinect_real_seed_15s_can_on_a_box_is_a_can_and_a_box():
     assert scene.bases[16] == 7
     can, labels = best_object_and_labels(scene, 16)
     assert can.type == "cylinder", can.reason
-    assert _iou(labels, scene, 16, can.id) > 0.85
+    assert scene_iou(labels, scene, 16, can.id) > 0.85
     truth = scene.objects[16].dimensions
     assert can.dimensions["radius"] == pytest.approx(truth["radius"], abs=2 * MM)
     # The height within the band of the noise there (the RANSAC threshold, 12-15 mm).
     assert can.dimensions["height"] == pytest.approx(truth["height"], abs=10 * MM)
     box, labels = best_object_and_labels(scene, 7)
     assert box.type == "cuboid", box.reason
-    assert box.id != can.id and _iou(labels, scene, 7, box.id) > 0.8
+    assert box.id != can.id and scene_iou(labels, scene, 7, box.id) > 0.8
 
 
 def test_one_width_is_no_step():

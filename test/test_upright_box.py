@@ -24,7 +24,7 @@ from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams
 from geomodel_ros.tools.bench_clutter import OPTIONAL_NOISE
 from geomodel_ros.tools.synth.clutter import render_clutter
-from suite_helpers import best_object_and_labels
+from suite_helpers import best_object_and_labels, scene_iou
 
 MM = 1e-3
 THRESHOLD = 5 * MM
@@ -201,12 +201,6 @@ def test_it_is_tried_last():
     assert names.index(OuterWallAfterAll.name) < names.index(UprightBoxOnSupport.name)
 
 
-def _iou(labels, scene, gt_id, obj_id):
-    gt = scene.label_image.ravel() == gt_id
-    mine = labels == obj_id
-    return np.count_nonzero(gt & mine) / np.count_nonzero(gt | mine)
-
-
 def test_kinect_real_seed_70s_small_box_seen_from_above_is_a_box():
     # Clutter seed 70 under kinect-real noise: a box 42.5 x 46.7 x 47.1 mm at 0.71 m seen
     # mostly by its top (its lower part hidden); its side's strip came as a face 47.9 deg
@@ -215,7 +209,7 @@ def test_kinect_real_seed_70s_small_box_seen_from_above_is_a_box():
     assert scene.kinds[3] == "box"
     box, labels = best_object_and_labels(scene, 3)
     assert box.type == "cuboid", box.reason
-    assert _iou(labels, scene, 3, box.id) > 0.9
+    assert scene_iou(labels, scene, 3, box.id) > 0.9
     truth = scene.objects[3].dimensions
     # Its height axis is the desk's normal (the fitted desk's, within a degree of the true).
     desk_up = scene.objects[0].rotation[:, 2]
