@@ -12,6 +12,7 @@ counts, lines and sizes are worked out from the geometry given or rendered
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -147,6 +148,13 @@ def test_rows_without_a_return_and_other_types_count_nothing():
     kept = _wall(1.5)[2::3]
     assert seen_through(box, rays, labels, w) == int(np.count_nonzero(
         np.max(np.abs(kept[:, :2]), axis=1) < bound))
+    # Garbage rows (finite but far beyond any sensor, beyond float32) count nothing and
+    # raise nothing.
+    junk = np.vstack([wall, [[1e300, 0.0, 1.5], [0.0, -1e300, 1e300], [1e30, 1e30, 1e30]]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert seen_through(box, Returns(junk, 1), np.full(len(junk), 7), w) == \
+            seen_through(box, rays, labels, w)
     sphere = Primitive(1, PrimitiveType.SPHERE, np.array([0.0, 0.0, 1.0]), np.eye(3),
                        {"radius": 0.1}, 100, 0.0)
     assert seen_through(sphere, rays, labels, w) == 0

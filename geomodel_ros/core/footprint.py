@@ -53,6 +53,8 @@ SHRINK = 0.5
 #: them; an object's worth of returns (``seg_min_cluster_points``, 150) is then known to
 #: about 15 %.
 SEEN_STEP = 4
+#: Returns farther than 1000 km are garbage rows (float32 would overflow on them).
+MAX_RANGE_SQUARED = 1e12
 _NAMES = ("length", "width", "height")
 
 
@@ -67,8 +69,13 @@ class Returns:
     def __init__(self, pts: NDArray[np.float64], step: int = 0) -> None:
         self.step = step or SEEN_STEP
         self.rows = np.arange(0, len(pts), self.step)
-        self.points = pts[::self.step].astype(np.float32)
-        self.squared = np.einsum("ij,ij->i", self.points, self.points)
+        taken = pts[::self.step]
+        with np.errstate(over="ignore", invalid="ignore"):
+            squared = np.einsum("ij,ij->i", taken, taken)
+        # Rows beyond any sensor's reach (garbage) lie in no direction, as NaN rows do.
+        far = ~(squared < MAX_RANGE_SQUARED)
+        self.points = np.where(far[:, None], np.nan, taken).astype(np.float32)
+        self.squared = np.where(far, np.nan, squared).astype(np.float32)
 
 
 def seen_through(box: Primitive, returns: Returns, labels: NDArray[np.int64],
