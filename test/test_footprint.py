@@ -81,6 +81,21 @@ def test_the_parting_line_turned_with_the_footprint():
     assert np.array_equal(side, second) or np.array_equal(side, ~second)
 
 
+def test_no_parting_into_rectangles_of_one_heading():
+    # Rectangles turned 13 deg against each other part with min_turn 8 deg, not with 15
+    # deg; two rectangles of one heading side by side (one box's two halves, 1 mm apart)
+    # part with none and not with 8 deg.
+    xy, second = _two_rectangles(math.radians(13.0))
+    side = footprint_split(xy, 150, math.radians(8.0))
+    assert side is not None and (np.array_equal(side, second) or np.array_equal(side, ~second))
+    assert footprint_split(xy, 150, math.radians(15.0)) is None
+    halves = np.vstack([_grid_rectangle((0.0, 0.0), (0.060, 0.0475), 0.4),
+                        _grid_rectangle((0.1215 * math.cos(0.4), 0.1215 * math.sin(0.4)),
+                                        (0.060, 0.0475), 0.4)])
+    assert footprint_split(halves, 150) is not None
+    assert footprint_split(halves, 150, math.radians(8.0)) is None
+
+
 def test_no_part_smaller_than_min_points():
     xy, second = _two_rectangles(TURN)
     assert footprint_split(xy[:299], 150) is None  # fewer than two parts' worth

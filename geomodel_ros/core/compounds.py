@@ -419,7 +419,9 @@ def _seeds(o: Primitive, points: NDArray[np.float64], labels: NDArray[np.int64],
     With ``seen`` (a box the sensor saw through, :class:`_SeenThrough`), first
     ``"footprint"``: one side of the line that parts the footprint of ``points`` on the
     support below (of ``supports``) into two rectangles of least joint area
-    (:func:`~geomodel_ros.core.footprint.footprint_split`); both sides are modeled apart
+    (:func:`~geomodel_ros.core.footprint.footprint_split`; none when the two rectangles
+    are turned less than ``angle_tolerance`` against each other: no two boxes of one
+    heading, :func:`_parts_of_one_box`, and no fits for them); both sides are modeled apart
     and kept as the line parts them (handed points by distance, two boxes whose tops
     continue each other's pass points across the contact round by round: seed 80's box
     took 16 mm of its neighbour). With ``off`` (enough points off the model,
@@ -438,7 +440,7 @@ def _seeds(o: Primitive, points: NDArray[np.float64], labels: NDArray[np.int64],
         if support is not None:
             e1, e2 = perpendicular_basis(support[0])
             side = footprint_split(np.stack([points @ e1, points @ e2], axis=1),
-                                   oparams.seg_min_cluster_points)
+                                   oparams.seg_min_cluster_points, params.angle_tolerance)
             if side is not None:
                 yield side, "footprint"
     if off:

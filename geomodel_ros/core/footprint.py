@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
-from geomodel_ros.core.obb import hull_candidates
+from geomodel_ros.core.obb import hull_candidates, min_area_rectangle
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 
 __all__ = ["Returns", "seen_through", "footprint_split"]
@@ -114,11 +114,14 @@ def seen_through(box: Primitive, returns: Returns, labels: NDArray[np.int64],
     return returns.step * int(np.count_nonzero((enter < leave) & (enter > 0.0) & (beyond > w)))
 
 
-def footprint_split(xy: NDArray[np.float64], min_points: int) -> NDArray[np.bool_] | None:
+def footprint_split(xy: NDArray[np.float64], min_points: int, min_turn: float = 0.0
+                    ) -> NDArray[np.bool_] | None:
     """Part a footprint's points ``xy`` (n, 2) [m] by the line leaving least rectangle area.
 
-    Returns the mask (n,) of one side, None when fewer than twice ``min_points`` are given
-    or no line leaves ``min_points`` on each side. The sides of the rectangles and the
+    Returns the mask (n,) of one side, None when fewer than twice ``min_points`` are given,
+    no line leaves ``min_points`` on each side, or the two sides' least rectangles are
+    turned less than ``min_turn`` [rad] against each other (a box cut across its own
+    sides leaves two of one heading). The sides of the rectangles and the
     lines run along and across the hull's longest edges (:func:`_hull_directions`): a
     box's sides seen round the footprint are edges of its hull. Each side's area is that
     of its least rectangle over those directions, for all parting positions along a line
@@ -143,7 +146,14 @@ def footprint_split(xy: NDArray[np.float64], min_points: int) -> NDArray[np.bool
     # on all the points, where they differ.
     full = xy @ basis
     found = [_best_cut(full, int(j), min_points) for j in np.flatnonzero(areas == areas.min())]
-    return min(found, key=lambda f: f[0])[1]
+    side = min(found, key=lambda f: f[0])[1]
+    if side is None:
+        return None
+    # The headings of the two sides' least rectangles (rotating calipers on their hulls).
+    heading = [math.atan2(d[1], d[0]) for d, _ in (min_area_rectangle(xy[side]),
+                                                   min_area_rectangle(xy[~side]))]
+    turn = abs(heading[0] - heading[1]) % (0.5 * math.pi)
+    return side if min(turn, 0.5 * math.pi - turn) >= min_turn else None
 
 
 def _best_cut(proj: NDArray[np.float64], j: int, least: int
