@@ -80,11 +80,15 @@ def test_core_errors_reach_the_caller_unchanged(modeler):
 
 
 def _dead(pid: int) -> bool:
-    """Tell whether process ``pid`` is gone or a zombie (reaped between two reads: gone)."""
+    """Tell whether process ``pid`` is gone or a zombie.
+
+    Reaped before the open (FileNotFoundError) or between the open and the read
+    (ProcessLookupError): gone.
+    """
     try:
         with open(f"/proc/{pid}/stat") as stat:
             return stat.read().split()[2] == "Z"
-    except FileNotFoundError:
+    except (FileNotFoundError, ProcessLookupError):
         return True
 
 
