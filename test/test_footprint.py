@@ -17,7 +17,7 @@ import warnings
 import numpy as np
 import pytest
 
-from geomodel_ros.core.compounds import _SeenThrough
+from geomodel_ros.core.compounds import _parts_of_one_box, _SeenThrough
 from geomodel_ros.core.footprint import Returns, footprint_split, seen_through
 from geomodel_ros.core.modeling import model_scene
 from geomodel_ros.core.params import ModelingParams
@@ -192,6 +192,34 @@ def test_a_split_is_seen_through_when_either_part_is(seen_first, seen_second):
     rows, in_second = np.array([0, 1]), np.array([False, True])
     assert seen.either(first, second, rows, in_second, 9, labels) == (
         seen_first or seen_second)
+
+
+def _cuboid(yaw_deg, oid=1, x=0.0, y=0.0):
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    return Primitive(oid, PrimitiveType.CUBOID, np.array([x, y, 1.0]),
+                     np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]),
+                     {"length": 0.12, "width": 0.05, "height": 0.1}, 100, 0.0)
+
+
+@pytest.mark.parametrize("second_yaw, kind, one", [
+    (30.0, PrimitiveType.CUBOID, False),   # two boxes turned 30 deg: a pair
+    (120.0, PrimitiveType.CUBOID, False),  # turned 30 deg modulo a quarter turn
+    (5.0, PrimitiveType.CUBOID, True),     # within angle_tolerance (8 deg): one heading
+    (90.0, PrimitiveType.CUBOID, True),    # a quarter turn: one heading
+    (30.0, PrimitiveType.CYLINDER, True),  # a box and no box
+])
+def test_the_footprint_s_parts_are_two_boxes_turned_against_each_other(second_yaw, kind, one):
+    first = _cuboid(0.0)
+    second = _cuboid(second_yaw, 2, 0.2)
+    if kind != PrimitiveType.CUBOID:
+        second = Primitive(2, kind, second.center, second.rotation,
+                           {"radius": 0.03, "height": 0.1}, 100, 0.0)
+    points = np.zeros((10, 3))
+    assert _parts_of_one_box("footprint", first, second, points, ModelingParams(), None) == one
+    # Stricter than the levels' rule: two boxes of one heading beside each other, 30 mm
+    # apart across (one section neither way), are two there.
+    assert not _parts_of_one_box("level", first, _cuboid(0.0, 2, 0.2, 0.03), points,
+                                 ModelingParams(), None)
 
 
 # --------------------------------------------------------------------------- scenes
