@@ -183,15 +183,42 @@ def test_rows_without_a_return_and_other_types_count_nothing():
 def test_a_split_is_seen_through_when_either_part_is(seen_first, seen_second):
     # The wall of the test above; a cube on the axis in front of it is seen through, one
     # 0.5 m aside (nothing behind it) is not. The split object's own rows (the first
-    # two) are relabelled to the two parts; every other return is the wall's.
+    # two) are relabelled to the two parts; every other return is the wall's. The whole
+    # held no more free space than an object's worth: the bar is seg_min_cluster_points.
     wall = _wall(1.5)
     labels = np.full(len(wall), 7)
     seen = _SeenThrough(wall, ModelingParams(), None)
     first = _box((0.0, 0.0, 1.0) if seen_first else (0.5, 0.0, 1.0), 0.1, oid=1)
     second = _box((0.0, 0.0, 1.0) if seen_second else (-0.5, 0.0, 1.0), 0.1, oid=1)
     rows, in_second = np.array([0, 1]), np.array([False, True])
-    assert seen.either(first, second, rows, in_second, 9, labels) == (
+    assert seen.either(0, first, second, rows, in_second, 9, labels) == (
         seen_first or seen_second)
+
+
+def test_a_part_is_still_seen_through_only_with_half_the_whole_s_free_space():
+    # The cube on the axis before the wall holds c returns of free space (the count
+    # worked out by hand in the test above, sampled every fourth return: within 5 %).
+    # Its parting is refused while it keeps half the whole's count or more, kept when
+    # the whole held more than twice as much (the parting explained most of it).
+    wall = _wall(1.5)
+    labels = np.full(len(wall), 7)
+    seen = _SeenThrough(wall, ModelingParams(), None)
+    part = _box((0.0, 0.0, 1.0), 0.1, oid=1)
+    other = _box((0.5, 0.0, 1.0), 0.1, oid=1)
+    c = seen.count(part, labels)
+    w = ModelingParams().ransac_threshold
+    bound = (0.1 - w / 2) * 1.5 / (0.9 + w / 2)
+    assert c == pytest.approx(np.count_nonzero(np.max(np.abs(wall[:, :2]), axis=1) < bound),
+                              rel=0.05)
+    assert c > 2 * ModelingParams().seg_min_cluster_points
+    rows, in_second = np.array([0, 1]), np.array([False, True])
+    for whole, still in ((0, True), (c, True), (2 * c, True), (2 * c + 4, False),
+                         (10 * c, False)):
+        assert seen.either(whole, part, other, rows, in_second, 9, labels) == still, whole
+        assert seen.either(whole, other, part, rows, in_second, 9, labels) == still, whole
+    # An object's worth stays the least bar: a part that holds fewer returns is never
+    # seen through, whatever the whole held.
+    assert not seen.either(0, other, other, rows, in_second, 9, labels)
 
 
 def _cuboid(yaw_deg, oid=1, x=0.0, y=0.0):
