@@ -26,7 +26,7 @@ from geomodel_ros.core.fastmath import group_by_label, pair_components, take_row
 from geomodel_ros.core.geometry import perpendicular_basis
 from geomodel_ros.core.fitting.cloud import Plane
 from geomodel_ros.core.fitting.levels import nearest_support_below
-from geomodel_ros.core.footprint import Returns, footprint_split, seen_through
+from geomodel_ros.core.footprint import SEEN_TYPES, Returns, footprint_split, seen_through
 from geomodel_ros.core.joins import ROUND_TYPES
 from geomodel_ros.core.model_graph import SLIVER_SHARE
 from geomodel_ros.core.noise import NoiseEstimate, is_fragment, object_params
@@ -358,8 +358,8 @@ class _SeenThrough:
         return self.count(p, labels) >= self.params.seg_min_cluster_points
 
     def count(self, p: Primitive, labels: NDArray[np.int64]) -> int:
-        """Count the returns seen through the model ``p`` (0 for all but cuboids)."""
-        if p.type != PrimitiveType.CUBOID:
+        """Count the returns seen through the model ``p`` (:func:`seen_through`)."""
+        if p.type not in SEEN_TYPES:
             return 0
         if self._returns is None:
             self._returns = Returns(self.pts)

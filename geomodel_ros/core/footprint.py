@@ -30,7 +30,7 @@ from scipy.spatial import ConvexHull, QhullError
 from geomodel_ros.core.obb import hull_candidates, min_area_rectangle
 from geomodel_ros.core.primitives import Primitive, PrimitiveType
 
-__all__ = ["Returns", "seen_through", "footprint_split"]
+__all__ = ["Returns", "SEEN_TYPES", "seen_through", "footprint_split"]
 
 #: The hull's edges are gathered per this step of direction [rad]: a box's side seen
 #: through the noise is traced by several edges a little apart.
@@ -55,6 +55,8 @@ SHRINK = 0.5
 SEEN_STEP = 4
 #: Returns farther than 1000 km are garbage rows (float32 would overflow on them).
 MAX_RANGE_SQUARED = 1e12
+#: The models whose solids :func:`seen_through` looks into (:func:`_inner_solid`).
+SEEN_TYPES = (PrimitiveType.CUBOID, PrimitiveType.CYLINDER, PrimitiveType.FRUSTUM)
 _NAMES = ("length", "width", "height")
 
 
@@ -78,40 +80,68 @@ class Returns:
         self.squared = np.where(far, np.nan, squared).astype(np.float32)
 
 
-def seen_through(box: Primitive, returns: Returns, labels: NDArray[np.int64],
+def seen_through(solid: Primitive, returns: Returns, labels: NDArray[np.int64],
                  w: float) -> int:
-    """Count the returns the sensor saw through the cuboid ``box`` (of the sampled, scaled).
+    """Count the returns the sensor saw through the model ``solid`` (of the sampled, scaled).
 
-    Points not labelled ``box.id`` (``labels`` (N,) of the cloud of ``returns``) whose
-    rays cross the cuboid shrunk by half the band ``w`` [m] (rays grazing an edge and
+    Points not labelled ``solid.id`` (``labels`` (N,) of the cloud of ``returns``) whose
+    rays cross its inner solid (:func:`_inner_solid`: a cuboid, or the cylinder inscribed in
+    a cylinder or frustum, shrunk by half the band ``w`` [m]: rays grazing an edge and
     mixed pixels do not count) and that lie farther than ``w`` beyond where the ray
-    enters it: the space in front of them was seen free. 0 for other types, boxes thinner
-    than the band or round the sensor. The points within the cone round the box's
-    bounding sphere are found in float32, the crossing (slabs along the box's axes, the
-    ray parametrised 0 at the sensor, 1 at the point) in float64.
+    enters it: the space in front of them was seen free. 0 for other types (cones,
+    spheres, planes), solids thinner than the band or round the sensor. The points within
+    the cone round the solid's bounding sphere are found in float32, the crossing (the ray
+    parametrised 0 at the sensor, 1 at the point) in float64.
     """
-    if box.type != PrimitiveType.CUBOID:
+    inner = _inner_solid(solid, w)
+    if inner is None:
         return 0
-    half = 0.5 * np.array([box.dimensions[k] for k in _NAMES])
-    inner = half - SHRINK * w
-    dist = float(np.linalg.norm(box.center))
+    kind, half = inner
+    dist = float(np.linalg.norm(solid.center))
     reach = float(np.linalg.norm(half))
-    if np.any(inner <= 0.0) or dist <= reach:
+    if np.any(half <= 0.0) or dist <= reach:
         return 0
-    along = returns.points @ (box.center / dist).astype(np.float32)
+    along = returns.points @ (solid.center / dist).astype(np.float32)
     cos2 = np.float32(1.0 - (reach / dist) ** 2)
     rows = np.flatnonzero((along > 0.0) & (along * along > cos2 * returns.squared))
-    rows = rows[labels[returns.rows[rows]] != box.id]
+    rows = rows[labels[returns.rows[rows]] != solid.id]
     if not len(rows):
         return 0
-    origin = -box.center @ box.rotation
-    step = returns.points[rows].astype(np.float64) @ box.rotation
+    origin = -solid.center @ solid.rotation
+    step = returns.points[rows].astype(np.float64) @ solid.rotation
     step[np.abs(step) < 1e-12] = 1e-12
-    t1, t2 = (-inner - origin) / step, (inner - origin) / step
-    enter = np.minimum(t1, t2).max(axis=1)
-    leave = np.maximum(t1, t2).min(axis=1)
+    t1, t2 = (-half - origin) / step, (half - origin) / step
+    if kind == "box":  # slabs along the three axes
+        enter = np.minimum(t1, t2).max(axis=1)
+        leave = np.maximum(t1, t2).min(axis=1)
+    else:  # slab along the axis, round side |xy(t)| = radius
+        a = np.maximum(np.einsum("ij,ij->i", step[:, :2], step[:, :2]), 1e-18)
+        b = 2.0 * (step[:, :2] @ origin[:2])
+        c = float(origin[:2] @ origin[:2]) - half[0] ** 2
+        root = np.sqrt(np.maximum(b * b - 4.0 * a * c, 0.0))
+        enter = np.maximum(np.minimum(t1[:, 2], t2[:, 2]), (-b - root) / (2.0 * a))
+        leave = np.minimum(np.maximum(t1[:, 2], t2[:, 2]), (-b + root) / (2.0 * a))
+        leave[b * b - 4.0 * a * c <= 0.0] = -np.inf
     beyond = (1.0 - enter) * np.sqrt(returns.squared[rows].astype(np.float64))
     return returns.step * int(np.count_nonzero((enter < leave) & (enter > 0.0) & (beyond > w)))
+
+
+def _inner_solid(p: Primitive, w: float) -> tuple[str, NDArray[np.float64]] | None:
+    """Return the solid inside model ``p`` shrunk by ``w / 2`` [m], in ``p``'s frame; or None.
+
+    As ``("box", half extents (3,))`` for a cuboid, ``("cylinder", (radius, radius, half
+    height))`` for the cylinder inscribed in a cylinder or frustum (the smaller of its
+    radii: a cup's model, open at its top, holds no free space beside its narrower end).
+    """
+    if p.type == PrimitiveType.CUBOID:
+        return "box", 0.5 * np.array([p.dimensions[k] for k in _NAMES]) - SHRINK * w
+    if p.type == PrimitiveType.CYLINDER:
+        radius = p.dimensions["radius"]
+    elif p.type == PrimitiveType.FRUSTUM:
+        radius = min(p.dimensions["radius"], p.dimensions["top_radius"])
+    else:
+        return None
+    return "cylinder", np.array([radius, radius, 0.5 * p.dimensions["height"]]) - SHRINK * w
 
 
 def footprint_split(xy: NDArray[np.float64], min_points: int, min_turn: float = 0.0
