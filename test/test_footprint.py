@@ -452,6 +452,26 @@ def test_a_can_on_a_box_seen_through_is_parted_at_the_level_as_before():
     assert box_id != can.id
 
 
+@pytest.mark.parametrize("seed, pair", [(22, (1, 7)), (29, (5, 10))])
+def test_boxes_side_by_side_seen_from_low_are_two(seed, pair):
+    # Kinect-real clutter seen 15-25 deg above the desk. Seed 22: boxes of 51 x 92 x 85
+    # and 125 x 67 x 82 mm came as one cylinder of 176 mm radius (IoU 0.40 / 0.58), the
+    # free space inside it 2,428 returns. Seed 29: boxes of 72 x 71 x 98 and 69 x 48 x 97
+    # mm, the first seen over the second's top, came as one cuboid (IoU 0.19 / 0.77); its
+    # parting left 180 of the whole's 19,460 returns of free space in the farther box
+    # (whose hidden side was completed a little too far) and was refused.
+    scene = render_clutter(seed, OPTIONAL_NOISE["kinect-real"], KINECT_CAMERA,
+                           (math.radians(15.0), math.radians(25.0)))
+    assert [scene.kinds[g] for g in pair] == ["box", "box"]
+    found = []
+    for gt_id in pair:
+        obj, labels = best_object_and_labels(scene, gt_id)
+        assert obj.type == "cuboid", obj.reason
+        assert scene_iou(labels, scene, gt_id, obj.id) > 0.9
+        found.append(obj.id)
+    assert found[0] != found[1]
+
+
 def test_the_desk_below_a_wrong_round_model_stays_the_desk_s():
     # From 45 deg above the desk and 1.5 rad round it under kinect-real noise the two
     # boxes come as one segment modeled as a cylinder 279 mm in radius, 15 % of its turn
