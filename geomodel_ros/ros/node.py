@@ -72,7 +72,10 @@ the waiting one (newest frame wins) and is counted as dropped.  With ``workers``
 many frames are modeled at once, each in its own process
 (:class:`geomodel_ros.ros.frame_workers.ProcessModeler`); their objects are tracked and
 published one frame at a time in the order the frames arrived.  A malformed message or a frame
-the core fails on is logged (throttled) and skipped; the node keeps running.
+the core fails on is logged (throttled) and skipped; the node keeps running.  On SIGINT the
+node waits up to :data:`WORKER_JOIN_TIMEOUT_S` for a frame in progress; a frame still being
+modeled then is abandoned and the process exits at once with status 0, without finalizing
+the interpreter under a thread that may be inside numpy or open3d.
 
 Parameters: every entry of :data:`geomodel_ros.core.params.PARAMETERS` (changeable at run time,
 used from the next frame) plus the node parameters of :data:`NODE_PARAMETERS`.
@@ -81,6 +84,8 @@ used from the next frame) plus the node parameters of :data:`NODE_PARAMETERS`.
 from __future__ import annotations
 
 import math
+import os
+import sys
 import threading
 import time
 import traceback
@@ -457,6 +462,8 @@ class ModelerNode(Node):
         self._mailbox = _Mailbox()
         self._turns = _Turns()
         self._closing = False
+        #: Workers still modeling a frame when destroy_node gave up waiting.
+        self.frames_abandoned = 0
         self._processes: ProcessModeler | None = None
         if self._options.workers > 1 and model_scene is core_model_scene:
             self._processes = self._start_processes(self._options.workers)
@@ -965,13 +972,20 @@ class ModelerNode(Node):
     # ---------------------------------------------------------------------------------
 
     def destroy_node(self) -> None:
-        """Stop the worker (waiting for a frame in progress) and destroy the node."""
+        """Stop the workers (waiting for frames in progress) and destroy the node.
+
+        Waits up to :data:`WORKER_JOIN_TIMEOUT_S` in all; ``frames_abandoned`` then counts
+        the workers still modeling a frame.
+        """
         self._closing = True
         self._mailbox.close()
         deadline = time.monotonic() + WORKER_JOIN_TIMEOUT_S
         for worker in self._workers:
             if worker.is_alive() and worker is not threading.current_thread():
                 worker.join(max(0.0, deadline - time.monotonic()))
+        self.frames_abandoned = sum(
+            worker.is_alive() and worker is not threading.current_thread()
+            for worker in self._workers)
         self._turns.close()
         if self._processes is not None:
             self._processes.close()
@@ -1006,7 +1020,25 @@ def main(args: list[str] | None = None) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+    if node is not None and node.frames_abandoned:
+        _exit_now(0, f"{node.frames_abandoned} frame(s) still being modeled after "
+                     f"{WORKER_JOIN_TIMEOUT_S:g} s, abandoned")
     return 0
+
+
+def _exit_now(status: int, reason: str) -> None:
+    """Exit the process with ``status`` at once, without finalizing the interpreter.
+
+    A worker thread still modeling a frame may be inside numpy or open3d; tearing the
+    modules down under it can crash the process at exit.
+    """
+    get_logger("modeler").warning(f"exiting: {reason}")
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # closed or broken pipe: nothing to keep
+            pass
+    os._exit(status)
 
 
 if __name__ == "__main__":
