@@ -301,8 +301,8 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
     """
     may = {o.id: _may_hold_two(o, params, noise) for o in result.objects
            if o.id not in supports and o.type != PrimitiveType.PLANE}
-    seen_through = _SeenThrough(pts, params, noise)
-    free = {o.id: seen_through.count(o, labels) for o in result.objects if o.id in may}
+    free_space = _SeenThrough(pts, params, noise)
+    free = {o.id: free_space.count(o, labels) for o in result.objects if o.id in may}
     seen = {i for i, count in free.items() if count >= params.seg_min_cluster_points}
     candidates = [o for o in result.objects
                   if may.get(o.id) or (o.id in may and (o.levels or o.id in seen))]
@@ -321,7 +321,7 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
             split = _two_models(o, part, group, kind, next_id, labels, params, noise,
                                 model)
             # The footprint's boxes are two where neither keeps the whole's free space.
-            if split is not None and kind == "footprint" and seen_through.either(
+            if split is not None and kind == "footprint" and free_space.either(
                     free[o.id], split[0], split[1], part.rows, split[2], next_id, labels):
                 split = None
             if split is not None:
@@ -341,7 +341,7 @@ def split_compounds(pts: NDArray[np.float64], labels: NDArray[np.int64],
 
 
 class _SeenThrough:
-    """Which models of a frame the sensor saw through (returns set up on first use).
+    """The free space inside a frame's models (returns set up on first use).
 
     A cuboid, cylinder or frustum is seen through when at least ``seg_min_cluster_points``
     returns of other labels lie beyond its solid shrunk by half its ``ransac_threshold``
@@ -354,10 +354,6 @@ class _SeenThrough:
                  noise: NoiseEstimate | None) -> None:
         self.pts, self.params, self.noise = pts, params, noise
         self._returns: Returns | None = None
-
-    def __call__(self, p: Primitive, labels: NDArray[np.int64]) -> bool:
-        """Tell whether the model ``p`` of label ``p.id`` (``labels`` (N,)) is seen through."""
-        return self.count(p, labels) >= self.params.seg_min_cluster_points
 
     def count(self, p: Primitive, labels: NDArray[np.int64]) -> int:
         """Count the returns seen through the model ``p`` (:func:`seen_through`)."""
@@ -386,6 +382,7 @@ class _SeenThrough:
         split[rows[in_second]] = second_id
         return self.count(first, split) >= bar or \
             self.count(dataclasses.replace(second, id=second_id), split) >= bar
+
 
 def _may_hold_two(o: Primitive, params: ModelingParams, noise: NoiseEstimate | None
                   ) -> bool:

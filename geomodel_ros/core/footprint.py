@@ -122,11 +122,11 @@ def seen_through(solid: Primitive, returns: Returns, labels: NDArray[np.int64],
     else:  # slab along the axis, round side |xy(t)| = radius
         a = np.maximum(np.einsum("ij,ij->i", step[:, :2], step[:, :2]), 1e-18)
         b = 2.0 * (step[:, :2] @ origin[:2])
-        c = float(origin[:2] @ origin[:2]) - half[0] ** 2
-        root = np.sqrt(np.maximum(b * b - 4.0 * a * c, 0.0))
+        disc = b * b - 4.0 * a * (float(origin[:2] @ origin[:2]) - half[0] ** 2)
+        root = np.sqrt(np.maximum(disc, 0.0))
         enter = np.maximum(np.minimum(t1[:, 2], t2[:, 2]), (-b - root) / (2.0 * a))
         leave = np.minimum(np.maximum(t1[:, 2], t2[:, 2]), (-b + root) / (2.0 * a))
-        leave[b * b - 4.0 * a * c <= 0.0] = -np.inf
+        leave[disc <= 0.0] = -np.inf  # the line misses the round side
     beyond = (1.0 - enter) * np.sqrt(returns.squared[rows].astype(np.float64))
     return returns.step * int(np.count_nonzero((enter < leave) & (enter > 0.0) & (beyond > w)))
 
