@@ -162,7 +162,9 @@ def footprint_split(xy: NDArray[np.float64], min_points: int, min_turn: float = 
     of its least rectangle over those directions, for all parting positions along a line
     at once (running extremes of the points sorted across it). The line's direction is
     chosen on about :data:`SPLIT_SAMPLE` of the points (directions tied there each tried
-    again), its position on all of them.
+    again), its position on all of them. The turn is tested on the sample's sides first
+    (two sides of one heading there: no placement on all the points), then on the
+    placed line's.
     """
     n = len(xy)
     if n < 2 * min_points:
@@ -174,21 +176,34 @@ def footprint_split(xy: NDArray[np.float64], min_points: int, min_turn: float = 
     turns = np.concatenate([angles, angles + 0.5 * math.pi])  # each side and the one across
     basis = np.stack([np.cos(turns), np.sin(turns)])
     least = max(1, int(math.ceil(min_points * len(sample) / n)))
-    areas = np.array([_best_cut(sample @ basis, j, least)[0] for j in range(len(turns))])
+    cuts = [_best_cut(sample @ basis, j, least) for j in range(len(turns))]
+    areas = np.array([area for area, _ in cuts])
     if not np.isfinite(areas.min()):
+        return None
+    tied = np.flatnonzero(areas == areas.min())
+    # Two sides of one heading on the sample: no line is placed on all the points.
+    if min_turn > 0.0 and all(_turn(sample, cuts[j][1]) < min_turn for j in tied):
         return None
     # Lines of different directions may part the sample alike (a tie); each is placed
     # on all the points, where they differ.
     full = xy @ basis
-    found = [_best_cut(full, int(j), min_points) for j in np.flatnonzero(areas == areas.min())]
+    found = [_best_cut(full, int(j), min_points) for j in tied]
     side = min(found, key=lambda f: f[0])[1]
     if side is None:
         return None
-    # The headings of the two sides' least rectangles (rotating calipers on their hulls).
+    return side if min_turn <= 0.0 or _turn(xy, side) >= min_turn else None
+
+
+def _turn(xy: NDArray[np.float64], side: NDArray[np.bool_]) -> float:
+    """Return the turn [rad] in [0, pi / 4] between the least rectangles of two sides.
+
+    The sides of ``xy`` (n, 2) are ``side`` (n,) and the rest; the rectangles by rotating
+    calipers, their headings compared modulo a quarter turn.
+    """
     heading = [math.atan2(d[1], d[0]) for d, _ in (min_area_rectangle(xy[side]),
                                                    min_area_rectangle(xy[~side]))]
     turn = abs(heading[0] - heading[1]) % (0.5 * math.pi)
-    return side if min(turn, 0.5 * math.pi - turn) >= min_turn else None
+    return min(turn, 0.5 * math.pi - turn)
 
 
 def _best_cut(proj: NDArray[np.float64], j: int, least: int
