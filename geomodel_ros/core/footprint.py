@@ -53,10 +53,10 @@ LINE_DIRECTIONS = 4
 #: of the wrong type), 2 at a whole band; through 12 of those holding two objects' points
 #: at half, 7 at a whole band.
 SHRINK = 0.5
-#: The free space inside a box is counted on every this-many-th return (scaled back): a
-#: box's cone is tested against the whole frame, 1-2 ms per box at 640 x 480 on all of
-#: them; an object's worth of returns (``seg_min_cluster_points``, 150) is then known to
-#: about 15 %.
+#: The free space inside a solid is counted on every this-many-th return (scaled back):
+#: a solid's cone is tested against the whole frame, 1-2 ms per solid at 640 x 480 on all
+#: of them; an object's worth of returns (``seg_min_cluster_points``, 150) is then known
+#: to about 15 %.
 SEEN_STEP = 4
 #: Returns farther than 1000 km are garbage rows (float32 would overflow on them).
 MAX_RANGE_SQUARED = 1e12
