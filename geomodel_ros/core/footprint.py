@@ -176,7 +176,8 @@ def footprint_split(xy: NDArray[np.float64], min_points: int, min_turn: float = 
     turns = np.concatenate([angles, angles + 0.5 * math.pi])  # each side and the one across
     basis = np.stack([np.cos(turns), np.sin(turns)])
     least = max(1, int(math.ceil(min_points * len(sample) / n)))
-    cuts = [_best_cut(sample @ basis, j, least) for j in range(len(turns))]
+    projected = sample @ basis
+    cuts = [_best_cut(projected, j, least) for j in range(len(turns))]
     areas = np.array([area for area, _ in cuts])
     if not np.isfinite(areas.min()):
         return None

@@ -980,12 +980,10 @@ class ModelerNode(Node):
         self._closing = True
         self._mailbox.close()
         deadline = time.monotonic() + WORKER_JOIN_TIMEOUT_S
-        for worker in self._workers:
-            if worker.is_alive() and worker is not threading.current_thread():
-                worker.join(max(0.0, deadline - time.monotonic()))
-        self.frames_abandoned = sum(
-            worker.is_alive() and worker is not threading.current_thread()
-            for worker in self._workers)
+        others = [w for w in self._workers if w is not threading.current_thread()]
+        for worker in others:
+            worker.join(max(0.0, deadline - time.monotonic()))
+        self.frames_abandoned = sum(worker.is_alive() for worker in others)
         self._turns.close()
         if self._processes is not None:
             self._processes.close()
