@@ -14,12 +14,14 @@ before.
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from geomodel_ros.core.fitting import strategies
 from geomodel_ros.core.params import ModelingParams
+from geomodel_ros.core.primitives import Primitive
 from geomodel_ros.tools.synth.clutter import camera_pose, make_box, render_clutter, \
     render_layout
 from geomodel_ros.tools.synth.scenes import KINECT_REAL_NOISE
@@ -108,3 +110,60 @@ def test_a_box_that_does_not_explain_its_object_gets_no_lid(monkeypatch):
                    if share < ModelingParams().min_inlier_ratio]
     assert unexplained, seen
     assert all(fits == 0 and got is None for fits, got in unexplained)
+
+
+def test_the_geometric_circle_of_a_short_noisy_arc_has_its_radius():
+    # A 120 deg arc of r 30 mm, 400 points with 0.5 mm of radial noise: the least-squares
+    # circle of the distances recovers the radius within 1 mm, and its residuals are no
+    # larger than the algebraic (Kasa) circle's it starts from.
+    rng = np.random.default_rng(4)
+    phi = rng.uniform(-math.pi / 3, math.pi / 3, 400)
+    rho = 0.03 + rng.normal(0.0, 0.0005, 400)
+    uv = np.column_stack([rho * np.cos(phi), rho * np.sin(phi)]) + [0.2, -0.1]
+    centre, radius, residuals = strategies._geometric_circle(uv)
+    assert radius == pytest.approx(0.03, abs=1.0 * MM)
+    assert centre == pytest.approx([0.2, -0.1], abs=1.5 * MM)
+    kasa_centre, kasa_radius = strategies._circle_2d(uv)
+    kasa = np.linalg.norm(uv - kasa_centre, axis=1) - kasa_radius
+    assert np.sqrt(np.mean(residuals ** 2)) <= np.sqrt(np.mean(kasa ** 2))
+    assert residuals == pytest.approx(np.linalg.norm(uv - centre, axis=1) - radius)
+    assert strategies._geometric_circle(uv[:2]) is None  # no circle through two points
+
+
+def _side_and_lid(points, lid_rows, normal, box, threshold=0.004):
+    """_side_round_about of hand-built points: the lid's rows, its normal and the box."""
+    cloud = SimpleNamespace(points=points, params=SimpleNamespace(ransac_threshold=threshold))
+    lid = SimpleNamespace(points=lid_rows, info=SimpleNamespace(normal=normal))
+    return strategies._side_round_about(cloud, box, lid)
+
+
+def _upright_box(half_x, half_y, height):
+    return Primitive(0, "cuboid", np.array([0.0, 0.0, height / 2]), np.eye(3),
+                     {"length": 2 * half_x, "width": 2 * half_y, "height": height}, 1, 0.0)
+
+
+def test_a_cans_side_is_round_about_its_lids_normal_and_a_boxs_sides_are_not():
+    rng = np.random.default_rng(5)
+    up = np.array([0.0, 0.0, 1.0])
+    r, h = 0.03, 0.07
+    # A can's lid (a disc at its top) and the half of its side facing the sensor (+x),
+    # 1 mm of noise; the box round it (2r x 2r x h, the can's axes).
+    disc = rng.uniform(-r, r, (3000, 2))
+    disc = disc[np.hypot(disc[:, 0], disc[:, 1]) <= r][:600]
+    phi = rng.uniform(-math.pi / 2, math.pi / 2, 900)
+    side = np.column_stack([r * np.cos(phi), r * np.sin(phi), rng.uniform(0, h, 900)])
+    can = np.vstack([np.column_stack([disc, np.full(len(disc), h)]), side])
+    can += rng.normal(0.0, 0.001, can.shape)
+    lid_rows = np.arange(len(disc))
+    assert _side_and_lid(can, lid_rows, up, _upright_box(r, r, h))
+    # A box's top and two of its sides (faces x = +a and y = +b), the same noise: no circle
+    # about the top's normal holds the sides closer than the box.
+    a, b = 0.04, 0.025
+    top = np.column_stack([rng.uniform(-a, a, 600), rng.uniform(-b, b, 600), np.full(600, h)])
+    fx = np.column_stack([np.full(450, a), rng.uniform(-b, b, 450), rng.uniform(0, h, 450)])
+    fy = np.column_stack([rng.uniform(-a, a, 450), np.full(450, b), rng.uniform(0, h, 450)])
+    box_points = np.vstack([top, fx, fy]) + rng.normal(0.0, 0.001, (1500, 3))
+    assert not _side_and_lid(box_points, np.arange(600), up, _upright_box(a, b, h))
+    # Nor about a side's normal (the box's other faces as that face's "side").
+    assert not _side_and_lid(box_points, np.arange(600, 1050), np.array([1.0, 0.0, 0.0]),
+                             _upright_box(a, b, h))
