@@ -193,8 +193,13 @@ def test_a_round_sides_candidates_come_from_a_few_hundred_of_its_points():
 def test_the_rival_is_refitted_only_when_its_first_look_is_no_worse_than_the_box(
         monkeypatch, cheap_cost, refitted):
     # A cylinder r 40 mm and a stand-in box whose truncated cost is 0.1 per point: the
-    # thinned rival's mean cost decides whether the full-resolution refit is paid for.
+    # thinned rival's mean cost decides whether the full-resolution refit is paid for. A
+    # first look that loses to the box has the other candidate types fitted alone, also
+    # thinned (strategies._cheapest_type): one first look per candidate type, no refit.
     cloud = cloud_of(cylinder_points())
+    candidates = all_faces_curved(cloud, "all faces taken as curved",
+                                  strategies.RIVAL_FIT_POINTS).decision.candidates
+    assert len(candidates) > 1
     box = object()
     calls = []
 
@@ -208,7 +213,7 @@ def test_the_rival_is_refitted_only_when_its_first_look_is_no_worse_than_the_box
     monkeypatch.setattr(strategies, "fit_first", counted)
     monkeypatch.setattr(strategies, "truncated_costs", costs)
     found = strategies.round_rival(cloud, box)
-    assert calls == ([True, False] if refitted else [True])
+    assert calls == ([True, False] if refitted else [True] * len(candidates))
     assert (found is not None) == refitted
     if refitted:
         assert found[1].type is PrimitiveType.CYLINDER
