@@ -780,6 +780,11 @@ def thinned(cloud: ObjectCloud, target: int = RIVAL_FIT_POINTS) -> ObjectCloud:
     return dataclasses.replace(cloud, points=cloud.points[::kp], faces=faces, first_look=True)
 
 
+def _apart(cloud: ObjectCloud) -> ObjectCloud:
+    """Return ``cloud`` drawing from a copy of its random stream (its own stays as it was)."""
+    return dataclasses.replace(cloud, rng=copy.deepcopy(cloud.rng))
+
+
 def round_rival(cloud: ObjectCloud, box: Primitive
                 ) -> tuple[Attempt, Primitive, NDArray[np.int64], NDArray[np.float64],
                            NDArray[np.float64]] | None:
@@ -849,8 +854,7 @@ def _cheapest_type(cloud: ObjectCloud, attempt: Attempt, first: Primitive,
         if kind == first.type:
             continue
         alone = dataclasses.replace(attempt.decision, candidates=(kind,))
-        look = dataclasses.replace(thinned(attempt.cloud), rng=copy.deepcopy(attempt.cloud.rng))
-        other, _ = fit_first(look, alone)
+        other, _ = fit_first(_apart(thinned(attempt.cloud)), alone)
         if other is None:
             continue
         c_other = truncated_costs(other, cloud)
@@ -1112,8 +1116,7 @@ def _face_as_lid(cloud: ObjectCloud, box: Primitive, reasons: list[str]
         lidded = dataclasses.replace(cloud, faces=[
             f if j == i else as_curved(f) for j, f in enumerate(cloud.faces)])
         decision = GraphDecision("mixed", ("cylinder",), i, reason="a face as the lid")
-        look, _ = fit_first(dataclasses.replace(thinned(lidded), rng=copy.deepcopy(cloud.rng)),
-                            decision)
+        look, _ = fit_first(_apart(thinned(lidded)), decision)
         if look is None or look.type is not PrimitiveType.CYLINDER:
             continue
         c_look = truncated_costs(look, cloud)
@@ -1122,7 +1125,7 @@ def _face_as_lid(cloud: ObjectCloud, box: Primitive, reasons: list[str]
     if best is None or np.mean(best[1]) >= np.mean(c_box):
         return None
     cyl, c_cyl, lidded, decision = best
-    refit, _ = fit_first(dataclasses.replace(lidded, rng=copy.deepcopy(cloud.rng)), decision)
+    refit, _ = fit_first(_apart(lidded), decision)
     if refit is not None and refit.type is PrimitiveType.CYLINDER:
         c_refit = truncated_costs(refit, cloud)
         if np.mean(c_refit) <= np.mean(c_cyl):
@@ -1133,7 +1136,6 @@ def _face_as_lid(cloud: ObjectCloud, box: Primitive, reasons: list[str]
                    f"{'replaces' if lower else 'does not replace'} cuboid (cost "
                    f"{np.mean(c_box):.3f}, t = {stat:.1f})")
     return (cyl, tuple(f.summary for f in lidded.faces)) if lower else None
-
 
 
 def _side_round_about(cloud: ObjectCloud, box: Primitive, lid: ObjectFace) -> bool:
@@ -1159,7 +1161,7 @@ def _side_round_about(cloud: ObjectCloud, box: Primitive, lid: ObjectFace) -> bo
     circle = _geometric_circle(side @ frame_with_z(lid.info.normal)[:, :2])
     if circle is None:
         return False
-    centre, radius, residuals = circle
+    _, _, residuals = circle
     d_box = surface_distance(box, side)
     if d_box is None:
         return True
@@ -1225,8 +1227,7 @@ def _lid_cylinder_rival(cloud: ObjectCloud, box: Primitive, reasons: list[str]
     if split is None:
         return None
     c_box = truncated_costs(box, cloud)
-    look, _ = fit_first(dataclasses.replace(thinned(split), rng=copy.deepcopy(split.rng)),
-                        _LID_AND_SIDE)
+    look, _ = fit_first(_apart(thinned(split)), _LID_AND_SIDE)
     if look is None or look.type is not PrimitiveType.CYLINDER or \
             np.mean(truncated_costs(look, cloud)) >= np.mean(c_box):
         return None
