@@ -139,9 +139,7 @@ def join_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
     least :data:`PIECE_MIN_BORDER` sqrt(its points) of them within a segmentation link)
     joins it when the two are one body: their union, modeled again as one object
     (``model``), is of the body's type and its surface holds the body's points and the
-    piece's each as well as their own models did (:func:`_explains`), a plane piece also
-    when it is the face at one of the union's levels (:func:`_at_level`: the lower box's
-    top under a box standing on it, which the split then parts); or, where that refit
+    piece's each as well as their own models did (:func:`_explains`); or, where that refit
     fails, the body's own model holds the piece's points so (a lid on the can's capped
     solid). A flat object beside a box or on a can (a lying can's flat side, a book), or a
     can beside a can, is no part of a body through both. ``result`` is updated in place:
@@ -177,11 +175,9 @@ def join_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
             labels[mine.rows] = body.id  # the scene as the union sees it (undone if refused)
             joined = model(union.points, body.id, (PIECE_STREAM, body.id, piece.id),
                            model.context(labels))
-            if joined.type != body.type or not (
-                    _explains(joined, by_id[body.id], own.points, oparams) and (
-                        _explains(joined, piece, mine.points, oparams)
-                        or (piece.type == PrimitiveType.PLANE
-                            and _at_level(joined, mine.points, oparams)))):
+            if joined.type != body.type or not all(
+                    _explains(joined, by_id[part_id], part.points, oparams)
+                    for part_id, part in ((body.id, own), (piece.id, mine))):
                 joined = by_id[body.id]  # the body's own model, its refit gone astray
                 if not _explains(joined, piece, mine.points, oparams):
                     labels[mine.rows] = piece.id
@@ -192,20 +188,6 @@ def join_pieces(pts: NDArray[np.float64], labels: NDArray[np.int64],
     if gone:
         result.objects = [by_id[o.id] for o in result.objects if o.id not in gone]
     return labels
-
-
-def _at_level(joined: Primitive, points: NDArray[np.float64], params: ModelingParams) -> bool:
-    """Tell whether a piece's ``points`` (n, 3) [m] are the face at one of ``joined``'s levels.
-
-    A box standing on a box, a side of each flush, where the segmentation cut the lower
-    box's top off its side: the union of the two segments is one cuboid through both
-    bodies, which leaves the top off its surface (:func:`_explains`), but the top is the
-    face at the union's level (``Primitive.levels``: its points' median height there
-    within ``ransac_threshold``), where :func:`split_compounds` parts the union into the
-    two bodies.
-    """
-    return any(abs(float(np.median(points @ level.normal + level.offset)) - level.height)
-               <= params.ransac_threshold for level in joined.levels)
 
 
 def _may_be_piece_of(piece: Primitive, body: Primitive, piece_points: int,
