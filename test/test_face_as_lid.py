@@ -89,9 +89,9 @@ def test_the_round_rival_is_the_cheapest_candidate_type_not_the_first_accepted()
 @pytest.mark.parametrize("dims", [(0.05, 0.05, 0.06), (0.06, 0.04, 0.07), (0.07, 0.07, 0.05)])
 @pytest.mark.parametrize("distance, elevation_deg", [(0.6, 35.0), (0.9, 55.0)])
 def test_a_can_sized_box_stays_a_box(monkeypatch, dims, distance, elevation_deg):
-    # A box as small as a can, alone on the desk under kinect-real noise: its faces taken as
-    # lids are tried, and no cylinder replaces it (a face of a box is a rectangle, its
-    # corners cost a cylinder through them).
+    # A box as small as a can, alone on the desk under kinect-real noise: the face-as-lid
+    # rival is asked and refuses every time (no circle about a face's normal holds a box's
+    # sides closer than the box, and a cylinder through its corners costs more).
     tried = []
     real = strategies._face_as_lid
 
