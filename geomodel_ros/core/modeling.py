@@ -36,7 +36,7 @@ from geomodel_ros.core.fitting.slow_bend import SlowBendNull, slow_bend_null
 from geomodel_ros.core.fitting.measure import every_kth
 from geomodel_ros.core.fitting.levels import object_levels
 from geomodel_ros.core.fitting.top_face import solid_below_top
-from geomodel_ros.core.fitting.strategies import (Situation, decide, round_of_plane,
+from geomodel_ros.core.fitting.strategies import (Situation, box_of_plane, decide, round_of_plane,
                                                   run_strategies)
 from geomodel_ros.core.input import downsample, in_range, working_params
 from geomodel_ros.core.noise import (NoiseEstimate, frame_noise, is_fragment, object_params,
@@ -238,16 +238,20 @@ def _round_alternative(situation: Situation, plane: Primitive, reasons: list[str
     """Return the model that replaces the ``plane`` of ``situation``, or None.
 
     :func:`~.strategies.round_of_plane`, else the solid a lone top face stands for
-    (:func:`~.top_face.solid_below_top`), with its confidence, faces and ``reasons`` (the
-    plane's, then the comparison or the completion).
+    (:func:`~.top_face.solid_below_top`), else the box of a plane folded over two sides
+    (:func:`~.strategies.box_of_plane`), with its confidence, faces and ``reasons`` (the
+    plane's, then the comparisons or the completion). A top face parallel to its support
+    whose space below is hidden is a solid's top: its normals may show a strip of the
+    side, whose box would lie across the solid.
     """
-    found = round_of_plane(situation, plane, reasons)
     cloud = situation.cloud
+    found = round_of_plane(situation, plane, reasons)
     if found is None:
         solid = solid_below_top(cloud, plane, reasons)
-        if solid is None:
-            return None
-        found = solid, plane.faces
+        found = (solid, plane.faces) if solid is not None else \
+            box_of_plane(situation, plane, reasons)
+    if found is None:
+        return None
     rnd, faces = found
     rnd = with_confidence(rnd, cloud.points, cloud.params.ransac_threshold)
     return dataclasses.replace(rnd, faces=faces, reason="; ".join(reasons))
