@@ -474,9 +474,11 @@ def test_a_cone_or_a_cup_seen_the_same_way_keeps_its_shape(distance, elevation, 
         assert not re.search(r"the cylinder below its lid \(cost [0-9.]+\) replaces", obj.reason)
 
 
-@pytest.mark.parametrize("seed,gt_id", [(22, 10), (27, 3), (100, 5)])
+@pytest.mark.parametrize("seed,gt_id", [(22, 10), (27, 3), (100, 5), (100, 14)])
 def test_cans_in_clutter_seen_as_wide_cones_are_the_cylinders_below_their_lids(seed, gt_id):
-    # kinect-real clutter at 0.84-1.0 m: cones of 90, 74 and 86 mm radius before.
+    # kinect-real clutter at 0.84-1.0 m: cones of 90, 74, 86 and 98 mm radius before. The
+    # lid of held-out seed 100's can 14 (r 34 mm) is no disc end all round under the
+    # noise, but its outline follows the cylinder's circle (a cone before section 61).
     _is_the_cans_cylinder(render_clutter(seed, KINECT_REAL_NOISE), gt_id)
 
 
@@ -517,7 +519,7 @@ def test_the_cylinder_below_a_lid_replaces_a_cone_only_where_it_costs_less(monke
     cloud = _lid_and_sides(True) if points == "can" else SimpleNamespace(
         oid=3, points=_cone_side(), params=ModelingParams(ransac_threshold=0.001))
     monkeypatch.setattr(strategies, "lid_cylinder",
-                        lambda _: (CAN_CYLINDER, SimpleNamespace(faces=[])))
+                        lambda *_a, **_k: (CAN_CYLINDER, SimpleNamespace(faces=[])))
     reasons = []
     got, _ = strategies.prefer_lid_cylinder(SimpleNamespace(cloud=cloud), _cone(cone), (),
                                             reasons)

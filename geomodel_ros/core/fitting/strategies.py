@@ -1209,7 +1209,7 @@ def _lid_cylinder_rival(cloud: ObjectCloud, box: Primitive, reasons: list[str]
     image's edge): taken as curved, the lid draws the round rival's fits off the side, and
     the lid is no disc all round. Its largest plane taken as the lid and the rest as its
     side give the can's cylinder when the lid is a disc end or its outline follows the
-    circle (:func:`lid_cylinder` without ``whole_lid``); it replaces the box when its mean
+    circle (:func:`lid_cylinder`); it replaces the box when its mean
     :func:`truncated_costs` over the object's points are lower. As for the round rival with
     a disc end (:func:`prefer_round`), the flat end decides within the noise: the side
     strip that tells a can from a box is a narrow band of the object (measured: 111 of 685
@@ -1230,7 +1230,7 @@ def _lid_cylinder_rival(cloud: ObjectCloud, box: Primitive, reasons: list[str]
     if look is None or look.type is not PrimitiveType.CYLINDER or \
             np.mean(truncated_costs(look, cloud)) >= np.mean(c_box):
         return None
-    found = lid_cylinder(cloud, whole_lid=False, split=split)
+    found = lid_cylinder(cloud, split=split)
     if found is None:
         return None
     cyl, split = found
@@ -1380,17 +1380,16 @@ def _lid_and_side(cloud: ObjectCloud) -> ObjectCloud | None:
 _LID_AND_SIDE = GraphDecision("mixed", ("cylinder",), 0, reason="a lid and its side")
 
 
-def lid_cylinder(cloud: ObjectCloud, whole_lid: bool = True,
-                 split: ObjectCloud | None = None) -> tuple[Primitive, ObjectCloud] | None:
+def lid_cylinder(cloud: ObjectCloud, split: ObjectCloud | None = None
+                 ) -> tuple[Primitive, ObjectCloud] | None:
     """Return the cylinder below the object's lid, with the object as fitted, or None.
 
     The object as its lid and its side (:func:`_lid_and_side`, or ``split`` when given:
     its result), and the cylinder unit fitting the side with its axis along the lid's
     normal (the main face's, :func:`~.curved.axis_prior`). The cylinder, when it verifies
-    and the lid is a disc end of it all round (:func:`disc_end`), or without
-    ``whole_lid`` also when the lid's outline follows its circle (:func:`_lid_on_circle`:
-    part of the lid may be hidden; a noisy lid seen whole may pass the one test and not
-    the other).
+    and the lid is a disc end of it all round (:func:`disc_end`) or its outline follows
+    the circle (:func:`_lid_on_circle`: part of the lid may be hidden; a noisy lid seen
+    whole may pass the one test and not the other).
     """
     split = _lid_and_side(cloud) if split is None else split
     if split is None:
@@ -1398,8 +1397,7 @@ def lid_cylinder(cloud: ObjectCloud, whole_lid: bool = True,
     cyl, _ = fit_first(split, _LID_AND_SIDE)
     if cyl is None or cyl.type is not PrimitiveType.CYLINDER:
         return None
-    if not (disc_end(split, cyl)
-            or (not whole_lid and _lid_on_circle(split, split.faces[0], cyl))):
+    if not (disc_end(split, cyl) or _lid_on_circle(split, split.faces[0], cyl)):
         return None
     return cyl, split
 
@@ -1409,7 +1407,7 @@ def lid_cylinder_alone(cloud: ObjectCloud, reasons: list[str]
     """Return the cylinder below the lid of an object no strategy fitted, or None.
 
     The lid and side of :func:`lid_cylinder`, the lid a disc end all round or its outline
-    following the cylinder's circle (``whole_lid`` false: part of it may be hidden, as in
+    following the cylinder's circle (part of it may be hidden, as in
     :func:`_lid_cylinder_rival`): cans whose lid joined their side and whose faces
     fit no rule (facets that meet at no right angles) or whose round fits failed.
     Nothing competes, but a ball's cap passes as a lid under the noise and the cylinder
@@ -1420,7 +1418,7 @@ def lid_cylinder_alone(cloud: ObjectCloud, reasons: list[str]
     """
     if cloud.params.noise_model != "auto":
         return None
-    found = lid_cylinder(cloud, whole_lid=False)
+    found = lid_cylinder(cloud)
     if found is None:
         return None
     cyl, split = found
@@ -1460,11 +1458,12 @@ def prefer_lid_cylinder(situation: Situation, prim: Primitive,
     any side), and a wide cone through lid and side verifies -- of two to three times
     the can's radius. Told apart, the lid is the object's largest plane and the side the
     rest: the cylinder of that side with its axis along the lid's normal
-    (:func:`lid_cylinder`) replaces ``prim`` when its mean :func:`truncated_costs` over
-    the object's points are lower. A real cone or cup has no plane that is a disc end of
-    a cylinder holding the rest (the unit's checks and :func:`disc_end` refuse it), or
-    costs a cylinder more. Only with ``noise_model = auto``; the comparison is added to
-    ``reasons``.
+    (:func:`lid_cylinder`; the lid a disc end all round or its outline following the
+    cylinder's circle, as the noise may take the one or the other from a lid seen whole)
+    replaces ``prim`` when its mean :func:`truncated_costs` over the object's points are
+    lower. A real cone or cup has no plane that is the lid of a cylinder holding the rest
+    (the unit's checks refuse it), or costs a cylinder more. Only with ``noise_model =
+    auto``; the comparison is added to ``reasons``.
     """
     cloud = situation.cloud
     if prim.type not in (PrimitiveType.CONE, PrimitiveType.FRUSTUM) or \
