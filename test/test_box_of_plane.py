@@ -89,19 +89,25 @@ def test_a_cans_top_whose_space_below_is_hidden_stays_the_cans_top():
     assert obj.dimensions["radius"] == pytest.approx(truth["radius"], abs=2.0 * MM)
 
 
-@pytest.mark.parametrize("distance, elevation_deg", [(0.8, 30.0), (1.1, 45.0)])
-def test_a_thin_panel_standing_on_the_desk_stays_a_plane(monkeypatch, distance, elevation_deg):
-    # A panel 300 x 12 x 200 mm standing on the desk under kinect-real noise: its front
-    # is one planar face and a plane; its 12 mm edges give no box the plane gives way to
-    # (box_of_plane is asked and refuses), and the plane keeps the front's sizes.
-    asked = []
+@pytest.fixture
+def asked(monkeypatch) -> list:
+    """Return the list of what each call of box_of_plane returns (the rule still runs)."""
+    got_list = []
 
     def spy(situation, plane, reasons, _real=strategies.box_of_plane):
         got = _real(situation, plane, reasons)
-        asked.append(got)
+        got_list.append(got)
         return got
 
     monkeypatch.setattr(modeling, "box_of_plane", spy)
+    return got_list
+
+
+@pytest.mark.parametrize("distance, elevation_deg", [(0.8, 30.0), (1.1, 45.0)])
+def test_a_thin_panel_standing_on_the_desk_stays_a_plane(asked, distance, elevation_deg):
+    # A panel 300 x 12 x 200 mm standing on the desk under kinect-real noise: its front
+    # is one planar face and a plane; its 12 mm edges give no box the plane gives way to
+    # (box_of_plane is asked and refuses), and the plane keeps the front's sizes.
     scene = render_layout([make_box(0.30, 0.012, 0.20, yaw=0.3)], [0],
                           camera_pose(distance, math.radians(elevation_deg), 0.2),
                           noise=KINECT_REAL_NOISE, rng=7)
@@ -111,19 +117,11 @@ def test_a_thin_panel_standing_on_the_desk_stays_a_plane(monkeypatch, distance, 
     assert sorted(obj.dimensions.values()) == pytest.approx([0.20, 0.30], abs=8.0 * MM)
 
 
-def test_a_balls_normals_give_no_box(monkeypatch):
+def test_a_balls_normals_give_no_box(asked):
     # kinect-real clutter seed 39 seen from 15-25 deg: ball 11 (r 36.5 mm at 0.8 m) passes
-    # as one planar face; its normals give two perpendicular modes of a few dozen each, but
-    # most of them (72 %) face neither: the box is not fitted (it was a cuboid of 33 x 61 x
+    # as one planar face; its normals give two perpendicular modes, but most of them
+    # (72 %) face neither: the box is not fitted (it was a cuboid of 33 x 61 x
     # 53 mm while the rule asked only for normals closer than the plane's on average).
-    asked = []
-
-    def spy(situation, plane, reasons, _real=strategies.box_of_plane):
-        got = _real(situation, plane, reasons)
-        asked.append(got)
-        return got
-
-    monkeypatch.setattr(modeling, "box_of_plane", spy)
     scene = render_clutter(39, KINECT_REAL_NOISE, elevation=(math.radians(15), math.radians(25)))
     assert scene.kinds[11] == "sphere"
     obj = best_object(scene, 11)
