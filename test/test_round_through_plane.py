@@ -57,10 +57,13 @@ def test_a_round_body_a_plane_lay_through_is_round_of_its_size(seed, gt_id, kind
 
 
 @pytest.mark.parametrize("seed, gt_id", [(17, 8), (22, 11)])
-def test_a_box_seen_by_one_face_keeps_its_plane(seed, gt_id):
-    # Boxes 31 and 37 mm tall seen from above at 0.85 and 0.91 m: one face, flat.
+def test_a_box_seen_as_one_face_gets_no_round_model(seed, gt_id):
+    # Boxes 31 and 37 mm tall seen from above at 0.85 and 0.91 m: one planar face, a
+    # plane through two of their sides. No round model replaces the plane; the box of its
+    # normals' modes does (BENCHMARKS.md section 61, test_box_of_plane).
     _, obj = _object_of(seed, gt_id)
-    assert obj.type == "plane", obj.reason
+    assert obj.type == "cuboid", obj.reason
+    assert "of the normals within its tolerance) replaces plane" not in obj.reason
 
 
 def test_with_a_fixed_noise_model_the_plane_stays():
