@@ -1005,27 +1005,29 @@ def disc_cylinder(cloud: ObjectCloud, box: Primitive,
                   round_faces: list[tuple] | None = None) -> Primitive | None:
     """Return the cylinder whose end is a planar face of the object seen as a disc, or None.
 
-    Each planar face across one of the box's axes whose outline follows a circle
-    (:func:`_round_faces`, largest first) is taken as a can's lid: that circle with the
-    box's extent along that axis (completed where the box's was, its rmse over the
-    object's points). The first such face that is a disc end of its cylinder, all round
-    (:func:`disc_end`), gives it. ``round_faces``: those faces when already listed.
+    The largest planar face across one of the box's axes whose outline follows a circle
+    (:func:`_round_faces`) is taken as a can's lid: that circle with the box's extent
+    along that axis (completed where the box's was, its rmse over the object's points).
+    Its outline is the evidence; its rim need not run round the whole circle
+    (:func:`disc_end`): under a real sensor's noise the rim of a lid seen whole frays
+    (kinect-real clutter seeds 13 and 50: cans of r 31 and 34 mm at 0.56 and 0.95 m,
+    cuboids while the rim was asked; their cylinders' radii within 0.9 and 0.1 mm).
+    ``round_faces``: those faces when already listed.
     """
     if round_faces is None:
         round_faces = list(_round_faces(cloud, box))
-    for k, n, frame, c0, centre2, radius in round_faces:
-        name = ("length", "width", "height")[k]
-        length = box.dimensions[name]
-        axis = box.rotation[:, k] * (1.0 if box.rotation[:, k] @ n < 0 else -1.0)
-        top = c0 + frame[:, :2] @ centre2
-        cyl = Primitive(cloud.oid, PrimitiveType.CYLINDER, top + axis * length / 2.0,
-                        frame_with_z(-axis), {"radius": float(radius), "height": float(length)},
-                        len(cloud.points), 0.0,
-                        completed=("height",) if name in box.completed else ())
-        if disc_end(cloud, cyl):
-            d = surface_distance(cyl, cloud.points)
-            return dataclasses.replace(cyl, rmse=float(np.sqrt(np.mean(d * d))))
-    return None
+    if not round_faces:
+        return None
+    k, n, frame, c0, centre2, radius = round_faces[0]
+    name = ("length", "width", "height")[k]
+    length = box.dimensions[name]
+    axis = box.rotation[:, k] * (1.0 if box.rotation[:, k] @ n < 0 else -1.0)
+    top = c0 + frame[:, :2] @ centre2
+    cyl = Primitive(cloud.oid, PrimitiveType.CYLINDER, top + axis * length / 2.0,
+                    frame_with_z(-axis), {"radius": float(radius), "height": float(length)},
+                    len(cloud.points), 0.0, completed=("height",) if name in box.completed else ())
+    d = surface_distance(cyl, cloud.points)
+    return dataclasses.replace(cyl, rmse=float(np.sqrt(np.mean(d * d))))
 
 
 def prefer_round(situation: Situation, prim: Primitive, faces: tuple[FaceSummary, ...],
