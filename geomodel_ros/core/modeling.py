@@ -495,7 +495,8 @@ def _settle_planes(result: ModelingResult, supports: dict[int, Plane]) -> None:
     modeling fitted; for each plane left that is no support the alternative is judged
     (``Primitive.round_alternative``: the round model of a plane that lay through a round
     body, :func:`~.strategies.round_of_plane`, else the solid below a lone top face,
-    :func:`~.top_face.solid_below_top`; on the modeling's worker threads) and reported
+    :func:`~.top_face.solid_below_top`, else the box of a plane folded over two sides,
+    :func:`~.strategies.box_of_plane`; on the modeling's worker threads) and reported
     when it holds. Every object leaves without the alternative and its levels.
     """
     todo = [o for o in result.objects if o.round_alternative is not None

@@ -160,7 +160,8 @@ class Primitive:
         judge, called once the segmentation is done, of the model the plane gives way to,
         returning it or None (the round model of
         :func:`~geomodel_ros.core.fitting.strategies.round_of_plane`, else the solid of
-        :func:`~geomodel_ros.core.fitting.top_face.solid_below_top`).
+        :func:`~geomodel_ros.core.fitting.top_face.solid_below_top`, else the box of
+        :func:`~geomodel_ros.core.fitting.strategies.box_of_plane`).
     levels : tuple of Level
         Inside the modeling only (empty on its output, not in :meth:`to_dict`): the heights
         above a support where one body of the segment may stand on another
