@@ -2,10 +2,10 @@
 
 Far from the sensor the crease between two sides of a small box blurs under kinect-real
 noise, the face segmentation keeps both as one planar face, and a plane verifies through
-them. The measured normals still gather on the sides: the box of their modes replaces the
-plane when it holds the points closer beyond the noise and the normals agree with it
-better (:func:`~geomodel_ros.core.fitting.strategies.box_of_plane`). Expected sizes are
-the rendered shapes'; every positive case was a plane before.
+them. The measured normals still gather on the sides: the box of their modes, fitted when
+most of the normals face its sides, replaces the plane when it holds the points closer
+beyond the noise (:func:`~geomodel_ros.core.fitting.strategies.box_of_plane`). Expected
+sizes are the rendered shapes'; every positive case was a plane before.
 """
 
 from __future__ import annotations
