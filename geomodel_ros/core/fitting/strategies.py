@@ -1131,12 +1131,26 @@ def _face_as_lid(cloud: ObjectCloud, box: Primitive, reasons: list[str]
         c_refit = truncated_costs(refit, cloud)
         if np.mean(c_refit) <= np.mean(c_cyl):
             cyl, c_cyl = refit, c_refit
-    lower, stat = lower_beyond_noise(c_cyl, c_box,
-                                     spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)))
-    reasons.append(f"a face taken as the lid: cylinder (cost {np.mean(c_cyl):.3f}) "
-                   f"{'replaces' if lower else 'does not replace'} cuboid (cost "
-                   f"{np.mean(c_box):.3f}, t = {stat:.1f})")
+    lower = _lower_beyond_noise(cloud, c_cyl, c_box, "a face taken as the lid: cylinder",
+                                "cuboid", reasons)
     return (cyl, tuple(f.summary for f in lidded.faces)) if lower else None
+
+
+def _lower_beyond_noise(cloud: ObjectCloud, c_rival: NDArray[np.float64],
+                        c_held: NDArray[np.float64], rival: str, held: str,
+                        reasons: list[str]) -> bool:
+    """Whether a rival's truncated costs are lower than the held model's beyond the noise.
+
+    ``c_rival`` and ``c_held``: :func:`truncated_costs` on the same points of ``cloud``,
+    compared by :func:`~.paired_cost.lower_beyond_noise` over their blocks; the comparison
+    (the rival named ``rival``, the held model's type ``held``) is added to ``reasons``.
+    """
+    lower, stat = lower_beyond_noise(c_rival, c_held,
+                                     spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)))
+    reasons.append(f"{rival} (cost {np.mean(c_rival):.3f}) "
+                   f"{'replaces' if lower else 'does not replace'} {held} (cost "
+                   f"{np.mean(c_held):.3f}, t = {stat:.1f})")
+    return lower
 
 
 def _side_round_about(cloud: ObjectCloud, box: Primitive, lid: ObjectFace) -> bool:
@@ -1521,12 +1535,9 @@ def _lid_facing_up(cloud: ObjectCloud, prim: Primitive, largest: ObjectCloud | N
     if found is None:
         return None
     cyl, split = found
-    c_prim, c_cyl = truncated_costs(prim, cloud), truncated_costs(cyl, cloud)
-    lower, stat = lower_beyond_noise(c_cyl, c_prim,
-                                     spread_blocks(every_kth(cloud.points, RIVAL_SAMPLE)))
-    reasons.append(f"the cylinder below its lid facing up (cost {np.mean(c_cyl):.3f}) "
-                   f"{'replaces' if lower else 'does not replace'} {prim.type} (cost "
-                   f"{np.mean(c_prim):.3f}, t = {stat:.1f})")
+    lower = _lower_beyond_noise(cloud, truncated_costs(cyl, cloud), truncated_costs(prim, cloud),
+                                "the cylinder below its lid facing up", prim.type.value,
+                                reasons)
     return (cyl, tuple(f.summary for f in split.faces)) if lower else None
 
 
