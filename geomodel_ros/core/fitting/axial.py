@@ -170,7 +170,8 @@ def cap_rim_arc(cloud: ObjectCloud, side: CurvedFit, nearest: NDArray[np.int64],
 
 def verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None,
                   kind: PrimitiveType, origin: NDArray[np.float64]
-                  ) -> tuple[list, NDArray[np.int64], NDArray[np.float64]] | Rejected:
+                  ) -> tuple[list, NDArray[np.int64], NDArray[np.float64],
+                             NDArray[np.float64]] | Rejected:
     """Check a round side's axis, cover its points by side and caps, check its arc.
 
     Parameters
@@ -187,8 +188,9 @@ def verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | N
 
     Returns
     -------
-    (caps, nearest, side_points) -- the end caps, each point's surface (0 = side) and the
-    side's points (K, 3) [m] -- or the first rejection.
+    (caps, nearest, side_points, profile) -- the end caps, each point's surface (0 =
+    side), the side's points (K, 3) [m] and those of them whose normals do not run along
+    the axis (the profile's, :func:`_without_cap_normals`) -- or the first rejection.
     """
     cloud, model = task.cloud, side.model
     bad = check_axis(model.axis, prior, cloud.params, kind)
@@ -210,10 +212,12 @@ def verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | N
         own_caps = len(caps) - len(side.inner_caps)
         arc = max(arc, cap_rim_arc(cloud, side, nearest, own_caps, origin))
     bad = check_arc(arc, cloud.params, kind, steep) or \
-        check_noise_scatter(side_points, model.distance, cloud.params, kind, cos) or \
-        check_profile_bow(_without_cap_normals(cloud, nearest == 0, model), model, cloud,
-                          kind)
-    return bad if bad else (caps, nearest, side_points)
+        check_noise_scatter(side_points, model.distance, cloud.params, kind, cos)
+    if bad:
+        return bad
+    profile = _without_cap_normals(cloud, nearest == 0, model)
+    return check_profile_bow(profile, model, cloud, kind) or \
+        (caps, nearest, side_points, profile)
 
 
 def _without_cap_normals(cloud: ObjectCloud, side: NDArray[np.bool_], model

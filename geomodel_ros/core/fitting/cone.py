@@ -53,8 +53,9 @@ def cone_test(params: ModelingParams, prior: NDArray[np.float64] | None) -> Hypo
 
 def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None,
                    kind: PrimitiveType
-                   ) -> tuple[list, NDArray[np.int64], NDArray[np.float64]] | Rejected:
-    """Caps, each point's surface and the side's points, once axis, coverage, arc, angle pass."""
+                   ) -> tuple[list, NDArray[np.int64], NDArray[np.float64],
+                              NDArray[np.float64]] | Rejected:
+    """Caps, each point's surface, the side's and the profile's points, once the checks pass."""
     checked = verified_side(task, side, prior, kind, side.model.apex)
     if isinstance(checked, Rejected):
         return checked
@@ -78,13 +79,15 @@ def least_half_angle(params: ModelingParams, kind: PrimitiveType) -> float:
 
 
 def fit_cone_side(task: FitTask, kind: PrimitiveType
-                  ) -> tuple[CurvedFit, float, float, NDArray[np.float64]] | FitOutcome:
+                  ) -> tuple[CurvedFit, float, float, NDArray[np.float64],
+                             NDArray[np.float64]] | FitOutcome:
     """Fit and verify the conical side of ``task.cloud`` for a cone or a frustum (``kind``).
 
     The axis follows ``task.axis_prior`` or else the main planar face's normal, if any.
     Returns the side's fit, its extent ``lo``, ``hi`` [m] along the axis from the apex
-    (caps and supports closing the ends, :func:`~.axial.axial_extent`) and the side's
-    points (K, 3) [m], or the rejection.
+    (caps and supports closing the ends, :func:`~.axial.axial_extent`), the side's
+    points (K, 3) [m] and those of them whose normals do not run along the axis (the
+    profile's: a flat end's points within the side's band left out), or the rejection.
     """
     cloud = task.cloud
     prior = axis_prior(task)
@@ -94,9 +97,9 @@ def fit_cone_side(task: FitTask, kind: PrimitiveType
     checked = _verified_side(task, side, prior, kind)
     if isinstance(checked, Rejected):
         return checked
-    caps, nearest, side_points = checked
+    caps, nearest, side_points, profile = checked
     lo, hi = axial_extent(cloud, side_points, caps, nearest, side.model.apex, side.model.axis)
-    return side, lo, hi, side_points
+    return side, lo, hi, side_points, profile
 
 
 def _sized(task: FitTask, model: ConeModel, lo: float, hi: float,
@@ -130,7 +133,7 @@ def fit_cone(task: FitTask) -> FitOutcome:
     fitted = fit_cone_side(task, CONE)
     if not isinstance(fitted, tuple):
         return fitted
-    side, lo, hi, side_points = fitted
+    side, lo, hi, side_points, _ = fitted
     model = side.model
     radius = _sized(task, model, lo, hi, side_points)
     if isinstance(radius, Rejected):

@@ -53,8 +53,9 @@ def cylinder_test(params: ModelingParams, prior: NDArray[np.float64] | None) -> 
 
 
 def _verified_side(task: FitTask, side: CurvedFit, prior: NDArray[np.float64] | None
-                   ) -> tuple[list, NDArray[np.int64], NDArray[np.float64]] | Rejected:
-    """Caps, each point's surface and the side's points, once axis, coverage, arc, radius pass."""
+                   ) -> tuple[list, NDArray[np.int64], NDArray[np.float64],
+                              NDArray[np.float64]] | Rejected:
+    """Caps, each point's surface, the side's and the profile's points, once the checks pass."""
     checked = verified_side(task, side, prior, CYLINDER, side.model.point)
     if isinstance(checked, Rejected):
         return checked
@@ -78,7 +79,7 @@ def fit_cylinder(task: FitTask) -> FitOutcome:
     checked = _verified_side(task, side, prior)
     if isinstance(checked, Rejected):
         return checked
-    caps, nearest, side_points = checked
+    caps, nearest, side_points, _ = checked
     model, axis = side.model, side.model.axis
     if params.reproject_along_rays:
         side_points = obb.ray_to_cylinder(side_points, model.point, axis, model.radius,
