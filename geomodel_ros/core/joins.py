@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from geomodel_ros.core.confidence import estimate_confidence
 from geomodel_ros.core.fastmath import (group_by_label, link_components, pair_components,
                                         row_norms, take_rows)
 from geomodel_ros.core.geometry import perpendicular_basis
@@ -732,7 +733,6 @@ def _one_round_surface(segs: _Segments, gap: _Gap, params: ModelingParams) -> bo
     The models are the modeling's own (:func:`geomodel_ros.core.modeling.model_object`
     on the working points), asked only for the pairs that passed the other tests.
     """
-    from geomodel_ros.core.confidence import estimate_confidence
     from geomodel_ros.core.modeling import model_object  # it imports the segmentation
 
     def model(points: NDArray[np.float64]) -> Primitive:
