@@ -6,7 +6,8 @@ when the signal arrives. A frame that outlasts ``WORKER_JOIN_TIMEOUT_S`` is aban
 process exits at once with status 0 and a warning, and the interpreter is not finalized
 (its exit handlers do not run: tearing numpy or open3d down under a thread inside them can
 crash the process). A frame that ends within the wait is finished and the process exits
-as usual.
+as usual. A crash in native code while modeling leaves every thread's Python stack in the
+log (the node enables :mod:`faulthandler`).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ TOPIC = "/shutdown_test/points"
 
 #: The child: the node's main with a blocking scene modeler and a short join timeout.
 CHILD = textwrap.dedent("""
-    import atexit, functools, sys, time
+    import atexit, ctypes, functools, sys, time
     import geomodel_ros.ros.node as node
     from geomodel_ros.core.modeling import model_scene
 
@@ -44,6 +45,8 @@ CHILD = textwrap.dedent("""
 
     def blocking(*args, **kwargs):
         print("MODELING", flush=True)
+        if block < 0:  # a crash in native code while modeling
+            ctypes.string_at(0)
         time.sleep(block)
         return model_scene(*args, **kwargs)
 
@@ -53,10 +56,13 @@ CHILD = textwrap.dedent("""
 """)
 
 
-def _run_and_interrupt(tmp_path, join_timeout: float, block: float) -> tuple[int, str, float]:
+def _run_and_interrupt(tmp_path, join_timeout: float, block: float, interrupt: bool = True
+                       ) -> tuple[int, str, float]:
     """Start the child, feed it a frame, SIGINT it once the frame is in progress.
 
-    Return its exit status, its output and the seconds from the signal to its exit.
+    Return its exit status, its output and the seconds from the signal (or, without
+    ``interrupt``, from the frame's start) to its exit. A negative ``block`` crashes the
+    child's modeler in native code.
     """
     env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     log = tmp_path / "child.log"
@@ -83,7 +89,8 @@ def _run_and_interrupt(tmp_path, join_timeout: float, block: float) -> tuple[int
                 pub.publish(cloud)
             time.sleep(0.2)
         sent = time.monotonic()
-        proc.send_signal(signal.SIGINT)
+        if interrupt:
+            proc.send_signal(signal.SIGINT)
         try:
             code = proc.wait(timeout=join_timeout + block + 30.0)
         except subprocess.TimeoutExpired:
@@ -117,3 +124,13 @@ def test_a_frame_ending_within_the_wait_is_finished_and_the_exit_is_as_usual(tmp
     assert "abandoned" not in text, text
     assert "FINALIZED" in text, text
     assert "Traceback" not in text, text
+
+
+def test_a_crash_in_native_code_leaves_every_threads_python_stack(tmp_path):
+    # A fault inside numpy, open3d or the middleware kills the process (SIGSEGV); the
+    # node enables Python's fault handler, so the log names where each thread was.
+    code, text, _ = _run_and_interrupt(tmp_path, join_timeout=5.0, block=-1.0,
+                                       interrupt=False)
+    assert code == -signal.SIGSEGV, text
+    assert "Fatal Python error: Segmentation fault" in text, text
+    assert "in blocking" in text, text  # the modeling thread's frame that crashed

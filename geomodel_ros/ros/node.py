@@ -83,6 +83,7 @@ used from the next frame) plus the node parameters of :data:`NODE_PARAMETERS`.
 
 from __future__ import annotations
 
+import faulthandler
 import math
 import os
 import sys
@@ -999,7 +1000,12 @@ def _check_rate_band(options: NodeOptions) -> None:
 
 
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``ros2 run geomodel_ros modeler``; returns the exit status."""
+    """Entry point of ``ros2 run geomodel_ros modeler``; returns the exit status.
+
+    A crash in native code (numpy, open3d, the middleware) prints every thread's Python
+    stack to stderr (:mod:`faulthandler`) before the process dies.
+    """
+    _enable_fault_handler()
     retain_freed_memory()
     rclpy.init(args=args)
     node: ModelerNode | None = None
@@ -1022,6 +1028,14 @@ def main(args: list[str] | None = None) -> int:
         _exit_now(0, f"{node.frames_abandoned} frame(s) still being modeled after "
                      f"{WORKER_JOIN_TIMEOUT_S:g} s, abandoned")
     return 0
+
+
+def _enable_fault_handler() -> None:
+    """Have a fatal signal print every thread's Python stack to stderr, where it can."""
+    try:
+        faulthandler.enable(all_threads=True)
+    except (AttributeError, ValueError, OSError, RuntimeError):  # no usable stderr
+        pass
 
 
 def _exit_now(status: int, reason: str) -> None:
