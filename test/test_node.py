@@ -720,3 +720,24 @@ def test_support_planes_are_published_under_the_tracked_ids():
         (support,) = frame.objects.support_surfaces  # label 9 is no published object
         assert support.id == 0
         assert list(support.plane.coef) == pytest.approx([0.0, -0.6, -0.8, 0.7])
+
+
+def test_destroy_waits_for_the_reliable_publishers_acknowledgements_within_a_bound(
+        context, monkeypatch):
+    # A publisher destroyed while the middleware still sends a large message of it crashed
+    # the process at exit; destroy_node first waits, within ACK_TIMEOUT_S in all, for each
+    # publisher's data to be acknowledged.
+    from rclpy.publisher import Publisher
+
+    waits = []
+
+    def acked(self, timeout):
+        waits.append((self.topic_name, timeout.nanoseconds * 1e-9))
+        return True
+
+    monkeypatch.setattr(Publisher, "wait_for_all_acked", acked)
+    node = ModelerNode(context=context)
+    topics = {pub.topic_name for pub in node.publishers}
+    node.destroy_node()
+    assert {topic for topic, _ in waits} == topics
+    assert all(0.0 < left <= node_module.ACK_TIMEOUT_S for _, left in waits), waits

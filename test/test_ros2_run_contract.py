@@ -25,6 +25,7 @@ import pytest
 import rclpy
 from builtin_interfaces.msg import Time
 from rclpy.context import Context
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -110,10 +111,25 @@ def installed(tmp_path_factory):
 
 
 class _Collector:
+    """Every message of ``topic``, and whether a publisher of it has been matched.
+
+    Graph discovery (``count_publishers``) can see the node's publisher before the
+    middleware has matched it with this subscription; a message published before that is
+    not delivered (with tracking, the node's first frame is the only one that starts with
+    DELETEALL), so the test waits for the match.
+    """
+
     def __init__(self, node: Node, msg_type, topic: str) -> None:
         self.msgs: list = []
+        self.matched = 0
         self.cond = threading.Condition()
-        node.create_subscription(msg_type, topic, self._on_msg, RELIABLE)
+        node.create_subscription(msg_type, topic, self._on_msg, RELIABLE,
+                                 event_callbacks=SubscriptionEventCallbacks(
+                                     matched=self._on_matched))
+
+    def _on_matched(self, status) -> None:
+        with self.cond:
+            self.matched = status.current_count
 
     def _on_msg(self, msg) -> None:
         with self.cond:
@@ -135,10 +151,6 @@ def test_ros2_run_modeler(installed, tmp_path):
     env = {**env, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
            "ROS_DOMAIN_ID": os.environ["ROS_DOMAIN_ID"]}
     log = tmp_path / "modeler.log"
-    with open(log, "w") as sink:
-        proc = subprocess.Popen(
-            [str(exe), "--ros-args", "--params-file", str(params), "-r", "points:=/test/points"],
-            env=env, stdout=sink, stderr=subprocess.STDOUT, cwd=tmp_path)
     ctx = Context()
     rclpy.init(args=[], context=ctx)
     peer = Node("contract_peer", context=ctx)
@@ -146,13 +158,19 @@ def test_ros2_run_modeler(installed, tmp_path):
     executor.add_node(peer)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
+    # The peer's endpoints exist before the node starts: the node's publishers are matched
+    # with them while it starts up, not after its first frame.
+    pub = peer.create_publisher(PointCloud2, "/test/points", RELIABLE)
+    markers = _Collector(peer, MarkerArray, "/modeler/primitives")
+    recon = _Collector(peer, PointCloud2, "/modeler/reconstruction")
+    with open(log, "w") as sink:
+        proc = subprocess.Popen(
+            [str(exe), "--ros-args", "--params-file", str(params), "-r", "points:=/test/points"],
+            env=env, stdout=sink, stderr=subprocess.STDOUT, cwd=tmp_path)
     try:
-        pub = peer.create_publisher(PointCloud2, "/test/points", RELIABLE)
-        markers = _Collector(peer, MarkerArray, "/modeler/primitives")
-        recon = _Collector(peer, PointCloud2, "/modeler/reconstruction")
 
         deadline = time.monotonic() + 30.0
-        while pub.get_subscription_count() < 1 or peer.count_publishers("/modeler/primitives") < 1:
+        while pub.get_subscription_count() < 1 or markers.matched < 1 or recon.matched < 1:
             assert proc.poll() is None, f"modeler exited early:\n{_output(log)}"
             assert time.monotonic() < deadline, f"modeler never appeared:\n{_output(log)}"
             time.sleep(0.01)

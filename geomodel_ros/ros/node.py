@@ -133,6 +133,9 @@ __all__ = ["ModelerNode", "NODE_PARAMETERS", "NODE_NUMERIC_PARAMETERS", "TRACKIN
 WARN_THROTTLE_S = 5.0
 #: How long ``destroy_node`` waits for a frame in progress [s].
 WORKER_JOIN_TIMEOUT_S = 5.0
+#: How long ``destroy_node`` waits in all for the subscribers to acknowledge what the
+#: reliable publishers sent [s] before it destroys them.
+ACK_TIMEOUT_S = 2.0
 #: Longest wait of a frame for its sensor's transform (``sensor_frame``) [s]: a transform
 #: published at a moving sensor's rate arrives within this after the frame's stamp.
 TF_TIMEOUT_S = 0.2
@@ -988,7 +991,24 @@ class ModelerNode(Node):
         self._turns.close()
         if self._processes is not None:
             self._processes.close()
+        self._wait_for_acks(time.monotonic() + ACK_TIMEOUT_S)
         super().destroy_node()
+
+    def _wait_for_acks(self, deadline: float) -> None:
+        """Wait until the subscribers acknowledged every reliable publisher's data, or ``deadline``.
+
+        A publisher destroyed while the middleware still sends a large message of it (a
+        segments or reconstruction cloud in fragments) crashed the process at exit (SIGSEGV
+        in ``destroy_publisher``, seen under load with the fault handler's stacks).
+        """
+        for pub in list(self.publishers):
+            left = deadline - time.monotonic()
+            if left <= 0.0:
+                return
+            try:
+                pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+            except (InvalidHandle, RuntimeError):  # already gone, or the middleware cannot tell
+                pass
 
 
 def _check_rate_band(options: NodeOptions) -> None:
