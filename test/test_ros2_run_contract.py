@@ -168,7 +168,6 @@ def test_ros2_run_modeler(installed, tmp_path):
             [str(exe), "--ros-args", "--params-file", str(params), "-r", "points:=/test/points"],
             env=env, stdout=sink, stderr=subprocess.STDOUT, cwd=tmp_path)
     try:
-
         deadline = time.monotonic() + 30.0
         while pub.get_subscription_count() < 1 or markers.matched < 1 or recon.matched < 1:
             assert proc.poll() is None, f"modeler exited early:\n{_output(log)}"
