@@ -724,8 +724,8 @@ def test_support_planes_are_published_under_the_tracked_ids():
 
 def test_destroy_waits_for_the_reliable_publishers_acknowledgements_within_a_bound(
         context, monkeypatch):
-    # A publisher destroyed while the middleware still sends a large message of it crashed
-    # the process at exit; destroy_node first waits, within ACK_TIMEOUT_S in all, for each
+    # The process crashed at exit inside destroy_publisher (a message still in flight is the
+    # suspected cause); destroy_node first waits, within ACK_TIMEOUT_S in all, for each
     # publisher's data to be acknowledged.
     from rclpy.publisher import Publisher
 

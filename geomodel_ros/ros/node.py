@@ -997,9 +997,10 @@ class ModelerNode(Node):
     def _wait_for_acks(self, deadline: float) -> None:
         """Wait until the subscribers acknowledged every reliable publisher's data, or ``deadline``.
 
-        A publisher destroyed while the middleware still sends a large message of it (a
-        segments or reconstruction cloud in fragments) crashed the process at exit (SIGSEGV
-        in ``destroy_publisher``, seen under load with the fault handler's stacks).
+        The process crashed at exit inside ``destroy_publisher`` (SIGSEGV, seen under load
+        with the fault handler's stacks, no other Python thread busy); a large message the
+        middleware still sends (a segments or reconstruction cloud in fragments) is the
+        suspected cause, not proven: the wait leaves none in flight.
         """
         for pub in list(self.publishers):
             left = deadline - time.monotonic()
